@@ -1,0 +1,22 @@
+"""sde_torchrl: state-dependent exploration for episodic policy gradients, on TorchRL."""
+
+from __future__ import annotations
+
+from sde_torchrl.actors import LinearActor, MLPActor
+from sde_torchrl.envs import MinimizeEnv, make_minimize_env
+from sde_torchrl.estimators import ENACEstimator, ReinforceEstimator, episode_returns, episode_scores
+from sde_torchrl.exploration import StateDependentExplorer, expln, expln_inverse
+
+__all__ = [
+    "ENACEstimator",
+    "LinearActor",
+    "MLPActor",
+    "MinimizeEnv",
+    "ReinforceEstimator",
+    "StateDependentExplorer",
+    "episode_returns",
+    "episode_scores",
+    "expln",
+    "expln_inverse",
+    "make_minimize_env",
+]

@@ -1,0 +1,32 @@
+"""Broadcasting of run-stacked parameters against batched data."""
+
+from __future__ import annotations
+
+import torch
+
+
+def align(param: torch.Tensor, run_dims: int, batch_dims: int) -> torch.Tensor:
+    """Views a parameter so that it broadcasts against data with ``batch_dims`` leading dims.
+
+    Parameters of ``R`` independent runs carry a leading ``[R]`` dimension (``run_dims=1``);
+    data carries ``[R, *B]``. Singleton dimensions are inserted after the run dimension so
+    that the parameter's core dimensions line up with the data's feature dimensions.
+
+    Args:
+        param: tensor of shape ``[*runs, *core]`` with ``len(runs) == run_dims``.
+        run_dims: number of leading run dimensions of ``param`` (0 or 1).
+        batch_dims: number of batch dimensions of the data, run dimensions included.
+
+    Returns:
+        ``param`` viewed as ``[*runs, 1, ..., 1, *core]`` with ``batch_dims`` leading dims.
+
+    Raises:
+        ValueError: if the data has fewer batch dimensions than the parameter has run dims.
+    """
+    if batch_dims < run_dims:
+        raise ValueError(
+            f"data with {batch_dims} batch dims cannot hold {run_dims} run dims; "
+            "stacked runs expect inputs shaped [runs, ..., features]"
+        )
+    shape = param.shape
+    return param.reshape(*shape[:run_dims], *([1] * (batch_dims - run_dims)), *shape[run_dims:])

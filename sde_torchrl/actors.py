@@ -1,0 +1,181 @@
+"""Deterministic controllers ``μ = f(x; θ)`` (paper eqs. 12, 17) as TorchRL actor modules.
+
+Every controller can hold ``runs`` independent copies of its parameters along a leading
+dimension, so that independent learners are evaluated in one batched call on inputs shaped
+``[runs, ...]``. Gradients with respect to all parameters come from autograd (eq. 14).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+
+from sde_torchrl._shapes import align
+from sde_torchrl.rng import draw_uniform
+
+ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "relu": torch.relu}
+
+#: An initialisation: a constant, or ``[low, high)`` for a uniform draw.
+Init = float | Sequence[float] | None
+
+
+class BatchedLinear(nn.Module):
+    """``y = W x (+ b)`` with optionally stacked run copies of ``W`` and ``b``.
+
+    Args:
+        in_features: size of ``x``.
+        out_features: size of ``y``.
+        bias: whether to learn ``b``.
+        runs: number of stacked independent copies, or ``None`` for one.
+        init: a constant for every entry, ``[low, high)`` for uniform draws, or ``None`` for
+            ``U(-1/sqrt(in), 1/sqrt(in))``.
+
+    Examples:
+        >>> layer = BatchedLinear(3, 2, runs=4, init=-2.0)
+        >>> layer(torch.ones(4, 10, 3)).shape
+        torch.Size([4, 10, 2])
+    """
+
+    def __init__(
+        self, in_features: int, out_features: int, *, bias: bool = True,
+        runs: int | None = None, init: Init = None,
+    ) -> None:
+        super().__init__()
+        for name, value in (("in_features", in_features), ("out_features", out_features)):
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        self.in_features, self.out_features, self.runs = in_features, out_features, runs
+        self.run_dims = 0 if runs is None else 1
+        self.init = init
+        run_shape = () if runs is None else (runs,)
+        self.weight = nn.Parameter(torch.empty(*run_shape, out_features, in_features))
+        self.bias = nn.Parameter(torch.empty(*run_shape, out_features)) if bias else None
+        self.reset_parameters()
+
+    def reset_parameters(self, generators: Sequence[torch.Generator] | None = None) -> None:
+        """Draws the parameters from ``init``, one stream per run if ``generators`` is given."""
+        bound = 1 / math.sqrt(self.in_features)
+        low_high = (-bound, bound) if self.init is None else self.init
+        with torch.no_grad():
+            for param in (self.weight, self.bias):
+                if param is not None:
+                    param.copy_(_initial_values(param.shape, low_high, generators))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.shape[-1] != self.in_features:
+            raise ValueError(f"input has {x.shape[-1]} features, expected {self.in_features}")
+        batch_dims = x.dim() - 1
+        y = (align(self.weight, self.run_dims, batch_dims) @ x.unsqueeze(-1)).squeeze(-1)
+        if self.bias is not None:
+            y = y + align(self.bias, self.run_dims, batch_dims)
+        return y
+
+
+def _initial_values(
+    shape: torch.Size, init: float | Sequence[float], generators: Sequence[torch.Generator] | None
+) -> torch.Tensor:
+    if isinstance(init, (int, float)):
+        return torch.full(shape, float(init))
+    low, high = (float(v) for v in init)
+    if not low < high:
+        raise ValueError(f"uniform init needs low < high, got [{low}, {high})")
+    return low + (high - low) * draw_uniform(shape, generators)
+
+
+class MLP(nn.Module):
+    """Multilayer perceptron of :class:`BatchedLinear` layers; linear output layer.
+
+    Args:
+        in_features: input size.
+        out_features: output size.
+        hidden: sizes of the hidden layers.
+        activation: ``"sigmoid"``, ``"tanh"`` or ``"relu"`` for the hidden layers.
+        bias: bias units into every layer.
+        runs: number of stacked independent copies, or ``None``.
+        init: see :class:`BatchedLinear`.
+    """
+
+    def __init__(
+        self, in_features: int, out_features: int, hidden: Sequence[int] = (3,), *,
+        activation: str = "sigmoid", bias: bool = True, runs: int | None = None, init: Init = None,
+    ) -> None:
+        super().__init__()
+        if activation not in ACTIVATIONS:
+            raise ValueError(f"unknown activation {activation!r}; expected one of {list(ACTIVATIONS)}")
+        self.activation = ACTIVATIONS[activation]
+        sizes = [in_features, *hidden, out_features]
+        self.layers = nn.ModuleList(
+            BatchedLinear(n_in, n_out, bias=bias, runs=runs, init=init)
+            for n_in, n_out in zip(sizes[:-1], sizes[1:])
+        )
+
+    def reset_parameters(self, generators: Sequence[torch.Generator] | None = None) -> None:
+        """Redraws every layer's parameters (see :meth:`BatchedLinear.reset_parameters`)."""
+        for layer in self.layers:
+            layer.reset_parameters(generators)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for layer in self.layers[:-1]:
+            x = self.activation(layer(x))
+        return self.layers[-1](x)
+
+
+class LinearActor(TensorDictModule):
+    """Linear controller ``loc = Θ x (+ b)`` reading ``observation`` and writing ``loc``.
+
+    Args:
+        in_features: observation size ``S``.
+        out_features: action size ``A``.
+        bias: learn a bias (the paper's linear controllers have none).
+        runs: number of independent runs stacked along a leading dimension, or ``None``.
+        init: initial ``Θ``: constant (the paper's 1-D task starts at -2) or ``[low, high)``.
+        in_key: observation key.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> actor = LinearActor(1, 1, bias=False, init=-2.0)
+        >>> actor(TensorDict({"observation": torch.ones(4, 1)}, [4]))["loc"].squeeze(-1)
+        tensor([-2., -2., -2., -2.], grad_fn=<SqueezeBackward1>)
+    """
+
+    def __init__(
+        self, in_features: int, out_features: int, *, bias: bool = False,
+        runs: int | None = None, init: Init = None, in_key: str = "observation",
+    ) -> None:
+        net = BatchedLinear(in_features, out_features, bias=bias, runs=runs, init=init)
+        super().__init__(net, in_keys=[in_key], out_keys=["loc"])
+
+
+class MLPActor(TensorDictModule):
+    """MLP controller reading ``observation`` and writing ``loc``.
+
+    Args:
+        in_features: observation size.
+        out_features: action size.
+        hidden: hidden layer sizes (the paper's 2-D task uses one layer of 3).
+        activation: hidden activation (``"sigmoid"`` in the paper).
+        bias: bias units into hidden and output layers.
+        runs: number of stacked independent runs, or ``None``.
+        init: initial parameters: constant, ``[low, high)`` (the paper: ``[-1, 0)``), or
+            ``None`` for ``U(±1/sqrt(fan_in))``.
+        in_key: observation key.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> actor = MLPActor(2, 2, hidden=[3], init=[-1.0, 0.0])
+        >>> sum(p.numel() for p in actor.parameters())
+        17
+    """
+
+    def __init__(
+        self, in_features: int, out_features: int, hidden: Sequence[int] = (3,), *,
+        activation: str = "sigmoid", bias: bool = True, runs: int | None = None,
+        init: Init = None, in_key: str = "observation",
+    ) -> None:
+        net = MLP(in_features, out_features, list(hidden), activation=activation, bias=bias,
+                  runs=runs, init=init)
+        super().__init__(net, in_keys=[in_key], out_keys=["loc"])

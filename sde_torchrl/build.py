@@ -1,0 +1,63 @@
+"""From a composed Hydra config to a ready :class:`~sde_torchrl.trainer.Trainer`.
+
+The config groups ``env``, ``actor``, ``explorer``, ``estimator`` and ``logger`` each hold a
+``_target_`` and its options; this module supplies what only the job knows (batch sizes, the
+number of runs, dimensions read off the env, per-run random streams) and wires the pieces.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+from tensordict.nn import TensorDictSequential
+
+from sde_torchrl.rng import run_generators
+from sde_torchrl.trainer import Trainer, TrainingSettings
+
+
+def build_env(cfg: DictConfig, episodes: int, stream: str) -> Any:
+    """Instantiates ``cfg.env`` with a ``[runs, episodes]`` batch and the run streams."""
+    env = instantiate(cfg.env, episodes=episodes, runs=cfg.runs, first_run=cfg.first_run,
+                      stream=stream)
+    env.set_seed(cfg.seed)
+    return env
+
+
+def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
+    """Builds env, policy, estimator, optimiser and logger for one job.
+
+    Args:
+        cfg: the composed config (see ``conf/config.yaml``).
+        out_dir: where the TorchRL logger writes (the run directory).
+
+    Returns:
+        The trainer; call ``train(out_dir)``.
+    """
+    torch.manual_seed(cfg.seed)
+    env = build_env(cfg, cfg.episodes_per_update, "env")
+    eval_env = build_env(cfg, cfg.eval_episodes, "eval_env")
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    act_dim = env.action_spec.shape[-1]
+
+    actor = instantiate(cfg.actor, in_features=obs_dim, out_features=act_dim, runs=cfg.runs)
+    actor.module.reset_parameters(run_generators(cfg.seed, cfg.runs, "init", cfg.first_run))
+    explorer = instantiate(cfg.explorer, action_dim=act_dim, feature_dim=obs_dim, runs=cfg.runs)
+    explorer.generators = run_generators(cfg.seed, cfg.runs, "explore", cfg.first_run)
+    env.append_transform(explorer.make_tensordict_primer())
+    eval_env.append_transform(explorer.make_tensordict_primer())
+    policy = TensorDictSequential(actor, explorer)
+
+    estimator = instantiate(cfg.estimator, policy=policy)
+    optimizer = torch.optim.SGD(policy.parameters(), lr=cfg.lr)
+    logger = None
+    if cfg.get("logger") and out_dir is not None:
+        logger = instantiate(cfg.logger, log_dir=out_dir)
+    settings = TrainingSettings(
+        updates=cfg.updates, episodes_per_update=cfg.episodes_per_update,
+        episode_length=cfg.env.episode_length, eval_period=cfg.eval_period,
+        eval_episodes=cfg.eval_episodes, r_lim=cfg.r_lim, first_run=cfg.first_run,
+    )
+    return Trainer(env, eval_env, policy, estimator, optimizer, settings, logger)

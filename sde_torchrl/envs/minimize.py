@@ -1,0 +1,123 @@
+"""The function-minimisation task of paper section 4.1, natively batched.
+
+State ``x ∈ R^d``; action ``u``; ``x_{t+1} = x_t + s u_t + N(0, σ_noise² I)``; reward
+``r_t = -‖x_{t+1}‖²`` (``g(x) = x²`` per coordinate, summed). All episodes of all runs advance
+in one tensor operation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
+
+from sde_torchrl.rng import draw_normal, draw_uniform, run_generators
+
+
+class MinimizeEnv(EnvBase):
+    """Minimise ``‖x‖²`` by steering ``x`` with noisy steps (paper section 4.1).
+
+    With ``runs`` set, the batch is ``[runs, episodes]`` and every run owns its random stream
+    (seeded by :meth:`set_seed` from ``(seed, first_run + r, stream)``), so run ``r`` of a
+    batched job sees exactly the noise a single job of that run would see. Without ``runs``,
+    the batch is ``[episodes]`` and one private generator serves it.
+
+    Episodes have no end of their own: wrap with ``StepCounter`` (see :func:`make_minimize_env`).
+
+    Args:
+        episodes: episodes simulated side by side (per run).
+        dim: ``d``, dimension of the state and action.
+        x0: start state, a scalar (every coordinate) or a ``d``-vector.
+        x0_spread: half-width of a uniform jitter around ``x0`` (0 for a fixed start).
+        step_size: ``s``, the factor on the action.
+        noise_std: ``σ_noise``, standard deviation of the additive state noise.
+        runs: number of independent runs (leading batch dimension), or ``None``.
+        first_run: global index of the first run (for seeding shards of a sweep).
+        stream: random stream name, ``"env"`` for training or ``"eval_env"`` for evaluation.
+        seed: seed applied at construction (``None``: seed 0; call :meth:`set_seed` to change).
+
+    Examples:
+        >>> from torchrl.envs.utils import check_env_specs
+        >>> env = MinimizeEnv(episodes=4, runs=2, seed=0)
+        >>> env.rollout(3)["next", "reward"].shape
+        torch.Size([2, 4, 3, 1])
+    """
+
+    def __init__(
+        self, episodes: int = 10, *, dim: int = 1, x0: float | Sequence[float] = 5.0,
+        x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5,
+        runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
+    ) -> None:
+        for name, value in (("episodes", episodes), ("dim", dim)):
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name, value in (("x0_spread", x0_spread), ("noise_std", noise_std)):
+            if not value >= 0:
+                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        batch = (episodes,) if runs is None else (runs, episodes)
+        super().__init__(batch_size=torch.Size(batch))
+        self.dim, self.runs, self.first_run, self.stream = dim, runs, first_run, stream
+        self.x0 = torch.as_tensor(x0, dtype=torch.float32).expand(dim).clone()
+        self.x0_spread, self.step_size, self.noise_std = float(x0_spread), float(step_size), float(noise_std)
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(*batch, dim)), shape=batch
+        )
+        self.action_spec = Unbounded(shape=(*batch, dim))
+        self.reward_spec = Unbounded(shape=(*batch, 1))
+        self._generators: list[torch.Generator] | None = None
+        self.set_seed(0 if seed is None else seed)
+
+    def _set_seed(self, seed: int | None) -> None:
+        seed = 0 if seed is None else int(seed)
+        if self.runs is None:
+            self._generators = [torch.Generator().manual_seed(seed)]
+        else:
+            self._generators = run_generators(seed, self.runs, self.stream, self.first_run)
+
+    def _normal(self, shape: tuple[int, ...]) -> torch.Tensor:
+        if self.runs is None:
+            return draw_normal((1, *shape), self._generators)[0]
+        return draw_normal(shape, self._generators)
+
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+        shape = (*self.batch_size, self.dim)
+        if self.runs is None:
+            jitter = draw_uniform((1, *shape), self._generators)[0]
+        else:
+            jitter = draw_uniform(shape, self._generators)
+        # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
+        # mask, the running episodes' entries; drawing for all keeps the streams data-independent.
+        start = self.x0 + self.x0_spread * (2 * jitter - 1)
+        return TensorDict({"observation": start}, batch_size=self.batch_size)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        x, u = tensordict["observation"], tensordict["action"]
+        if u.shape != x.shape:
+            raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
+        x_next = x + self.step_size * u + self.noise_std * self._normal(tuple(x.shape))
+        reward = -x_next.square().sum(-1, keepdim=True)
+        done = torch.zeros(*self.batch_size, 1, dtype=torch.bool)
+        return TensorDict(
+            {"observation": x_next, "reward": reward, "done": done, "terminated": done.clone()},
+            batch_size=self.batch_size,
+        )
+
+
+def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:
+    """A :class:`MinimizeEnv` whose episodes last ``episode_length`` steps, with ``is_init``.
+
+    Args:
+        episode_length: steps per episode (EL in the paper).
+        **kwargs: passed to :class:`MinimizeEnv`.
+
+    Returns:
+        The env wrapped in ``StepCounter(max_steps=episode_length)`` and ``InitTracker``.
+    """
+    if not isinstance(episode_length, int) or episode_length < 1:
+        raise ValueError(f"episode_length must be a positive integer, got {episode_length!r}")
+    env = TransformedEnv(MinimizeEnv(**kwargs), Compose(StepCounter(episode_length), InitTracker()))
+    env.episode_length = episode_length
+    return env

@@ -1,0 +1,272 @@
+"""Episodic likelihood-ratio gradient estimators as TorchRL loss modules.
+
+Both estimators work on ``N`` whole episodes (TensorDicts shaped ``[*runs, N, T]``) and on the
+per-episode score vectors ``ψ_n = Σ_t ∇_θ log π(u_t | x_t)`` (eq. 9) over every learnable
+parameter of the policy, controller and exploration alike, computed for all episodes at once
+with ``torch.func``. The returned ``loss_objective`` is the surrogate ``-g·θ`` whose gradient is
+``-g``: one step of ``torch.optim.SGD(lr=α)`` is the paper's update ``θ ← θ + α g`` (eq. 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictSequential
+from tensordict.utils import NestedKey
+from torch import nn
+from torch.func import functional_call, grad, vmap
+from torchrl.objectives import LossModule
+
+from sde_torchrl.exploration import StateDependentExplorer
+
+
+class EpisodeLogLikelihood(nn.Module):
+    """``log p(episode) = Σ_t log π(u_t | x_t)`` up to policy-free terms (eqs. 8, 9, 13, 20).
+
+    Wraps a policy ``TensorDictSequential(actor, explorer)`` whose last module is a
+    :class:`~sde_torchrl.exploration.StateDependentExplorer`; the actor's output ``loc`` and
+    the explorer's likelihood are recomputed from the stored observations and pre-squash actions.
+
+    Args:
+        policy: the policy that collected the episodes.
+    """
+
+    def __init__(self, policy: TensorDictSequential) -> None:
+        super().__init__()
+        explorer = policy.module[-1]
+        if not isinstance(explorer, StateDependentExplorer):
+            raise TypeError(
+                "the policy's last module must be a StateDependentExplorer, got "
+                f"{type(explorer).__name__}"
+            )
+        # No reference to `policy` itself: its parameters would be reachable under two names,
+        # which torch.func.functional_call does not restore correctly.
+        self.actor = TensorDictSequential(*policy.module[:-1])
+        self.explorer = explorer
+        self.in_keys = list(dict.fromkeys(
+            [*self.actor.in_keys, explorer.feature_key, explorer.sample_key]
+        ))
+
+    def forward(self, steps: TensorDictBase) -> torch.Tensor:
+        """Log-likelihood summed over the last batch dimension (time).
+
+        Args:
+            steps: TensorDict of shape ``[*batch, T]`` with the actor's inputs, the exploration
+                features and the pre-squash actions.
+
+        Returns:
+            Tensor of shape ``[*batch]``.
+        """
+        loc = self.actor(steps.select(*self.actor.in_keys).copy()).get(self.explorer.loc_key)
+        features = steps.get(self.explorer.feature_key).to(loc.dtype)
+        return self.explorer.log_prob(loc, features, steps.get(self.explorer.sample_key)).sum(-1)
+
+
+def episode_scores(
+    log_likelihood: EpisodeLogLikelihood, episodes: TensorDictBase
+) -> dict[str, torch.Tensor]:
+    """Per-episode score vectors ``ψ_n`` for every learnable parameter (eq. 9).
+
+    ``vmap`` over the episode dimension of ``grad`` of the log-likelihood summed over runs: as
+    run ``r``'s episodes only depend on run ``r``'s slice of a stacked parameter, the gradient's
+    slice ``r`` is exactly that run's score.
+
+    Args:
+        log_likelihood: the policy's episode log-likelihood.
+        episodes: TensorDict shaped ``[*runs, N, T]``.
+
+    Returns:
+        ``{parameter name: ψ}`` with ``ψ`` shaped ``[*runs, N, *parameter_shape[len(runs):]]``.
+    """
+    if episodes.batch_dims < 2:
+        raise ValueError(
+            f"episodes must be shaped [*runs, episodes, time], got batch {tuple(episodes.batch_size)}"
+        )
+    params = {
+        name: p.detach() for name, p in log_likelihood.named_parameters() if p.requires_grad
+    }
+    if not params:
+        raise ValueError("the policy has no learnable parameters")
+    episode_dim = episodes.batch_dims - 2
+    steps = episodes.select(*log_likelihood.in_keys)
+
+    def total_log_likelihood(p: dict[str, torch.Tensor], one_episode: TensorDictBase) -> torch.Tensor:
+        return functional_call(log_likelihood, p, (one_episode,)).sum()
+
+    scores = vmap(grad(total_log_likelihood), in_dims=(None, episode_dim))(params, steps)
+    return {name: s.movedim(0, episode_dim) for name, s in scores.items()}
+
+
+def flatten_scores(scores: dict[str, torch.Tensor], run_dims: int) -> torch.Tensor:
+    """Concatenates per-parameter scores into ``[*runs, N, K]`` (parameters in dict order)."""
+    return torch.cat([s.flatten(run_dims + 1) for s in scores.values()], dim=-1)
+
+
+def episode_returns(episodes: TensorDictBase, reward_key: NestedKey = ("next", "reward")) -> torch.Tensor:
+    """``R = (1/T) Σ_t r_t``, the undiscounted average reward of each episode (section 2.1).
+
+    Args:
+        episodes: TensorDict shaped ``[*runs, N, T]``.
+        reward_key: where the per-step rewards are.
+
+    Returns:
+        Tensor of shape ``[*runs, N]``.
+    """
+    reward = episodes.get(reward_key)
+    return reward.reshape(*episodes.batch_size, -1).sum(-1).mean(-1)
+
+
+def reinforce_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Episodic REINFORCE (eq. 11) with the optimal per-parameter baseline (Peters & Schaal).
+
+    ``b_k = Σ_n ψ_nk² R_n / Σ_n ψ_nk²`` and ``g_k = (1/N) Σ_n ψ_nk (R_n − b_k)``. Where a
+    parameter's scores are all zero, its baseline is 0 (and its gradient 0).
+
+    Args:
+        scores: ``ψ``, shaped ``[*runs, N, K]``.
+        returns: ``R``, shaped ``[*runs, N]``.
+
+    Returns:
+        ``(g, b)``, both shaped ``[*runs, K]``.
+    """
+    squared = scores.square()
+    weight = squared.sum(-2)
+    baseline = (squared * returns.unsqueeze(-1)).sum(-2) / torch.where(weight > 0, weight, 1.0)
+    gradient = (scores * (returns.unsqueeze(-1) - baseline.unsqueeze(-2))).mean(-2)
+    return gradient, baseline
+
+
+def enac_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Episodic Natural Actor-Critic: least squares ``[ψ_n, 1] · [w; J] = R_n``; ``w`` is the
+    natural gradient (Peters & Schaal).
+
+    Solved with an SVD-based least-squares driver in float64, which returns the minimum-norm
+    solution when the system is rank deficient (fewer episodes than parameters, or constant
+    scores) instead of failing.
+
+    Args:
+        scores: ``ψ``, shaped ``[*runs, N, K]``.
+        returns: ``R``, shaped ``[*runs, N]``.
+
+    Returns:
+        ``(w, J, rank, condition_number)``: ``w`` ``[*runs, K]``; the fitted average return
+        ``J``, the rank of ``[ψ, 1]`` and its condition number (``inf`` if singular), ``[*runs]``.
+    """
+    design = torch.cat([scores, torch.ones_like(scores[..., :1])], dim=-1).double()
+    solution = torch.linalg.lstsq(design, returns.double().unsqueeze(-1), driver="gelsd")
+    coefficients = solution.solution.squeeze(-1).to(scores.dtype)
+    singular = solution.singular_values
+    condition = singular[..., 0] / singular[..., -1]
+    return coefficients[..., :-1], coefficients[..., -1], solution.rank, condition.to(scores.dtype)
+
+
+class EpisodicEstimator(LossModule):
+    """Base class: scores and returns of a batch of episodes → gradient → surrogate loss.
+
+    Subclasses implement :meth:`estimate`. The forward pass returns a TensorDict with
+    ``loss_objective`` (``-Σ g·θ``: its gradient w.r.t. the policy parameters is ``-g``),
+    ``return_mean`` (per run), ``gradient`` (``[*runs, K]``) and estimator diagnostics.
+
+    Args:
+        policy: ``TensorDictSequential(actor, explorer)``, the policy being trained.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable keys (``set_keys``).
+
+        Attributes:
+            reward: per-step reward. Defaults to ``("next", "reward")``.
+        """
+
+        reward: NestedKey = ("next", "reward")
+
+    default_keys = _AcceptedKeys
+    tensor_keys: _AcceptedKeys
+
+    def __init__(self, policy: TensorDictSequential) -> None:
+        super().__init__()
+        self._set_in_keys()
+        self.log_likelihood = EpisodeLogLikelihood(policy)
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    def _set_in_keys(self) -> None:
+        self._in_keys = [self.tensor_keys.reward]
+
+    @property
+    def in_keys(self):
+        return self._in_keys
+
+    @in_keys.setter
+    def in_keys(self, values):
+        self._in_keys = values
+
+    @property
+    def out_keys(self):
+        return ["loss_objective", "return_mean", "gradient"]
+
+    @out_keys.setter
+    def out_keys(self, values):
+        pass
+
+    def learnable_parameters(self) -> dict[str, nn.Parameter]:
+        """The parameters the scores cover, in the order of the flattened gradient."""
+        return {n: p for n, p in self.log_likelihood.named_parameters() if p.requires_grad}
+
+    def estimate(self, scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Gradient ``[*runs, K]`` and diagnostics from scores ``[*runs, N, K]``, returns ``[*runs, N]``."""
+        raise NotImplementedError
+
+    def forward(self, episodes: TensorDictBase) -> TensorDictBase:
+        returns = episode_returns(episodes, self.tensor_keys.reward)
+        run_dims = episodes.batch_dims - 2
+        scores = flatten_scores(episode_scores(self.log_likelihood, episodes), run_dims)
+        gradient, diagnostics = self.estimate(scores, returns)
+        theta = torch.cat([p.flatten(run_dims) for p in self.learnable_parameters().values()], -1)
+        return TensorDict(
+            {
+                "loss_objective": -(gradient.detach() * theta).sum(),
+                "return_mean": returns.mean(-1),
+                "gradient": gradient.detach(),
+                "score_norm": scores.norm(dim=-1).mean(-1),
+                **diagnostics,
+            },
+            batch_size=[],
+        )
+
+
+class ReinforceEstimator(EpisodicEstimator):
+    """Episodic REINFORCE with the optimal per-parameter baseline (eq. 11, Peters & Schaal).
+
+    Examples:
+        >>> import torch
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer
+        >>> from sde_torchrl.envs import make_minimize_env
+        >>> explorer = StateDependentExplorer(1, 1)
+        >>> env = make_minimize_env(5, episodes=8).append_transform(explorer.make_tensordict_primer())
+        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> loss = ReinforceEstimator(policy)
+        >>> with torch.no_grad():
+        ...     episodes = env.rollout(5, policy)
+        >>> loss(episodes)["loss_objective"].backward()
+    """
+
+    def estimate(self, scores, returns):
+        gradient, baseline = reinforce_gradient(scores, returns)
+        return gradient, {"baseline": baseline}
+
+
+class ENACEstimator(EpisodicEstimator):
+    """Episodic Natural Actor-Critic (Peters & Schaal), robust to rank deficiency.
+
+    Diagnostics: ``rank`` and ``condition_number`` of the regression ``[ψ, 1]``, and ``J``.
+    """
+
+    def estimate(self, scores, returns):
+        natural, average_return, rank, condition = enac_gradient(scores, returns)
+        return natural, {"rank": rank, "condition_number": condition, "J": average_return}

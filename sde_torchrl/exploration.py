@@ -1,0 +1,297 @@
+"""State-dependent exploration (SDE), paper section 3.
+
+The explorer adds ``ε̂(x; Θ̂) = Θ̂ x`` to the controller's mean (17)-(19), with
+``Θ̂_ji = σ̂_ji ξ_ji`` and ``ξ ~ N(0, 1)`` kept in the tensordict under a public key, redrawn at
+episode boundaries (SDE), at every step (REX, the paper's random-exploration baseline) or every
+``n`` steps. ``σ̂ = expln(p)`` (23) keeps the standard deviations positive; i.i.d. Gaussian noise
+with its own ``σ = expln(q)`` can be added on top (22).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import nn
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import Compose, TensorDictPrimer
+from torchrl.envs.utils import ExplorationType, exploration_type
+
+from sde_torchrl._shapes import align
+from sde_torchrl.rng import draw_normal
+
+SCHEDULES = ("episode", "step", "every_n")
+SHARINGS = ("element", "action", "single")
+_DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+#: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
+MIN_VARIANCE = 1e-12
+
+
+def expln(p: torch.Tensor) -> torch.Tensor:
+    """``exp(p)`` for ``p <= 0``, ``ln(p + 1) + 1`` otherwise (eq. 23).
+
+    Smooth, positive and only logarithmically growing; its derivative (24) is ``exp(p)`` below
+    zero and ``1 / (p + 1)`` above, both 1 at zero. Each branch sees only its own half of the
+    real line, so neither can produce a NaN gradient.
+
+    Args:
+        p: unconstrained parameter.
+
+    Returns:
+        The standard deviation ``expln(p) > 0``.
+    """
+    return torch.where(p <= 0, torch.exp(p.clamp(max=0)), torch.log1p(p.clamp(min=0)) + 1)
+
+
+def expln_inverse(sigma: torch.Tensor | float) -> torch.Tensor:
+    """Inverse of :func:`expln`: the parameter ``p`` with ``expln(p) = sigma``.
+
+    Args:
+        sigma: a positive standard deviation.
+
+    Returns:
+        ``log(sigma)`` for ``sigma <= 1``, ``exp(sigma - 1) - 1`` otherwise.
+
+    Raises:
+        ValueError: if any ``sigma`` is not strictly positive and finite.
+    """
+    sigma = torch.as_tensor(sigma, dtype=torch.get_default_dtype())
+    if not bool(torch.isfinite(sigma).all()) or bool((sigma <= 0).any()):
+        raise ValueError(f"expln_inverse needs finite sigma > 0, got {sigma}")
+    return torch.where(sigma <= 1, torch.log(sigma), torch.expm1(sigma.clamp(min=1) - 1))
+
+
+class StateDependentExplorer(TensorDictModuleBase):
+    """Adds state-dependent exploration ``Θ̂ x`` to a controller's mean (eqs. 17-24).
+
+    Reads the controller's mean (``loc``), the exploration features ``x`` (by default the
+    observation) and the standard-normal noise matrix ``ξ`` (``sde_noise``, shape ``[A, S]`` per
+    batch element), and writes:
+
+    * ``action``: ``squash(loc + (σ̂ ⊙ ξ) x [+ σ ε])``; ``tanh`` if ``squash`` is set;
+    * ``action_sample``: the same before squashing (what the likelihood scores);
+    * ``scale``: ``σ_j = sqrt(Σ_i (x_i σ̂_ji)² [+ σ_j²])`` (eq. 20, plus eq. 22's Gaussian part);
+    * ``action_log_prob``: ``Σ_j log N(action_sample_j; loc_j, σ_j²)`` (eq. 13 with eq. 20);
+    * ``sde_noise`` (and ``sde_age`` for ``every_n``): the noise to carry to the next step.
+
+    ``ξ`` is redrawn, per batch element, where ``is_init`` is set (written by TorchRL's
+    ``InitTracker`` at every full or partial reset) and, depending on ``schedule``:
+    ``"episode"`` never again within the episode (SDE), ``"step"`` at every step (REX: the
+    paper emulates random exploration this way), ``"every_n"`` every ``n`` steps (gSDE's
+    sampling frequency). Where the noise is missing from the input it is drawn. The draws use
+    torch's global generator, or one generator per run (``generators``, one per index of the
+    leading batch dimension) when runs are stacked.
+
+    Under ``ExplorationType.DETERMINISTIC`` (or ``MODE``/``MEAN``) no noise is added: the action
+    is ``squash(loc)``. The noise matrix still travels with the episode, untouched.
+
+    Args:
+        action_dim: ``A``, size of the action.
+        feature_dim: ``S``, size of the exploration features ``x``.
+        schedule: ``"episode"``, ``"step"`` or ``"every_n"``.
+        every_n: redraw period for ``schedule="every_n"``.
+        sharing: one ``σ̂`` per matrix element (``"element"``, ``A×S``), per action
+            (``"action"``, ``A``) or one for all (``"single"``) (paper section 2.3, footnote 1).
+        init_param: initial ``p`` with ``σ̂ = expln(p)``; the paper starts at -2 (σ̂ ≈ 0.135).
+        gaussian_init_param: if given, adds i.i.d. Gaussian noise with learnable per-action
+            ``σ = expln(q)`` starting at this ``q`` (eq. 22); ``None`` for pure SDE.
+        learn_sigma: whether ``p`` (and ``q``) are learnable parameters or fixed buffers.
+        squash: apply ``tanh`` to the action (the likelihood scores the pre-squash sample).
+        runs: number of independent runs stacked along a leading parameter dimension, or
+            ``None`` for a single, unstacked learner.
+        feature_key: key of the features ``x`` that Θ̂ sees.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> explorer = StateDependentExplorer(action_dim=2, feature_dim=3)
+        >>> td = TensorDict({"loc": torch.zeros(5, 2), "observation": torch.randn(5, 3)}, [5])
+        >>> explorer(td)["action"].shape
+        torch.Size([5, 2])
+    """
+
+    def __init__(
+        self,
+        action_dim: int,
+        feature_dim: int,
+        *,
+        schedule: str = "episode",
+        every_n: int | None = None,
+        sharing: str = "element",
+        init_param: float = -2.0,
+        gaussian_init_param: float | None = None,
+        learn_sigma: bool = True,
+        squash: bool = False,
+        runs: int | None = None,
+        feature_key: str = "observation",
+    ) -> None:
+        super().__init__()
+        _check_positive_int("action_dim", action_dim)
+        _check_positive_int("feature_dim", feature_dim)
+        if schedule not in SCHEDULES:
+            raise ValueError(f"unknown schedule {schedule!r}; expected one of {SCHEDULES}")
+        if schedule == "every_n":
+            _check_positive_int("every_n", every_n)
+        elif every_n is not None:
+            raise ValueError(f"every_n={every_n} is only meaningful with schedule='every_n'")
+        if sharing not in SHARINGS:
+            raise ValueError(f"unknown sigma sharing {sharing!r}; expected one of {SHARINGS}")
+        if runs is not None:
+            _check_positive_int("runs", runs)
+        self.action_dim, self.feature_dim = action_dim, feature_dim
+        self.schedule, self.every_n, self.sharing = schedule, every_n, sharing
+        self.squash, self.runs = squash, runs
+        self.run_dims = 0 if runs is None else 1
+        self.generators: Sequence[torch.Generator] | None = None
+
+        run_shape = () if runs is None else (runs,)
+        sigma_shape = {"element": (action_dim, feature_dim), "action": (action_dim, 1)}
+        self._register("sigma_param", torch.full(
+            run_shape + sigma_shape.get(sharing, (1, 1)), float(init_param)
+        ), learn_sigma)
+        self.has_gaussian = gaussian_init_param is not None
+        if self.has_gaussian:
+            self._register("gaussian_param", torch.full(
+                run_shape + (action_dim,), float(gaussian_init_param)
+            ), learn_sigma)
+
+        self.loc_key, self.feature_key = "loc", feature_key
+        self.noise_key, self.age_key, self.is_init_key = "sde_noise", "sde_age", "is_init"
+        self.sample_key, self.scale_key = "action_sample", "scale"
+        self.action_key, self.log_prob_key = "action", "action_log_prob"
+        self.in_keys = [self.loc_key, self.feature_key, self.noise_key, self.is_init_key]
+        self.out_keys = [self.action_key, self.sample_key, self.scale_key, self.log_prob_key,
+                         self.noise_key]
+        if schedule == "every_n":
+            self.in_keys.append(self.age_key)
+            self.out_keys.append(self.age_key)
+
+    def _register(self, name: str, value: torch.Tensor, learnable: bool) -> None:
+        if learnable:
+            self.register_parameter(name, nn.Parameter(value))
+        else:
+            self.register_buffer(name, value)
+
+    @property
+    def sde_sigma(self) -> torch.Tensor:
+        """``σ̂ = expln(p)`` broadcast to the full ``[*runs, A, S]`` matrix (eq. 23)."""
+        sigma = expln(self.sigma_param)
+        return sigma.expand(*sigma.shape[:-2], self.action_dim, self.feature_dim)
+
+    def scale(self, features: torch.Tensor) -> torch.Tensor:
+        """Per-action standard deviation of the action given the features (eqs. 20, 22).
+
+        Args:
+            features: ``x`` of shape ``[*batch, S]`` (runs first when stacked).
+
+        Returns:
+            ``σ`` of shape ``[*batch, A]`` with ``σ_j² = Σ_i (x_i σ̂_ji)² + σ_gauss_j²``.
+        """
+        batch_dims = features.dim() - 1
+        sigma_hat = align(expln(self.sigma_param), self.run_dims, batch_dims)
+        variance = (features.unsqueeze(-2).square() * sigma_hat.square()).sum(-1)
+        if self.has_gaussian:
+            variance = variance + align(expln(self.gaussian_param), self.run_dims, batch_dims).square()
+        return variance.clamp_min(MIN_VARIANCE).sqrt()
+
+    def log_prob(self, loc: torch.Tensor, features: torch.Tensor, sample: torch.Tensor) -> torch.Tensor:
+        """Per-step log-likelihood ``Σ_j log N(sample_j; loc_j, σ_j²)`` (eqs. 13, 20).
+
+        Autograd of this through ``loc`` and ``σ̂`` gives the paper's scores (14), (16) and (21)
+        with the ``expln'`` factor (24). With squashing, scoring the pre-squash sample is exact:
+        the tanh Jacobian does not depend on the parameters.
+
+        Args:
+            loc: controller mean, ``[*batch, A]``.
+            features: exploration features, ``[*batch, S]``.
+            sample: the pre-squash action that was taken, ``[*batch, A]``.
+
+        Returns:
+            Log-likelihood of shape ``[*batch]``.
+        """
+        scale = self.scale(features)
+        return torch.distributions.Normal(loc, scale).log_prob(sample).sum(-1)
+
+    def make_tensordict_primer(self) -> Compose:
+        """Primer that gives every (partially) reset env a fresh noise matrix.
+
+        Append it (with ``InitTracker``) to the env, or let TorchRL's
+        ``Collector(auto_register_policy_transforms=True)`` do so.
+        """
+        primers = [TensorDictPrimer(
+            Composite({self.noise_key: Unbounded(shape=(self.action_dim, self.feature_dim))}),
+            random=True, expand_specs=True,
+        )]
+        if self.schedule == "every_n":
+            primers.append(TensorDictPrimer(
+                Composite({self.age_key: Unbounded(shape=(1,), dtype=torch.int64)}),
+                default_value=0, expand_specs=True,
+            ))
+        return Compose(*primers)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        loc = tensordict.get(self.loc_key)
+        features = tensordict.get(self.feature_key).to(loc.dtype)
+        self._check_shapes(loc, features)
+        batch = loc.shape[:-1]
+        if exploration_type() in _DETERMINISTIC:
+            # No draw at all: evaluating a policy must not shift the exploration stream.
+            noise = tensordict.get(self.noise_key, None)
+            if noise is None:
+                noise = torch.zeros(*batch, self.action_dim, self.feature_dim)
+            sample = loc
+        else:
+            noise = self._next_noise(tensordict, batch)
+            theta_hat = align(self.sde_sigma, self.run_dims, len(batch)) * noise
+            sample = loc + (theta_hat @ features.unsqueeze(-1)).squeeze(-1)
+            if self.has_gaussian:
+                gauss = align(expln(self.gaussian_param), self.run_dims, len(batch))
+                sample = sample + gauss * draw_normal(loc.shape, self.generators)
+
+        tensordict.set(self.noise_key, noise)
+        tensordict.set(self.sample_key, sample)
+        tensordict.set(self.action_key, torch.tanh(sample) if self.squash else sample)
+        tensordict.set(self.scale_key, self.scale(features))
+        tensordict.set(self.log_prob_key, self.log_prob(loc, features, sample))
+        return tensordict
+
+    def _next_noise(self, tensordict: TensorDictBase, batch: torch.Size) -> torch.Tensor:
+        """The noise ξ for this step: carried over, or fresh where the schedule says so."""
+        fresh = draw_normal((*batch, self.action_dim, self.feature_dim), self.generators)
+        previous = tensordict.get(self.noise_key, None)
+        if previous is None or self.schedule == "step":
+            if self.schedule == "every_n":
+                tensordict.set(self.age_key, torch.ones(*batch, 1, dtype=torch.int64))
+            return fresh
+        is_init = tensordict.get(self.is_init_key, None)
+        redraw = (torch.zeros(*batch, 1, dtype=torch.bool) if is_init is None
+                  else is_init.reshape(*batch, 1))
+        if self.schedule == "every_n":
+            age = torch.where(redraw, 0, tensordict.get(self.age_key).reshape(*batch, 1))
+            redraw = age % self.every_n == 0
+            tensordict.set(self.age_key, age + 1)
+        return torch.where(redraw.unsqueeze(-1), fresh, previous)
+
+    def _check_shapes(self, loc: torch.Tensor, features: torch.Tensor) -> None:
+        if loc.shape[-1] != self.action_dim:
+            raise ValueError(
+                f"{self.loc_key!r} has last dimension {loc.shape[-1]}, expected action_dim="
+                f"{self.action_dim}"
+            )
+        if features.shape[-1] != self.feature_dim:
+            raise ValueError(
+                f"{self.feature_key!r} has last dimension {features.shape[-1]}, expected "
+                f"feature_dim={self.feature_dim}"
+            )
+        if features.shape[:-1] != loc.shape[:-1]:
+            raise ValueError(
+                f"batch shapes differ: {self.loc_key!r} {tuple(loc.shape[:-1])} vs "
+                f"{self.feature_key!r} {tuple(features.shape[:-1])}"
+            )
+
+
+def _check_positive_int(name: str, value: object) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
