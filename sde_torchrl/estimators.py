@@ -152,13 +152,17 @@ def enac_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Te
 
     Returns:
         ``(w, J, rank, condition_number)``: ``w`` ``[*runs, K]``; the fitted average return
-        ``J``, the rank of ``[ψ, 1]`` and its condition number (``inf`` if singular), ``[*runs]``.
+        ``J``, the rank of ``[ψ, 1]`` and its condition number (``inf`` with fewer episodes than
+        unknowns), ``[*runs]``.
     """
     design = torch.cat([scores, torch.ones_like(scores[..., :1])], dim=-1).double()
     solution = torch.linalg.lstsq(design, returns.double().unsqueeze(-1), driver="gelsd")
     coefficients = solution.solution.squeeze(-1).to(scores.dtype)
     singular = solution.singular_values
-    condition = singular[..., 0] / singular[..., -1]
+    if singular.shape[-1] < design.shape[-1]:  # fewer episodes than unknowns: singular
+        condition = torch.full(singular.shape[:-1], torch.inf, dtype=singular.dtype)
+    else:
+        condition = singular[..., 0] / singular[..., -1]
     return coefficients[..., :-1], coefficients[..., -1], solution.rank, condition.to(scores.dtype)
 
 

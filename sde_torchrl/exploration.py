@@ -57,7 +57,8 @@ def expln_inverse(sigma: torch.Tensor | float) -> torch.Tensor:
     Raises:
         ValueError: if any ``sigma`` is not strictly positive and finite.
     """
-    sigma = torch.as_tensor(sigma, dtype=torch.get_default_dtype())
+    if not isinstance(sigma, torch.Tensor):
+        sigma = torch.tensor(float(sigma))
     if not bool(torch.isfinite(sigma).all()) or bool((sigma <= 0).any()):
         raise ValueError(f"expln_inverse needs finite sigma > 0, got {sigma}")
     return torch.where(sigma <= 1, torch.log(sigma), torch.expm1(sigma.clamp(min=1) - 1))
@@ -190,7 +191,7 @@ class StateDependentExplorer(TensorDictModuleBase):
             ``σ`` of shape ``[*batch, A]`` with ``σ_j² = Σ_i (x_i σ̂_ji)² + σ_gauss_j²``.
         """
         batch_dims = features.dim() - 1
-        sigma_hat = align(expln(self.sigma_param), self.run_dims, batch_dims)
+        sigma_hat = align(self.sde_sigma, self.run_dims, batch_dims)
         variance = (features.unsqueeze(-2).square() * sigma_hat.square()).sum(-1)
         if self.has_gaussian:
             variance = variance + align(expln(self.gaussian_param), self.run_dims, batch_dims).square()
@@ -239,8 +240,6 @@ class StateDependentExplorer(TensorDictModuleBase):
         if exploration_type() in _DETERMINISTIC:
             # No draw at all: evaluating a policy must not shift the exploration stream.
             noise = tensordict.get(self.noise_key, None)
-            if noise is None:
-                noise = torch.zeros(*batch, self.action_dim, self.feature_dim)
             sample = loc
         else:
             noise = self._next_noise(tensordict, batch)
@@ -250,7 +249,8 @@ class StateDependentExplorer(TensorDictModuleBase):
                 gauss = align(expln(self.gaussian_param), self.run_dims, len(batch))
                 sample = sample + gauss * draw_normal(loc.shape, self.generators)
 
-        tensordict.set(self.noise_key, noise)
+        if noise is not None:
+            tensordict.set(self.noise_key, noise)
         tensordict.set(self.sample_key, sample)
         tensordict.set(self.action_key, torch.tanh(sample) if self.squash else sample)
         tensordict.set(self.scale_key, self.scale(features))

@@ -1,0 +1,186 @@
+"""Episodic estimators: per-episode scores (eq. 9) via torch.func against a per-episode
+autograd loop, REINFORCE's optimal baseline against its formula, ENAC against the natural
+gradient of a problem whose Fisher matrix is known, and the update θ ← θ + α g (eq. 1)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictSequential
+
+from sde_torchrl import (
+    ENACEstimator, LinearActor, MLPActor, ReinforceEstimator, StateDependentExplorer,
+    episode_returns, episode_scores, make_minimize_env,
+)
+from sde_torchrl.estimators import EpisodeLogLikelihood, enac_gradient, flatten_scores, reinforce_gradient
+
+
+def _policy(actor_kind="linear", runs=None, sharing="element", gaussian=None):
+    actor = (LinearActor(2, 2, bias=True, runs=runs, init=[-1.0, 0.0]) if actor_kind == "linear"
+             else MLPActor(2, 2, hidden=[3], runs=runs, init=[-1.0, 0.0]))
+    explorer = StateDependentExplorer(2, 2, runs=runs, sharing=sharing, gaussian_init_param=gaussian)
+    return TensorDictSequential(actor, explorer)
+
+
+def _episodes(policy, runs=None, episodes=3, length=4):
+    torch.manual_seed(0)
+    env = make_minimize_env(length, dim=2, episodes=episodes, runs=runs, x0=2.0, x0_spread=1.0)
+    env.append_transform(policy.module[-1].make_tensordict_primer())
+    with torch.no_grad():
+        return env.rollout(length, policy)
+
+
+@pytest.mark.parametrize("actor_kind", ["linear", "mlp"])
+@pytest.mark.parametrize("runs", [None, 2])
+@pytest.mark.parametrize("gaussian", [None, -1.0])
+def test_torch_func_scores_equal_a_per_episode_autograd_loop(actor_kind, runs, gaussian):
+    torch.manual_seed(0)
+    policy = _policy(actor_kind, runs, gaussian=gaussian)
+    episodes = _episodes(policy, runs)
+    log_lik = EpisodeLogLikelihood(policy)
+    scores = episode_scores(log_lik, episodes)
+    params = dict((n, p) for n, p in log_lik.named_parameters())
+    assert set(scores) == set(params)
+    for n in range(episodes.batch_size[-2]):
+        loglik = log_lik(episodes[..., n, :])  # [*runs]: one autograd pass per (run, episode)
+        for r in range(1 if runs is None else runs):
+            target = loglik if runs is None else loglik[r]
+            grads = torch.autograd.grad(target, list(params.values()), retain_graph=True)
+            for name, g in zip(params, grads):
+                if runs is None:
+                    torch.testing.assert_close(scores[name][n], g, rtol=1e-5, atol=1e-6)
+                else:  # run r's score lives in slice r of the stacked parameter, nowhere else
+                    torch.testing.assert_close(scores[name][r, n], g[r], rtol=1e-5, atol=1e-6)
+                    assert g[1 - r].abs().sum() == 0
+
+
+def test_scores_sum_per_step_likelihood_terms():
+    """ψ_n = Σ_t ∇ log π(u_t|x_t) (eq. 9): the score of an episode is the sum of its steps'."""
+    policy = _policy()
+    episodes = _episodes(policy, episodes=1, length=3)
+    log_lik = EpisodeLogLikelihood(policy)
+    total = flatten_scores(episode_scores(log_lik, episodes), 0)[0]
+    per_step = sum(
+        flatten_scores(episode_scores(log_lik, episodes[:, t : t + 1]), 0)[0] for t in range(3)
+    )
+    torch.testing.assert_close(total, per_step, rtol=1e-5, atol=1e-5)
+
+
+def test_episode_returns_are_mean_rewards():
+    rewards = torch.arange(24, dtype=torch.float32).reshape(2, 3, 4, 1)
+    td = TensorDict({"next": {"reward": rewards}}, [2, 3, 4])
+    torch.testing.assert_close(episode_returns(td), rewards.squeeze(-1).mean(-1))
+
+
+def test_optimal_baseline_matches_its_formula():
+    torch.manual_seed(0)
+    scores = torch.randn(2, 7, 5, dtype=torch.float64)
+    scores[1, :, 3] = 0.0  # a parameter without score: baseline 0, gradient 0
+    returns = torch.randn(2, 7, dtype=torch.float64)
+    gradient, baseline = reinforce_gradient(scores, returns)
+    for r in range(2):
+        for k in range(5):
+            psi, ret = scores[r, :, k], returns[r]
+            denom = (psi**2).sum()
+            b = (psi**2 * ret).sum() / denom if denom > 0 else torch.tensor(0.0, dtype=torch.float64)
+            torch.testing.assert_close(baseline[r, k], b)
+            torch.testing.assert_close(gradient[r, k], (psi * (ret - b)).mean())
+    assert baseline[1, 3] == 0 and gradient[1, 3] == 0
+
+
+def _bandit_episodes(theta, sigma, target, n, generator):
+    """One-step episodes of u ~ N(θ, σ²) with x = 1 and reward -(u - c)²."""
+    u = theta + sigma * torch.randn(n, 1, 2, generator=generator)
+    return TensorDict({
+        "observation": torch.ones(n, 1, 1), "action_sample": u,
+        "next": {"reward": -(u - target).square().sum(-1, keepdim=True)},
+    }, [n, 1])
+
+
+def _bandit_policy(theta, sigma):
+    actor = LinearActor(1, 2, init=0.0)
+    actor.module.weight.data = theta.reshape(2, 1).clone()
+    explorer = StateDependentExplorer(2, 1, init_param=float(torch.log(torch.tensor(sigma))),
+                                      learn_sigma=False)
+    return TensorDictSequential(actor, explorer)
+
+
+def test_reinforce_is_unbiased_on_a_gaussian_bandit():
+    """J(θ) = -‖θ - c‖² - 2σ², so ∇J = -2(θ - c)."""
+    theta, target, sigma = torch.tensor([0.5, -1.0]), torch.tensor([1.5, 0.0]), 0.3
+    episodes = _bandit_episodes(theta, sigma, target, 200_000, torch.Generator().manual_seed(0))
+    out = ReinforceEstimator(_bandit_policy(theta, sigma))(episodes)
+    torch.testing.assert_close(out["gradient"], -2 * (theta - target), rtol=0.03, atol=0.02)
+
+
+def test_enac_equals_the_natural_gradient_on_a_gaussian_bandit():
+    """Fisher F = I/σ² for the mean of N(θ, σ²I): natural gradient F⁻¹∇J = -2σ²(θ - c)."""
+    theta, target, sigma = torch.tensor([0.5, -1.0]), torch.tensor([1.5, 0.0]), 0.3
+    episodes = _bandit_episodes(theta, sigma, target, 200_000, torch.Generator().manual_seed(1))
+    out = ENACEstimator(_bandit_policy(theta, sigma))(episodes)
+    torch.testing.assert_close(out["gradient"], -2 * sigma**2 * (theta - target), rtol=0.03, atol=2e-3)
+    assert int(out["rank"]) == 3
+    # J fits the average return J(θ) = -‖θ - c‖² - 2σ² (the ψ² term is uncorrelated with ψ).
+    torch.testing.assert_close(out["J"], -(theta - target).square().sum() - 2 * sigma**2, rtol=0.02, atol=0)
+
+
+def test_enac_equals_the_closed_form_least_squares_solution():
+    torch.manual_seed(0)
+    scores = torch.randn(3, 20, 4, dtype=torch.float64)
+    returns = torch.randn(3, 20, dtype=torch.float64)
+    w, J, rank, cond = enac_gradient(scores, returns)
+    for r in range(3):
+        X = torch.cat([scores[r], torch.ones(20, 1, dtype=torch.float64)], -1)
+        solution = torch.linalg.solve(X.T @ X, X.T @ returns[r])
+        torch.testing.assert_close(w[r], solution[:4])
+        torch.testing.assert_close(J[r], solution[4])
+    assert rank.tolist() == [5, 5, 5] and torch.isfinite(cond).all()
+
+
+def test_enac_survives_rank_deficiency_and_reports_it():
+    scores = torch.randn(2, 3, 6)  # 3 episodes, 6 parameters: rank at most 3 < 7
+    scores[1, :, 2] = 0.0
+    w, J, rank, cond = enac_gradient(scores, torch.randn(2, 3))
+    assert torch.isfinite(w).all() and torch.isfinite(J).all()
+    assert rank.tolist() == [3, 3]
+    assert (cond > 1e6).all() or not torch.isfinite(cond).all()
+
+
+@pytest.mark.parametrize("estimator_cls", [ReinforceEstimator, ENACEstimator])
+def test_sgd_step_on_the_loss_is_plain_gradient_ascent(estimator_cls):
+    """loss_objective = -g·θ: SGD(lr=α) on it gives θ ← θ + α g (eq. 1), per stacked run."""
+    policy = _policy(runs=2)
+    episodes = _episodes(policy, runs=2, episodes=6)
+    estimator = estimator_cls(policy)
+    before = torch.cat([p.detach().flatten(1) for p in estimator.learnable_parameters().values()], -1)
+    out = estimator(episodes)
+    optimizer = torch.optim.SGD(policy.parameters(), lr=0.05)
+    optimizer.zero_grad()
+    out["loss_objective"].backward()
+    optimizer.step()
+    after = torch.cat([p.detach().flatten(1) for p in estimator.learnable_parameters().values()], -1)
+    assert out["gradient"].shape == before.shape and out["gradient"].abs().sum() > 0
+    torch.testing.assert_close(after, before + 0.05 * out["gradient"])
+
+
+def test_loss_output_keys_and_set_keys():
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes["next", "cost"] = -episodes["next", "reward"]
+    estimator = ReinforceEstimator(policy)
+    out = estimator(episodes)
+    assert {"loss_objective", "return_mean", "gradient", "baseline", "score_norm"} <= set(out.keys())
+    estimator.set_keys(reward=("next", "cost"))
+    torch.testing.assert_close(estimator(episodes)["return_mean"], -out["return_mean"])
+
+
+def test_policy_without_explorer_is_rejected():
+    with pytest.raises(TypeError, match="StateDependentExplorer"):
+        ReinforceEstimator(TensorDictSequential(LinearActor(2, 2)))
+
+
+def test_episodes_need_an_episode_and_a_time_dimension():
+    policy = _policy()
+    with pytest.raises(ValueError, match="episodes"):
+        episode_scores(EpisodeLogLikelihood(policy), _episodes(policy)[0])
