@@ -9,6 +9,7 @@ with its own ``σ = expln(q)`` can be added on top (22).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -27,6 +28,7 @@ SHARINGS = ("element", "action", "single")
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
 #: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
 MIN_VARIANCE = 1e-12
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 def expln(p: torch.Tensor) -> torch.Tensor:
@@ -62,6 +64,11 @@ def expln_inverse(sigma: torch.Tensor | float) -> torch.Tensor:
     if not bool(torch.isfinite(sigma).all()) or bool((sigma <= 0).any()):
         raise ValueError(f"expln_inverse needs finite sigma > 0, got {sigma}")
     return torch.where(sigma <= 1, torch.log(sigma), torch.expm1(sigma.clamp(min=1) - 1))
+
+
+def gaussian_log_prob(sample: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """``Σ_j log N(sample_j; loc_j, scale_j²)`` over the last dimension (eq. 13)."""
+    return (-0.5 * ((sample - loc) / scale).square() - scale.log() - _HALF_LOG_2PI).sum(-1)
 
 
 class StateDependentExplorer(TensorDictModuleBase):
@@ -212,8 +219,7 @@ class StateDependentExplorer(TensorDictModuleBase):
         Returns:
             Log-likelihood of shape ``[*batch]``.
         """
-        scale = self.scale(features)
-        return torch.distributions.Normal(loc, scale).log_prob(sample).sum(-1)
+        return gaussian_log_prob(sample, loc, self.scale(features))
 
     def make_tensordict_primer(self) -> Compose:
         """Primer that gives every (partially) reset env a fresh noise matrix.
@@ -253,8 +259,9 @@ class StateDependentExplorer(TensorDictModuleBase):
             tensordict.set(self.noise_key, noise)
         tensordict.set(self.sample_key, sample)
         tensordict.set(self.action_key, torch.tanh(sample) if self.squash else sample)
-        tensordict.set(self.scale_key, self.scale(features))
-        tensordict.set(self.log_prob_key, self.log_prob(loc, features, sample))
+        scale = self.scale(features)
+        tensordict.set(self.scale_key, scale)
+        tensordict.set(self.log_prob_key, gaussian_log_prob(sample, loc, scale))
         return tensordict
 
     def _next_noise(self, tensordict: TensorDictBase, batch: torch.Size) -> torch.Tensor:
