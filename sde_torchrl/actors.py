@@ -15,7 +15,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 
 from sde_torchrl._shapes import align
-from sde_torchrl.rng import draw_uniform
+from sde_torchrl.rng import RunStreams, draw_uniform
 
 ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "relu": torch.relu}
 
@@ -56,14 +56,14 @@ class BatchedLinear(nn.Module):
         self.bias = nn.Parameter(torch.empty(*run_shape, out_features)) if bias else None
         self.reset_parameters()
 
-    def reset_parameters(self, generators: Sequence[torch.Generator] | None = None) -> None:
-        """Draws the parameters from ``init``, one stream per run if ``generators`` is given."""
+    def reset_parameters(self, streams: RunStreams | None = None) -> None:
+        """Draws the parameters from ``init``, from per-run ``streams`` if given."""
         bound = 1 / math.sqrt(self.in_features)
         low_high = (-bound, bound) if self.init is None else self.init
         with torch.no_grad():
             for param in (self.weight, self.bias):
                 if param is not None:
-                    param.copy_(_initial_values(param.shape, low_high, generators))
+                    param.copy_(_initial_values(param.shape, low_high, streams))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[-1] != self.in_features:
@@ -76,14 +76,14 @@ class BatchedLinear(nn.Module):
 
 
 def _initial_values(
-    shape: torch.Size, init: float | Sequence[float], generators: Sequence[torch.Generator] | None
+    shape: torch.Size, init: float | Sequence[float], streams: RunStreams | None
 ) -> torch.Tensor:
     if isinstance(init, (int, float)):
         return torch.full(shape, float(init))
     low, high = (float(v) for v in init)
     if not low < high:
         raise ValueError(f"uniform init needs low < high, got [{low}, {high})")
-    return low + (high - low) * draw_uniform(shape, generators)
+    return low + (high - low) * draw_uniform(shape, streams)
 
 
 class MLP(nn.Module):
@@ -113,10 +113,10 @@ class MLP(nn.Module):
             for n_in, n_out in zip(sizes[:-1], sizes[1:])
         )
 
-    def reset_parameters(self, generators: Sequence[torch.Generator] | None = None) -> None:
+    def reset_parameters(self, streams: RunStreams | None = None) -> None:
         """Redraws every layer's parameters (see :meth:`BatchedLinear.reset_parameters`)."""
         for layer in self.layers:
-            layer.reset_parameters(generators)
+            layer.reset_parameters(streams)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         for layer in self.layers[:-1]:

@@ -14,7 +14,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 from tensordict.nn import TensorDictSequential
 
-from sde_torchrl.rng import run_generators
+from sde_torchrl.rng import RunStreams
 from sde_torchrl.trainer import Trainer, TrainingSettings
 
 
@@ -43,9 +43,9 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
     act_dim = env.action_spec.shape[-1]
 
     actor = instantiate(cfg.actor, in_features=obs_dim, out_features=act_dim, runs=cfg.runs)
-    actor.module.reset_parameters(run_generators(cfg.seed, cfg.runs, "init", cfg.first_run))
+    actor.module.reset_parameters(RunStreams(cfg.seed, cfg.runs, "init", cfg.first_run))
     explorer = instantiate(cfg.explorer, action_dim=act_dim, feature_dim=obs_dim, runs=cfg.runs)
-    explorer.generators = run_generators(cfg.seed, cfg.runs, "explore", cfg.first_run)
+    explorer.streams = RunStreams(cfg.seed, cfg.runs, "explore", cfg.first_run)
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())
     policy = TensorDictSequential(actor, explorer)

@@ -10,7 +10,6 @@ with its own ``σ = expln(q)`` can be added on top (22).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -21,7 +20,7 @@ from torchrl.envs import Compose, TensorDictPrimer
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from sde_torchrl._shapes import align
-from sde_torchrl.rng import draw_normal
+from sde_torchrl.rng import RunStreams, draw_normal
 
 SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
@@ -89,8 +88,8 @@ class StateDependentExplorer(TensorDictModuleBase):
     ``"episode"`` never again within the episode (SDE), ``"step"`` at every step (REX: the
     paper emulates random exploration this way), ``"every_n"`` every ``n`` steps (gSDE's
     sampling frequency). Where the noise is missing from the input it is drawn. The draws use
-    torch's global generator, or one generator per run (``generators``, one per index of the
-    leading batch dimension) when runs are stacked.
+    torch's global generator, or per-run streams (``streams``, a
+    :class:`~sde_torchrl.rng.RunStreams` over the leading batch dimension) when runs are stacked.
 
     Under ``ExplorationType.DETERMINISTIC`` (or ``MODE``/``MEAN``) no noise is added: the action
     is ``squash(loc)``. The noise matrix still travels with the episode, untouched.
@@ -152,7 +151,7 @@ class StateDependentExplorer(TensorDictModuleBase):
         self.schedule, self.every_n, self.sharing = schedule, every_n, sharing
         self.squash, self.runs = squash, runs
         self.run_dims = 0 if runs is None else 1
-        self.generators: Sequence[torch.Generator] | None = None
+        self.streams: RunStreams | None = None
 
         run_shape = () if runs is None else (runs,)
         sigma_shape = {"element": (action_dim, feature_dim), "action": (action_dim, 1)}
@@ -253,7 +252,7 @@ class StateDependentExplorer(TensorDictModuleBase):
             sample = loc + (theta_hat @ features.unsqueeze(-1)).squeeze(-1)
             if self.has_gaussian:
                 gauss = align(expln(self.gaussian_param), self.run_dims, len(batch))
-                sample = sample + gauss * draw_normal(loc.shape, self.generators)
+                sample = sample + gauss * draw_normal(loc.shape, self.streams)
 
         if noise is not None:
             tensordict.set(self.noise_key, noise)
@@ -266,7 +265,7 @@ class StateDependentExplorer(TensorDictModuleBase):
 
     def _next_noise(self, tensordict: TensorDictBase, batch: torch.Size) -> torch.Tensor:
         """The noise ξ for this step: carried over, or fresh where the schedule says so."""
-        fresh = draw_normal((*batch, self.action_dim, self.feature_dim), self.generators)
+        fresh = draw_normal((*batch, self.action_dim, self.feature_dim), self.streams)
         previous = tensordict.get(self.noise_key, None)
         if previous is None or self.schedule == "step":
             if self.schedule == "every_n":

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import math
+
 import numpy as np
 import torch
 
@@ -39,60 +41,71 @@ def run_seed(seed: int, run: int, stream: str) -> int:
     return int(np.random.SeedSequence(entropy).generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
-def run_generators(seed: int, runs: int, stream: str, first_run: int = 0) -> list[torch.Generator]:
-    """One seeded generator per run for ``stream``.
+class RunStreams:
+    """Independent standard-normal streams, one per run, served in batched slices.
+
+    Each run owns a ``torch.Generator`` seeded by :func:`run_seed`. Draws are served from a
+    per-run buffer refilled ``chunk`` numbers at a time, so a request for ``[runs, *shape]``
+    costs one tensor slice, and one generator call per run only at a refill. Every run consumes
+    its stream in the same pattern whatever the number of runs beside it: run ``r`` of a batched
+    job draws exactly what a one-run job with ``first_run = r`` draws.
 
     Args:
         seed: the job's seed.
         runs: number of runs in this process.
         stream: one of :data:`STREAMS`.
         first_run: global index of the first run here (shards of a sweep use different ones).
-
-    Returns:
-        ``runs`` generators.
+        chunk: numbers drawn per run at each refill.
 
     Examples:
-        >>> gens = run_generators(seed=0, runs=3, stream="explore")
-        >>> draw_normal((3, 2), gens).shape
+        >>> streams = RunStreams(seed=0, runs=3, stream="explore")
+        >>> streams.normal((3, 2)).shape
         torch.Size([3, 2])
     """
-    return [
-        torch.Generator().manual_seed(run_seed(seed, first_run + r, stream)) for r in range(runs)
-    ]
+
+    def __init__(self, seed: int, runs: int, stream: str, first_run: int = 0, chunk: int = 4096) -> None:
+        if runs < 1:
+            raise ValueError(f"runs must be a positive integer, got {runs}")
+        self.runs, self.chunk = runs, chunk
+        self.generators = [
+            torch.Generator().manual_seed(run_seed(seed, first_run + r, stream)) for r in range(runs)
+        ]
+        self._buffer = torch.empty(runs, 0)
+
+    def normal(self, shape: Sequence[int]) -> torch.Tensor:
+        """Standard normal samples of ``shape``; ``shape[0]`` must be the number of runs."""
+        shape = tuple(shape)
+        if not shape or shape[0] != self.runs:
+            raise ValueError(f"leading dimension of {shape} must equal the number of runs ({self.runs})")
+        n = math.prod(shape[1:])
+        if self._buffer.shape[1] < n:
+            fresh = torch.stack([torch.randn(max(self.chunk, n), generator=g) for g in self.generators])
+            self._buffer = torch.cat([self._buffer, fresh], dim=1)
+        out, self._buffer = self._buffer[:, :n], self._buffer[:, n:]
+        return out.reshape(shape)
+
+    def uniform(self, shape: Sequence[int]) -> torch.Tensor:
+        """Uniform samples on ``(0, 1)``: the normal CDF of :meth:`normal` draws."""
+        return 0.5 * torch.special.erfc(-self.normal(shape) / math.sqrt(2.0))
+
+    def state_dict(self) -> dict:
+        """Generator states and the unserved buffer: all it takes to resume the streams."""
+        return {"generators": [g.get_state() for g in self.generators], "buffer": self._buffer.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restores what :meth:`state_dict` saved."""
+        if len(state["generators"]) != self.runs:
+            raise ValueError(f"state holds {len(state['generators'])} runs, these streams {self.runs}")
+        for g, g_state in zip(self.generators, state["generators"]):
+            g.set_state(g_state)
+        self._buffer = state["buffer"].clone()
 
 
-def draw_normal(
-    shape: Sequence[int], generators: Sequence[torch.Generator] | None = None
-) -> torch.Tensor:
-    """Standard normal samples, one independent stream per leading index.
-
-    Args:
-        shape: output shape. With ``generators``, ``shape[0]`` must equal their number.
-        generators: per-run generators, or ``None`` for torch's global generator.
-
-    Returns:
-        A float32 tensor of ``shape``.
-
-    Raises:
-        ValueError: if ``shape[0]`` does not match the number of generators.
-    """
-    return _draw(torch.randn, shape, generators)
+def draw_normal(shape: Sequence[int], streams: RunStreams | None = None) -> torch.Tensor:
+    """Standard normal samples from per-run ``streams``, or torch's global generator."""
+    return torch.randn(tuple(shape)) if streams is None else streams.normal(shape)
 
 
-def draw_uniform(
-    shape: Sequence[int], generators: Sequence[torch.Generator] | None = None
-) -> torch.Tensor:
-    """Uniform samples on ``[0, 1)``, one stream per leading index (see :func:`draw_normal`)."""
-    return _draw(torch.rand, shape, generators)
-
-
-def _draw(sampler, shape: Sequence[int], generators: Sequence[torch.Generator] | None):
-    shape = tuple(shape)
-    if generators is None:
-        return sampler(shape)
-    if not shape or shape[0] != len(generators):
-        raise ValueError(
-            f"leading dimension of {shape} must equal the number of run generators "
-            f"({len(generators)})"
-        )
-    return torch.stack([sampler(shape[1:], generator=g) for g in generators])
+def draw_uniform(shape: Sequence[int], streams: RunStreams | None = None) -> torch.Tensor:
+    """Uniform samples on ``[0, 1)`` from per-run ``streams``, or torch's global generator."""
+    return torch.rand(tuple(shape)) if streams is None else streams.uniform(shape)

@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 
 from sde_torchrl import LinearActor, MLPActor
-from sde_torchrl.rng import run_generators
+from sde_torchrl.rng import RunStreams
 
 
 @pytest.mark.parametrize("bias", [False, True])
@@ -48,9 +48,9 @@ def test_constant_and_uniform_initialisation():
 
 def test_per_run_initialisation_streams_match_single_runs():
     stacked = MLPActor(2, 2, hidden=[3], init=[-1.0, 0.0], runs=3)
-    stacked.module.reset_parameters(run_generators(5, 3, "init"))
+    stacked.module.reset_parameters(RunStreams(5, 3, "init"))
     single = MLPActor(2, 2, hidden=[3], init=[-1.0, 0.0], runs=1)
-    single.module.reset_parameters(run_generators(5, 1, "init", first_run=2))
+    single.module.reset_parameters(RunStreams(5, 1, "init", first_run=2))
     for a, b in zip(stacked.parameters(), single.parameters()):
         torch.testing.assert_close(a[2], b[0])
 

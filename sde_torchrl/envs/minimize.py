@@ -14,7 +14,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
-from sde_torchrl.rng import draw_normal, draw_uniform, run_generators
+from sde_torchrl.rng import RunStreams
 
 
 class MinimizeEnv(EnvBase):
@@ -67,27 +67,22 @@ class MinimizeEnv(EnvBase):
         )
         self.action_spec = Unbounded(shape=(*batch, dim))
         self.reward_spec = Unbounded(shape=(*batch, 1))
-        self._generators: list[torch.Generator] | None = None
+        self._streams: RunStreams | None = None
         self.set_seed(0 if seed is None else seed)
 
     def _set_seed(self, seed: int | None) -> None:
         seed = 0 if seed is None else int(seed)
-        if self.runs is None:
-            self._generators = [torch.Generator().manual_seed(seed)]
-        else:
-            self._generators = run_generators(seed, self.runs, self.stream, self.first_run)
+        self._streams = RunStreams(seed, self.runs or 1, self.stream, self.first_run)
 
-    def _normal(self, shape: tuple[int, ...]) -> torch.Tensor:
-        if self.runs is None:
-            return draw_normal((1, *shape), self._generators)[0]
-        return draw_normal(shape, self._generators)
+    def _draw(self, kind: str, shape: tuple[int, ...]) -> torch.Tensor:
+        """Draws ``shape`` (the full batch shape first) from the env's own streams."""
+        if self.runs is None:  # one stream, viewed as a single run
+            return getattr(self._streams, kind)((1, *shape))[0]
+        return getattr(self._streams, kind)(shape)
 
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
         shape = (*self.batch_size, self.dim)
-        if self.runs is None:
-            jitter = draw_uniform((1, *shape), self._generators)[0]
-        else:
-            jitter = draw_uniform(shape, self._generators)
+        jitter = self._draw("uniform", shape)
         # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
         # mask, the running episodes' entries; drawing for all keeps the streams data-independent.
         start = self.x0 + self.x0_spread * (2 * jitter - 1)
@@ -97,7 +92,7 @@ class MinimizeEnv(EnvBase):
         x, u = tensordict["observation"], tensordict["action"]
         if u.shape != x.shape:
             raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
-        x_next = x + self.step_size * u + self.noise_std * self._normal(tuple(x.shape))
+        x_next = x + self.step_size * u + self.noise_std * self._draw("normal", tuple(x.shape))
         reward = -x_next.square().sum(-1, keepdim=True)
         done = torch.zeros(*self.batch_size, 1, dtype=torch.bool)
         return TensorDict(

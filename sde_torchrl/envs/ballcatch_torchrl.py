@@ -1,0 +1,213 @@
+"""Batched TorchRL form of the ball-catching task: N pybullet worlds stepped together in one process.
+
+Each world is a :class:`~sde_torchrl.envs.ballcatch.BallCatchWorld` (its own DIRECT physics
+client); the env has ``batch_size [N]`` so a policy runs once per step for all N worlds. Physics,
+reward and episode length are exactly those of the gymnasium env
+:class:`~sde_torchrl.envs.ballcatch.BallCatchEnv`.
+
+To use a second core, run two batched envs in two processes with :func:`make_parallel_ballcatch`
+(a :class:`torchrl.envs.ParallelEnv`, batch size ``[workers, N]``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase, ParallelEnv
+
+from sde_torchrl.envs.ballcatch import (
+    DISTANCE_CAP,
+    EPISODE_STEPS,
+    GROUND_REWARD,
+    GROUND_Z,
+    MIN_DISTANCE,
+    BallCatchConfig,
+    BallCatchWorld,
+)
+
+__all__ = ["BatchedBallCatchEnv", "make_parallel_ballcatch"]
+
+
+class BatchedBallCatchEnv(EnvBase):
+    """N independent ball-catching worlds as one TorchRL env with ``batch_size [N]``.
+
+    Keys: ``"observation"`` (float32 ``[N, 3]``, ball xyz), ``"distance"`` (float32 ``[N, 1]``,
+    ball-palm centre distance, for diagnostics), ``"action"`` (``Bounded(-1, 1, [N, 4])``: shoulder,
+    elbow, wrist, fingers, scaled by the max torques), ``("next", "reward")`` ``[N, 1]`` and
+    ``"done"``/``"terminated"``/``"truncated"`` ``[N, 1]``. Episodes are never terminated; they are
+    truncated after ``max_steps`` (500) steps. A ``"_reset"`` mask resets only the selected worlds.
+
+    Args:
+        num_worlds: number of worlds N (one pybullet DIRECT client each).
+        config: physical parameters shared by all worlds (default :class:`BallCatchConfig`).
+        max_steps: episode length (the paper's 500).
+        seed: seed of the env's private generator for the ball's release jitter.
+        device: torch device of the returned tensors (physics always runs on the CPU).
+
+    Examples:
+        >>> import torch
+        >>> env = BatchedBallCatchEnv(num_worlds=4, seed=0)
+        >>> td = env.rollout(500, lambda td: td.set("action", torch.ones(4, 4)))
+        >>> td["next", "reward"].shape
+        torch.Size([4, 500, 1])
+        >>> bool(td["next", "truncated"][:, -1].all())
+        True
+        >>> env.close()
+    """
+
+    def __init__(
+        self,
+        num_worlds: int = 8,
+        config: BallCatchConfig | None = None,
+        max_steps: int = EPISODE_STEPS,
+        seed: int | None = None,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        if num_worlds < 1:
+            raise ValueError(f"num_worlds must be >= 1, got {num_worlds}")
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        super().__init__(device=device, batch_size=torch.Size([num_worlds]))
+        self.config = config or BallCatchConfig()
+        self.num_worlds = num_worlds
+        self.max_steps = max_steps
+        self._rng = np.random.default_rng(seed)
+        self._torque_scale = torch.tensor(self.config.max_torques, dtype=torch.float64)
+        self._t = np.zeros(num_worlds, dtype=np.int64)
+        self._grounded = np.zeros(num_worlds, dtype=bool)
+        self._ball = np.zeros((num_worlds, 3), dtype=np.float64)
+        self._palm = np.zeros((num_worlds, 3), dtype=np.float64)
+        self.worlds: list[BallCatchWorld] = []
+        try:
+            for i in range(num_worlds):
+                self.worlds.append(BallCatchWorld(self.config, name=f"world {i}"))
+        except Exception:
+            self._close_worlds()
+            raise
+        self._make_specs()
+
+    # ------------------------------------------------------------------ specs
+    def _make_specs(self) -> None:
+        n = self.num_worlds
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(n, 3), dtype=torch.float32, device=self.device),
+            distance=Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device),
+            shape=(n,),
+            device=self.device,
+        )
+        self.action_spec = Bounded(-1.0, 1.0, shape=(n, 4), dtype=torch.float32, device=self.device)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device),
+            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device),
+            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device),
+            shape=(n,),
+            device=self.device,
+        )
+
+    # ------------------------------------------------------------------ EnvBase API
+    def _set_seed(self, seed: int | None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+        mask = self._reset_mask(tensordict)
+        jitter = self.config.jitter
+        for i in np.flatnonzero(mask):
+            world = self.worlds[i]
+            world.reset(self._rng.uniform(-jitter, jitter, size=2))
+            self._ball[i] = world.ball_position()
+            self._palm[i] = world.palm_position()
+        self._t[mask] = 0
+        self._grounded[mask] = False
+        distance = np.linalg.norm(self._ball - self._palm, axis=1)
+        truncated = self._t >= self.max_steps
+        return self._pack(distance, truncated)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        forces = self._forces(tensordict.get("action"))
+        observed = [world.step_and_observe(f) for world, f in zip(self.worlds, forces)]
+        ball = self._ball = np.array([o[0] for o in observed])
+        palm = self._palm = np.array([o[1] for o in observed])
+        self._t += 1
+        self._grounded |= ball[:, 2] < GROUND_Z
+        distance = np.sqrt(((ball - palm) ** 2).sum(axis=1))
+        reward = np.where(self._grounded, GROUND_REWARD, -np.clip(distance, MIN_DISTANCE, DISTANCE_CAP))
+        out = self._pack(distance, self._t >= self.max_steps)
+        out.set("reward", torch.from_numpy(reward.astype(np.float32)).unsqueeze(-1).to(self.device))
+        return out
+
+    # ------------------------------------------------------------------ helpers
+    def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
+        """Boolean ``[N]`` mask of the worlds to reset (all if no ``"_reset"`` entry)."""
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        if reset is None:
+            return np.ones(self.num_worlds, dtype=bool)
+        return reset.reshape(self.num_worlds, -1).any(-1).cpu().numpy()
+
+    def _forces(self, action: torch.Tensor | None) -> list[list[float]]:
+        """Validate the ``[N, 4]`` action and turn it into per-world lists of 11 joint torques."""
+        if action is None:
+            raise ValueError("the input tensordict has no 'action' entry")
+        if tuple(action.shape) != (self.num_worlds, 4):
+            raise ValueError(f"action must have shape ({self.num_worlds}, 4), got {tuple(action.shape)}")
+        finite = torch.isfinite(action).all(-1)
+        if not bool(finite.all()):
+            bad = torch.nonzero(~finite).flatten().tolist()
+            raise ValueError(f"action contains non-finite values in worlds {bad}")
+        rows = (action.detach().to("cpu", torch.float64).clamp(-1.0, 1.0) * self._torque_scale).tolist()
+        return [row[:3] + row[3:] * 8 for row in rows]
+
+    def _pack(self, distance: np.ndarray, truncated: np.ndarray) -> TensorDict:
+        trunc = torch.from_numpy(truncated).unsqueeze(-1)
+        return TensorDict(
+            {
+                "observation": torch.from_numpy(self._ball.astype(np.float32)),
+                "distance": torch.from_numpy(distance.astype(np.float32)).unsqueeze(-1),
+                "done": trunc,
+                "terminated": torch.zeros_like(trunc),
+                "truncated": trunc.clone(),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _close_worlds(self) -> None:
+        for world in self.worlds:
+            world.close()
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        """Disconnect every physics client."""
+        self._close_worlds()
+        super().close(raise_if_closed=raise_if_closed)
+
+    def raw_step(self, forces: list[list[float]]) -> None:
+        """Apply torques and call only ``stepSimulation`` in every world (benchmark baseline)."""
+        for world, f in zip(self.worlds, forces):
+            world.step_forces(f)
+
+
+def make_parallel_ballcatch(
+    num_workers: int = 2,
+    worlds_per_worker: int = 8,
+    config: BallCatchConfig | None = None,
+    **parallel_kwargs,
+) -> ParallelEnv:
+    """Run ``num_workers`` :class:`BatchedBallCatchEnv` in as many processes (uses more cores).
+
+    The result has batch size ``[num_workers, worlds_per_worker]``; seed it with ``set_seed``
+    (worker ``k`` gets the k-th seed of TorchRL's seed chain).
+
+    Examples:
+        >>> env = make_parallel_ballcatch(2, 4)
+        >>> env.set_seed(0)  # doctest: +ELLIPSIS
+        ...
+        >>> env.reset()["observation"].shape
+        torch.Size([2, 4, 3])
+        >>> env.close()
+    """
+    make = functools.partial(BatchedBallCatchEnv, num_worlds=worlds_per_worker, config=config)
+    return ParallelEnv(num_workers, make, **parallel_kwargs)
