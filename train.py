@@ -13,10 +13,11 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from sde_torchrl.build import build_trainer
+from sde_torchrl.build import build_trainer, register_resolvers
 from sde_torchrl.trainer import write_json_atomic
 
 log = logging.getLogger("train")
+register_resolvers()
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")

@@ -11,11 +11,21 @@ from typing import Any
 
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 
+from sde_torchrl.envs.minimize import midway_threshold
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.trainer import Trainer, TrainingSettings
+
+
+def register_resolvers() -> None:
+    """Config resolvers: ``${midway_r_lim:T,x0,s,noise_std,theta0}`` (see ``midway_threshold``)."""
+    OmegaConf.register_new_resolver(
+        "midway_r_lim",
+        lambda T, x0, s, noise, theta0: midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0)),
+        replace=True,
+    )
 
 
 def build_env(cfg: DictConfig, episodes: int, stream: str) -> Any:
@@ -59,5 +69,6 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
         updates=cfg.updates, episodes_per_update=cfg.episodes_per_update,
         episode_length=cfg.env.episode_length, eval_period=cfg.eval_period,
         eval_episodes=cfg.eval_episodes, r_lim=cfg.r_lim, first_run=cfg.first_run,
+        stop_at_threshold=cfg.stop_at_threshold, tensor_rollout=cfg.tensor_rollout,
     )
     return Trainer(env, eval_env, policy, estimator, optimizer, settings, logger)

@@ -240,22 +240,15 @@ class StateDependentExplorer(TensorDictModuleBase):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         loc = tensordict.get(self.loc_key)
         features = tensordict.get(self.feature_key).to(loc.dtype)
-        self._check_shapes(loc, features)
-        batch = loc.shape[:-1]
-        if exploration_type() in _DETERMINISTIC:
-            # No draw at all: evaluating a policy must not shift the exploration stream.
-            noise = tensordict.get(self.noise_key, None)
-            sample = loc
-        else:
-            noise = self._next_noise(tensordict, batch)
-            theta_hat = align(self.sde_sigma, self.run_dims, len(batch)) * noise
-            sample = loc + (theta_hat @ features.unsqueeze(-1)).squeeze(-1)
-            if self.has_gaussian:
-                gauss = align(expln(self.gaussian_param), self.run_dims, len(batch))
-                sample = sample + gauss * draw_normal(loc.shape, self.streams)
-
+        is_init = tensordict.get(self.is_init_key, None)
+        sample, noise, age = self.act(
+            loc, features, tensordict.get(self.noise_key, None), is_init,
+            tensordict.get(self.age_key, None),
+        )
         if noise is not None:
             tensordict.set(self.noise_key, noise)
+        if age is not None:
+            tensordict.set(self.age_key, age)
         tensordict.set(self.sample_key, sample)
         tensordict.set(self.action_key, torch.tanh(sample) if self.squash else sample)
         scale = self.scale(features)
@@ -263,22 +256,56 @@ class StateDependentExplorer(TensorDictModuleBase):
         tensordict.set(self.log_prob_key, gaussian_log_prob(sample, loc, scale))
         return tensordict
 
-    def _next_noise(self, tensordict: TensorDictBase, batch: torch.Size) -> torch.Tensor:
+    def act(
+        self, loc: torch.Tensor, features: torch.Tensor, noise: torch.Tensor | None = None,
+        is_init: torch.Tensor | None = None, age: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """The tensor-level step behind :meth:`forward`: schedule the noise, then perturb.
+
+        Args:
+            loc: controller mean ``[*batch, A]``.
+            features: exploration features ``[*batch, S]``.
+            noise: the previous step's ``ξ`` ``[*batch, A, S]``, or ``None`` (then drawn).
+            is_init: ``[*batch, 1]`` (or ``[*batch]``) flags of episodes that just started.
+            age: steps since the last draw (``every_n`` only).
+
+        Returns:
+            ``(sample, noise, age)``: the pre-squash action and the state to carry. Under
+            deterministic exploration the sample is ``loc`` and nothing is drawn.
+        """
+        self._check_shapes(loc, features)
+        if exploration_type() in _DETERMINISTIC:
+            # No draw at all: evaluating a policy must not shift the exploration stream.
+            return loc, noise, age
+        noise, age = self._next_noise(noise, is_init, age, loc.shape[:-1])
+        return self.perturb(loc, features, noise), noise, age
+
+    def perturb(self, loc: torch.Tensor, features: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+        """``u = f(x) + Θ̂ x (+ ε)`` with ``Θ̂ = σ̂ ⊙ ξ`` (eqs. 17-19, 22), before squashing."""
+        batch_dims = loc.dim() - 1
+        theta_hat = align(self.sde_sigma, self.run_dims, batch_dims) * noise
+        sample = loc + (theta_hat @ features.unsqueeze(-1)).squeeze(-1)
+        if self.has_gaussian:
+            gauss = align(expln(self.gaussian_param), self.run_dims, batch_dims)
+            sample = sample + gauss * draw_normal(loc.shape, self.streams)
+        return sample
+
+    def _next_noise(
+        self, previous: torch.Tensor | None, is_init: torch.Tensor | None,
+        age: torch.Tensor | None, batch: torch.Size,
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The noise ξ for this step: carried over, or fresh where the schedule says so."""
         fresh = draw_normal((*batch, self.action_dim, self.feature_dim), self.streams)
-        previous = tensordict.get(self.noise_key, None)
         if previous is None or self.schedule == "step":
-            if self.schedule == "every_n":
-                tensordict.set(self.age_key, torch.ones(*batch, 1, dtype=torch.int64))
-            return fresh
-        is_init = tensordict.get(self.is_init_key, None)
+            return fresh, (torch.ones(*batch, 1, dtype=torch.int64) if self.schedule == "every_n" else None)
         redraw = (torch.zeros(*batch, 1, dtype=torch.bool) if is_init is None
                   else is_init.reshape(*batch, 1))
         if self.schedule == "every_n":
-            age = torch.where(redraw, 0, tensordict.get(self.age_key).reshape(*batch, 1))
+            age = torch.zeros(*batch, 1, dtype=torch.int64) if age is None else age.reshape(*batch, 1)
+            age = torch.where(redraw, 0, age)
             redraw = age % self.every_n == 0
-            tensordict.set(self.age_key, age + 1)
-        return torch.where(redraw.unsqueeze(-1), fresh, previous)
+            age = age + 1
+        return torch.where(redraw.unsqueeze(-1), fresh, previous), age
 
     def _check_shapes(self, loc: torch.Tensor, features: torch.Tensor) -> None:
         if loc.shape[-1] != self.action_dim:

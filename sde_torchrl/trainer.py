@@ -24,6 +24,7 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl.estimators import EpisodicEstimator, episode_returns
+from sde_torchrl.rollout import tensor_rollout, tensor_step_env
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,10 @@ class TrainingSettings:
         r_lim: convergence threshold: a run has converged at the first update whose mean
             exploratory return exceeds it (``None``: not tracked).
         first_run: global index of the first run (for labelling shards of a sweep).
+        stop_at_threshold: end the job once every run has exceeded ``r_lim`` (convergence
+            sweeps need nothing after that).
+        tensor_rollout: collect by tensor stepping where the env supports it
+            (:mod:`sde_torchrl.rollout`); ``False`` forces TorchRL's ``env.rollout``.
     """
 
     updates: int
@@ -57,6 +62,8 @@ class TrainingSettings:
     eval_episodes: int = 5
     r_lim: float | None = None
     first_run: int = 0
+    stop_at_threshold: bool = False
+    tensor_rollout: bool = True
 
     def __post_init__(self) -> None:
         for name in ("updates", "episodes_per_update", "episode_length", "eval_episodes"):
@@ -65,6 +72,8 @@ class TrainingSettings:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not isinstance(self.eval_period, int) or self.eval_period < 0:
             raise ValueError(f"eval_period must be a non-negative integer, got {self.eval_period!r}")
+        if self.stop_at_threshold and self.r_lim is None:
+            raise ValueError("stop_at_threshold needs a convergence threshold r_lim")
 
 
 class Trainer:
@@ -92,19 +101,23 @@ class Trainer:
         self.estimator, self.optimizer, self.settings, self.logger = estimator, optimizer, settings, logger
         self.runs = env.batch_size[0]
 
+    def _rollout(self, env: EnvBase) -> Any:
+        """Fresh whole episodes on ``env``: by tensor stepping where the env and policy allow
+        (same episodes, a fraction of the overhead), else by ``env.rollout``."""
+        base = tensor_step_env(env, self.policy) if self.settings.tensor_rollout else None
+        with torch.no_grad():
+            if base is not None:
+                return tensor_rollout(base, self.policy, self.settings.episode_length)
+            return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False)
+
     def collect(self) -> Any:
         """``N`` fresh exploratory episodes per run, ``[runs, N, T]``."""
-        with torch.no_grad():
-            return self.env.rollout(
-                self.settings.episode_length, self.policy, break_when_any_done=False
-            )
+        return self._rollout(self.env)
 
     def evaluate(self) -> torch.Tensor:
         """Mean return of deterministic episodes (no exploration noise) per run, ``[runs]``."""
-        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            episodes = self.eval_env.rollout(
-                self.settings.episode_length, self.policy, break_when_any_done=False
-            )
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            episodes = self._rollout(self.eval_env)
         return episode_returns(episodes).mean(-1)
 
     def update(self, episodes: Any, update: int) -> dict[str, torch.Tensor]:
@@ -141,10 +154,13 @@ class Trainer:
         with open(out / "metrics.csv", "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=METRIC_FIELDS)
             writer.writeheader()
+            reached = torch.zeros(runs, dtype=torch.bool)
             for k in range(s.updates):
                 stats = self.update(self.collect(), k)
                 history["return_mean"].append(stats["return_mean"])
-                is_last = k == s.updates - 1
+                if s.r_lim is not None:
+                    reached |= stats["return_mean"] > s.r_lim
+                is_last = k == s.updates - 1 or (s.stop_at_threshold and bool(reached.all()))
                 eval_return = None
                 if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
                     eval_return = self.evaluate()
@@ -158,10 +174,12 @@ class Trainer:
                     })
                 f.flush()
                 self._log(k, stats, eval_return, start)
+                if is_last:
+                    break
         wall = time.perf_counter() - start
         summary = self._summary(history, wall)
         torch.save({"policy": self.policy.state_dict(), "optimizer": self.optimizer.state_dict(),
-                    "updates": s.updates}, _tmp(out / "checkpoint.pt"))
+                    "updates": summary["updates_done"]}, _tmp(out / "checkpoint.pt"))
         os.replace(_tmp(out / "checkpoint.pt"), out / "checkpoint.pt")
         write_json_atomic(out / "summary.json", summary)
         log.info("results in %s", out.resolve())
@@ -184,20 +202,22 @@ class Trainer:
         returns = torch.stack(history["return_mean"])  # [updates, runs]
         above = returns > s.r_lim if s.r_lim is not None else torch.zeros_like(returns, dtype=torch.bool)
         first = [int(above[:, r].nonzero()[0]) if bool(above[:, r].any()) else None for r in range(self.runs)]
-        final_eval = history["eval"][s.updates - 1]
+        updates_done = len(history["return_mean"])
+        final_eval = history["eval"][updates_done - 1]
         return {
             "runs": self.runs,
             "first_run": s.first_run,
             "settings": asdict(s),
+            "updates_done": updates_done,
             "initial_return": returns[0].tolist(),
             "final_return": returns[-1].tolist(),
             "final_eval_return": final_eval.tolist(),
             "episodes_to_threshold": [None if i is None else (i + 1) * s.episodes_per_update for i in first],
-            "final_parameters": {
+            "final_parameters": {  # named as in checkpoint.pt's policy state dict
                 name: p.detach().reshape(self.runs, -1).tolist()
-                for name, p in self.estimator.learnable_parameters().items()
+                for name, p in self.policy.named_parameters()
             },
-            "env_steps": s.updates * s.episodes_per_update * s.episode_length * self.runs,
+            "env_steps": updates_done * s.episodes_per_update * s.episode_length * self.runs,
             "wall_s": wall,
         }
 

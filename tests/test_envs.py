@@ -8,6 +8,7 @@ import torch
 from torchrl.envs.utils import check_env_specs
 
 from sde_torchrl import MinimizeEnv, make_minimize_env
+from sde_torchrl.envs import expected_linear_return, midway_threshold
 
 
 @pytest.mark.parametrize("runs", [None, 3])
@@ -89,3 +90,21 @@ def test_bad_arguments_are_rejected_by_name(kwargs, match):
 def test_bad_episode_length_is_rejected():
     with pytest.raises(ValueError, match="episode_length"):
         make_minimize_env(0)
+
+
+@pytest.mark.parametrize("theta, episode_length, noise_std", [(-2.0, 15, 0.5), (-5.0, 5, 1.5)])
+def test_expected_linear_return_matches_monte_carlo(theta, episode_length, noise_std):
+    env = MinimizeEnv(episodes=40_000, x0=5.0, noise_std=noise_std, seed=0)
+    x, total = env.initial_state(), 0.0
+    for _ in range(episode_length):
+        x, reward = env.transition(x, theta * x)
+        total = total + reward
+    monte_carlo = float((total / episode_length).mean())
+    assert monte_carlo == pytest.approx(expected_linear_return(theta, episode_length, 5.0, 0.1, noise_std), rel=0.01)
+
+
+def test_midway_threshold_lies_half_way_between_start_and_optimum():
+    start = expected_linear_return(-2.0, 15, 5.0, 0.1, 0.5)
+    best = expected_linear_return(-10.0, 15, 5.0, 0.1, 0.5)
+    assert best == pytest.approx(-0.25)  # θ* = -1/s leaves only the noise: E[x²] = σ²
+    assert midway_threshold(15, 5.0, 0.1, 0.5, -2.0) == pytest.approx((start + best) / 2)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
-from sde_torchrl.envs.minimize import MinimizeEnv, make_minimize_env
+from sde_torchrl.envs.minimize import (
+    MinimizeEnv, expected_linear_return, make_minimize_env, midway_threshold,
+)
 
-__all__ = ["MinimizeEnv", "make_minimize_env"]
+__all__ = ["MinimizeEnv", "expected_linear_return", "make_minimize_env", "midway_threshold"]

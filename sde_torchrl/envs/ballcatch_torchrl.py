@@ -203,8 +203,7 @@ def make_parallel_ballcatch(
 
     Examples:
         >>> env = make_parallel_ballcatch(2, 4)
-        >>> env.set_seed(0)  # doctest: +ELLIPSIS
-        ...
+        >>> _ = env.set_seed(0)
         >>> env.reset()["observation"].shape
         torch.Size([2, 4, 3])
         >>> env.close()

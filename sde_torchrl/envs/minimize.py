@@ -80,26 +80,38 @@ class MinimizeEnv(EnvBase):
             return getattr(self._streams, kind)((1, *shape))[0]
         return getattr(self._streams, kind)(shape)
 
-    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
-        shape = (*self.batch_size, self.dim)
-        jitter = self._draw("uniform", shape)
-        # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
-        # mask, the running episodes' entries; drawing for all keeps the streams data-independent.
-        start = self.x0 + self.x0_spread * (2 * jitter - 1)
-        return TensorDict({"observation": start}, batch_size=self.batch_size)
+    def initial_state(self) -> torch.Tensor:
+        """Start states ``x₀`` (plus jitter) for the whole batch, ``[*batch, d]``."""
+        jitter = self._draw("uniform", (*self.batch_size, self.dim))
+        return self.x0 + self.x0_spread * (2 * jitter - 1)
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        x, u = tensordict["observation"], tensordict["action"]
+    def transition(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x_{t+1} = x_t + s u_t + N(0, σ_noise²)`` and ``r_t = -‖x_{t+1}‖²`` (section 4.1).
+
+        Args:
+            x: states ``[*batch, d]``.
+            u: actions ``[*batch, d]``.
+
+        Returns:
+            ``(x_next, reward)`` with ``reward`` shaped ``[*batch, 1]``.
+        """
         if u.shape != x.shape:
             raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
         x_next = x + self.step_size * u + self.noise_std * self._draw("normal", tuple(x.shape))
-        reward = -x_next.square().sum(-1, keepdim=True)
+        return x_next, -x_next.square().sum(-1, keepdim=True)
+
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+        # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
+        # mask, the running episodes' entries; drawing for all keeps the streams data-independent.
+        return TensorDict({"observation": self.initial_state()}, batch_size=self.batch_size)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        x_next, reward = self.transition(tensordict["observation"], tensordict["action"])
         done = torch.zeros(*self.batch_size, 1, dtype=torch.bool)
         return TensorDict(
             {"observation": x_next, "reward": reward, "done": done, "terminated": done.clone()},
             batch_size=self.batch_size,
         )
-
 
 def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:
     """A :class:`MinimizeEnv` whose episodes last ``episode_length`` steps, with ``is_init``.
@@ -116,3 +128,43 @@ def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:
     env = TransformedEnv(MinimizeEnv(**kwargs), Compose(StepCounter(episode_length), InitTracker()))
     env.episode_length = episode_length
     return env
+
+
+def expected_linear_return(
+    theta: float, episode_length: int, x0: float, step_size: float = 0.1, noise_std: float = 0.5
+) -> float:
+    """Expected return of the deterministic controller ``u = θ x`` on the 1-D task.
+
+    With ``a = 1 + sθ``, ``E[x_{t+1}²] = a² E[x_t²] + σ_noise²`` from ``x_0² `` and
+    ``R = -(1/T) Σ_{t=1..T} E[x_t²]`` (rewards of the states after each step).
+
+    Args:
+        theta: controller gain.
+        episode_length: ``T``.
+        x0: fixed start state.
+        step_size: ``s``.
+        noise_std: ``σ_noise``.
+
+    Returns:
+        The expected return.
+    """
+    a2, second_moment, total = (1 + step_size * theta) ** 2, float(x0) ** 2, 0.0
+    for _ in range(episode_length):
+        second_moment = a2 * second_moment + noise_std**2
+        total += second_moment
+    return -total / episode_length
+
+
+def midway_threshold(
+    episode_length: int, x0: float, step_size: float, noise_std: float, theta0: float
+) -> float:
+    """Convergence threshold half-way, in expected return, from ``θ₀`` to the optimum ``-1/s``.
+
+    The paper's ``R_lim`` is "a value that all controllers reached"; its own numbers do not fit
+    its other settings (README, "Calibration"). This rule gives one threshold per setting, the
+    same for every explorer: the mean of the expected returns of the starting controller and of
+    the optimal one (:func:`expected_linear_return`).
+    """
+    start = expected_linear_return(theta0, episode_length, x0, step_size, noise_std)
+    best = expected_linear_return(-1 / step_size, episode_length, x0, step_size, noise_std)
+    return (start + best) / 2
