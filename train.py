@@ -13,8 +13,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from sde_torchrl.build import build_trainer, register_resolvers
-from sde_torchrl.trainer import write_json_atomic
+from sde_torchrl.build import register_resolvers, run_job
 
 log = logging.getLogger("train")
 register_resolvers()
@@ -24,12 +23,7 @@ register_resolvers()
 def main(cfg: DictConfig) -> None:
     """Builds the job from ``cfg``, trains it and labels the summary with the chosen groups."""
     hydra_cfg = HydraConfig.get()
-    out_dir = hydra_cfg.runtime.output_dir
-    trainer = build_trainer(cfg, out_dir)
-    summary = trainer.train(out_dir)
-    choices = hydra_cfg.runtime.choices
-    labels = {group: choices.get(group) for group in ("env", "actor", "explorer", "estimator")}
-    write_json_atomic(f"{out_dir}/summary.json", {**labels, "seed": cfg.seed, **summary})
+    summary = run_job(cfg, hydra_cfg.runtime.output_dir, dict(hydra_cfg.runtime.choices))
     log.info("final return per run: %s", [round(r, 3) for r in summary["final_return"]])
 
 

@@ -18,6 +18,9 @@ from sde_torchrl.envs.minimize import midway_threshold
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.trainer import Trainer, TrainingSettings
 
+#: Config groups whose chosen option labels a run's summary.
+LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator")
+
 
 def register_resolvers() -> None:
     """Config resolvers: ``${midway_r_lim:T,x0,s,noise_std,theta0}`` (see ``midway_threshold``)."""
@@ -72,3 +75,20 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
         stop_at_threshold=cfg.stop_at_threshold, tensor_rollout=cfg.tensor_rollout,
     )
     return Trainer(env, eval_env, policy, estimator, optimizer, settings, logger)
+
+
+def run_job(cfg: DictConfig, out_dir: str, choices: dict[str, str | None]) -> dict[str, Any]:
+    """Builds and trains one job; its summary is labelled with the chosen config options,
+    the seed and the whole resolved config, so that a run directory describes itself.
+
+    Args:
+        cfg: the composed config.
+        out_dir: the run directory.
+        choices: group → chosen option (Hydra's ``runtime.choices``).
+
+    Returns:
+        The summary written to ``summary.json``.
+    """
+    labels = {group: choices.get(group) for group in LABELLED_GROUPS}
+    labels.update(seed=cfg.seed, config=OmegaConf.to_container(cfg, resolve=True))
+    return build_trainer(cfg, out_dir).train(out_dir, labels)

@@ -166,6 +166,12 @@ def enac_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Te
     return coefficients[..., :-1], coefficients[..., -1], solution.rank, condition.to(scores.dtype)
 
 
+def clip_per_run(gradient: torch.Tensor, max_norm: float) -> torch.Tensor:
+    """Rescales each run's gradient ``[*runs, K]`` to norm at most ``max_norm``."""
+    norm = gradient.norm(dim=-1, keepdim=True)
+    return gradient * (max_norm / norm.clamp_min(max_norm))
+
+
 class EpisodicEstimator(LossModule):
     """Base class: scores and returns of a batch of episodes → gradient → surrogate loss.
 
@@ -175,6 +181,9 @@ class EpisodicEstimator(LossModule):
 
     Args:
         policy: ``TensorDictSequential(actor, explorer)``, the policy being trained.
+        max_grad_norm: if set, each run's gradient is rescaled to at most this norm before the
+            update (off by default: the paper's update is plain gradient ascent; the authors'
+            own code bounded large gradients). ``gradient_norm`` reports the norm before.
     """
 
     @dataclass
@@ -190,8 +199,11 @@ class EpisodicEstimator(LossModule):
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
 
-    def __init__(self, policy: TensorDictSequential) -> None:
+    def __init__(self, policy: TensorDictSequential, max_grad_norm: float | None = None) -> None:
         super().__init__()
+        if max_grad_norm is not None and not max_grad_norm > 0:
+            raise ValueError(f"max_grad_norm must be > 0 or None, got {max_grad_norm!r}")
+        self.max_grad_norm = max_grad_norm
         self._set_in_keys()
         self.log_likelihood = EpisodeLogLikelihood(policy)
 
@@ -230,6 +242,9 @@ class EpisodicEstimator(LossModule):
         run_dims = episodes.batch_dims - 2
         scores = flatten_scores(episode_scores(self.log_likelihood, episodes), run_dims)
         gradient, diagnostics = self.estimate(scores, returns)
+        diagnostics["gradient_norm"] = gradient.norm(dim=-1)
+        if self.max_grad_norm is not None:
+            gradient = clip_per_run(gradient, self.max_grad_norm)
         theta = torch.cat([p.flatten(run_dims) for p in self.learnable_parameters().values()], -1)
         return TensorDict(
             {

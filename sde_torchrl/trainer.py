@@ -130,18 +130,19 @@ class Trainer:
         self.optimizer.step()
         for name, param in self.estimator.learnable_parameters().items():
             self._check_finite(update, f"parameter {name}", param)
-        return {"return_mean": out["return_mean"], "grad_norm": out["gradient"].norm(dim=-1)}
+        return {"return_mean": out["return_mean"], "grad_norm": out["gradient_norm"]}
 
     @staticmethod
     def _check_finite(update: int, what: str, value: torch.Tensor) -> None:
         if not bool(torch.isfinite(value).all()):
             raise NonFiniteError(f"non-finite {what} at update {update}: {value.detach().flatten()[:8]}")
 
-    def train(self, out_dir: str | os.PathLike) -> dict[str, Any]:
+    def train(self, out_dir: str | os.PathLike, labels: dict[str, Any] | None = None) -> dict[str, Any]:
         """Runs the whole job and writes ``metrics.csv``, ``summary.json``, ``checkpoint.pt``.
 
         Args:
             out_dir: the run directory (Hydra's output directory in ``train.py``).
+            labels: entries that head ``summary.json`` (config choices, seed, the config).
 
         Returns:
             The summary (also written to ``summary.json``).
@@ -177,7 +178,7 @@ class Trainer:
                 if is_last:
                     break
         wall = time.perf_counter() - start
-        summary = self._summary(history, wall)
+        summary = {**(labels or {}), **self._summary(history, wall)}
         torch.save({"policy": self.policy.state_dict(), "optimizer": self.optimizer.state_dict(),
                     "updates": summary["updates_done"]}, _tmp(out / "checkpoint.pt"))
         os.replace(_tmp(out / "checkpoint.pt"), out / "checkpoint.pt")

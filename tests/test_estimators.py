@@ -184,3 +184,18 @@ def test_episodes_need_an_episode_and_a_time_dimension():
     policy = _policy()
     with pytest.raises(ValueError, match="episodes"):
         episode_scores(EpisodeLogLikelihood(policy), _episodes(policy)[0])
+
+
+def test_max_grad_norm_rescales_each_run_separately():
+    policy = _policy(runs=2)
+    episodes = _episodes(policy, runs=2, episodes=6)
+    free = ReinforceEstimator(policy)(episodes)
+    norms = free["gradient"].norm(dim=-1)
+    bound = float(norms.min() + norms.max()) / 2  # clips one run, leaves the other
+    clipped = ReinforceEstimator(policy, max_grad_norm=bound)(episodes)
+    small, large = int(norms.argmin()), int(norms.argmax())
+    torch.testing.assert_close(clipped["gradient"][small], free["gradient"][small])
+    torch.testing.assert_close(clipped["gradient"][large], free["gradient"][large] * bound / norms[large])
+    torch.testing.assert_close(clipped["gradient_norm"], norms)
+    with pytest.raises(ValueError, match="max_grad_norm"):
+        ReinforceEstimator(policy, max_grad_norm=0.0)

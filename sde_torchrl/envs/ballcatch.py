@@ -2,8 +2,9 @@
 
 A fixed pedestal carries a three-joint arm (shoulder, elbow, wrist; all hinges about the same
 horizontal axis, so the arm moves forward-backward and up-down in the x-z plane). The wrist
-carries a 1 x 1 x 0.1 palm with four two-joint fingers, one on each palm edge. All eight finger
-joints receive the same torque, so one actuator opens or closes the hand. A ball of radius 0.45
+carries a 1 x 1 x 0.1 palm with four two-joint fingers, one on each palm edge. One actuator
+drives all eight finger joints (proximal joints with its full torque, distal joints with 0.4 of
+it, a fixed transmission), so it can only open or close the hand. A ball of radius 0.45
 is released 5 units above the palm centre; the agent observes the ball's xyz and must catch it.
 
 Physical design (see ``assets/ballcatch.urdf``):
@@ -12,13 +13,15 @@ Physical design (see ``assets/ballcatch.urdf``):
   define: upper arm and forearm horizontal, palm tilted 0.15 rad outwards. Positive torques lift
   the arm into those limits and hold it there; with zero torque the arm falls under gravity and
   the ball drops past it to the ground.
-* Because the palm is tilted, a ball landing on an open hand rolls off the outer edge; the
-  fingers must close around it. Closing too early builds a cage the ball lands on top of.
+* Because the palm is tilted, a ball landing on an open hand rolls outwards onto the outer
+  finger and stops against its bent-up tip, about 1.4 from the palm centre ("kept on the
+  fingers", return about -1.37). Closing the hand once the ball has landed pulls it onto the palm
+  (return about -0.91). Closing before it arrives builds a cage the ball bounces off (about -2.6).
 * Torque control only: pybullet's default velocity motors are disabled (force 0) and the
   action in ``[-1, 1]^4`` is scaled by :data:`MAX_TORQUES` (shoulder, elbow, wrist, fingers).
 
 Reward per step (paper): ``-3`` once the ball has touched the ground (and for every later step),
-otherwise ``-min(distance(ball centre, palm centre), 3)``. The episode always lasts
+otherwise ``-clip(distance(ball centre, palm centre), 0.5, 3)``. The episode always lasts
 :data:`EPISODE_STEPS` = 500 steps of 0.01 s (it is truncated, never terminated), so the
 paper's return (mean reward) lies in ``[-3, -0.5]``.
 
@@ -69,15 +72,19 @@ MIN_DISTANCE = 0.5
 GROUND_Z = BALL_RADIUS + 0.01
 """The ball counts as having touched the ground once its centre is below this height."""
 GROUND_REWARD = -3.0
-MAX_TORQUES = (100.0, 60.0, 20.0, 2.0)
-"""Maximum torque (N m) for shoulder, elbow, wrist and every finger joint."""
+MAX_TORQUES = (150.0, 80.0, 30.0, 5.0)
+"""Maximum torque (N m) of shoulder, elbow, wrist and the finger actuator (see :func:`joint_torques`)."""
+
+DISTAL_TORQUE_RATIO = 0.4
+"""Distal finger joints get this fraction of the finger torque (one actuator, fixed transmission)."""
 
 ARM_JOINTS = ("shoulder", "elbow", "wrist")
 FINGER_NAMES = ("front", "left", "back", "right")
 INITIAL_ARM_POSE = (0.0, 0.0, -0.15)
 """Catching pose = upper limits of shoulder, elbow and wrist (palm tilted 0.15 rad outwards)."""
-INITIAL_FINGER_POSE = (-0.6, 0.0)
-"""Open hand (proximal, distal): the lower finger limits, where gravity leaves them."""
+INITIAL_FINGER_POSE = (0.0, 0.9)
+"""Open hand (proximal, distal): the lower finger limits. The distal links stay bent up by at
+least 0.9 rad, a lip that keeps a ball on the open hand's outer finger."""
 
 SCRIPTED_WEIGHTS = np.array(
     [
@@ -93,9 +100,9 @@ SCRIPTED_WEIGHTS = np.array(
 The ball's x coordinate (about 2.95, the palm centre) is nearly constant, so the x column acts as
 a bias: the arm joints are pushed into their upper limits and the fingers stay open while the
 ball is high and close once its centre is below about z = 5.2, i.e. about 0.8 above its resting
-height on the palm (the palm centre is at z = 3.92). Any closing height between about 4.7 and 5.8
-catches; an always-open hand (ball rolls off the tilted palm) scores about -2.4, an always-closed
-hand (ball bounces off the finger cage) about -2.5.
+height on the palm (the palm centre is at z = 3.92). Any closing height between about 4.6 and 6.0
+catches; an always-open hand (ball rolls onto the outer finger) scores about -1.37, an
+always-closed hand (ball bounces off the finger cage) about -2.6.
 """
 
 
@@ -245,9 +252,7 @@ class BallCatchWorld:
 
         ``action`` must already be validated (4 finite numbers in [-1, 1]).
         """
-        t = self._max_torques
-        f = float(action[3]) * t[3]
-        self.step_forces([float(action[0]) * t[0], float(action[1]) * t[1], float(action[2]) * t[2]] + [f] * 8)
+        self.step_forces(joint_torques([float(a) * m for a, m in zip(action, self._max_torques)]))
 
     def step_forces(self, forces: list[float]) -> None:
         """Apply 11 joint torques (arm, then the 8 finger joints) and step the physics once."""
@@ -303,7 +308,7 @@ class BallCatchWorld:
         """RGB frame ``(height, width, 3)`` uint8 from pybullet's software (tiny) renderer."""
         cid = self.client
         view = pybullet.computeViewMatrixFromYawPitchRoll(
-            cameraTargetPosition=(1.8, 0.0, 4.6), distance=11.0, yaw=20.0, pitch=-10.0, roll=0.0, upAxisIndex=2,
+            cameraTargetPosition=(2.2, 0.0, 5.4), distance=8.0, yaw=25.0, pitch=-12.0, roll=0.0, upAxisIndex=2,
             physicsClientId=cid,
         )
         proj = pybullet.computeProjectionMatrixFOV(
@@ -325,6 +330,16 @@ class BallCatchWorld:
             if pybullet.isConnected(physicsClientId=self.client):
                 pybullet.disconnect(physicsClientId=self.client)
             self.client = -1
+
+
+def joint_torques(scaled: list[float]) -> list[float]:
+    """The 11 joint torques from the 4 actuator torques ``action * max_torques``.
+
+    Shoulder, elbow and wrist take theirs directly; the one finger actuator drives every proximal
+    finger joint with its full torque and every distal joint with :data:`DISTAL_TORQUE_RATIO` of it.
+    """
+    f = scaled[3]
+    return scaled[:3] + [f, f * DISTAL_TORQUE_RATIO] * len(FINGER_NAMES)
 
 
 def step_reward(ball: Sequence[float], palm: Sequence[float], grounded: bool) -> tuple[float, float]:

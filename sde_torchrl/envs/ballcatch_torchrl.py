@@ -27,6 +27,7 @@ from sde_torchrl.envs.ballcatch import (
     MIN_DISTANCE,
     BallCatchConfig,
     BallCatchWorld,
+    joint_torques,
 )
 
 __all__ = ["BatchedBallCatchEnv", "make_parallel_ballcatch"]
@@ -159,7 +160,7 @@ class BatchedBallCatchEnv(EnvBase):
             bad = torch.nonzero(~finite).flatten().tolist()
             raise ValueError(f"action contains non-finite values in worlds {bad}")
         rows = (action.detach().to("cpu", torch.float64).clamp(-1.0, 1.0) * self._torque_scale).tolist()
-        return [row[:3] + row[3:] * 8 for row in rows]
+        return [joint_torques(row) for row in rows]
 
     def _pack(self, distance: np.ndarray, truncated: np.ndarray) -> TensorDict:
         trunc = torch.from_numpy(truncated).unsqueeze(-1)

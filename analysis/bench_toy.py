@@ -1,0 +1,65 @@
+"""Env steps per second on the 1-D minimisation task: a plain loop against the batched path.
+
+(a) ``plain``: one run, one env, TorchRL's ``env.rollout`` stepping a single episode at a time
+    (a Python loop per step), then the estimator and the update: the straightforward way.
+(b) ``batched``: what ``analysis/table1.py`` runs: ``runs`` learners side by side, each with
+    ``episodes`` episodes per update, collected by :func:`sde_torchrl.rollout.tensor_rollout`.
+
+Both count full training updates (collect, estimate, step), so the figures are what a sweep gets.
+
+Usage:
+    python analysis/bench_toy.py [--runs 30] [--episodes 10] [--length 15] [--seconds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import torch
+from hydra import compose, initialize_config_dir
+
+from sde_torchrl.build import build_trainer, register_resolvers
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+
+
+def steps_per_second(overrides: list[str], seconds: float) -> float:
+    """Env steps per second of whole training updates for the composed config."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=["+experiment=minimize", "logger=none", *overrides])
+    trainer = build_trainer(cfg)
+    trainer.update(trainer.collect(), 0)  # warm-up
+    steps_per_update = cfg.runs * cfg.episodes_per_update * cfg.env.episode_length
+    updates, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        trainer.update(trainer.collect(), updates)
+        updates += 1
+    return updates * steps_per_update / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=30)
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--length", type=int, default=15)
+    parser.add_argument("--seconds", type=float, default=5.0)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    register_resolvers()
+    length = f"env.episode_length={args.length}"
+    plain = steps_per_second(["runs=1", "episodes_per_update=1", length, "tensor_rollout=false"],
+                             args.seconds)
+    batched = steps_per_second([f"runs={args.runs}", f"episodes_per_update={args.episodes}", length],
+                               args.seconds)
+    print(json.dumps({
+        "plain_steps_per_s": round(plain), "batched_steps_per_s": round(batched),
+        "ratio": round(batched / plain, 1), "runs": args.runs, "episodes_per_update": args.episodes,
+        "episode_length": args.length, "threads": torch.get_num_threads(),
+    }))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,324 @@
+"""Reproduce the function-minimisation results: Table 1, Fig. 2 and Fig. 3 of the paper.
+
+Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
+``minimize2d_mlp``: each job trains 30 runs side by side) on a pool of worker processes, or reads
+finished run directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md``,
+``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
+
+Usage:
+    python analysis/table1.py --out results/table1              # run everything, then report
+    python analysis/table1.py --out results/table1 --from DIR   # report on finished runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import json
+import logging
+import os
+import statistics
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
+SWEEP_NAMES = {"noise_sweep": "noise", "episode_length_sweep": "episode_length"}
+#: Table 1 of the paper: (sweep, σ_noise, EL) → (R_lim, REX episodes, SDE episodes).
+PAPER = {
+    ("episode_length", 0.5, 5): (-1.8, 9450, 3350), ("episode_length", 0.5, 15): (-1.8, 9150, 1850),
+    ("episode_length", 0.5, 30): (-1.8, 9700, 1050), ("episode_length", 0.5, 45): (-1.8, 8800, 650),
+    ("episode_length", 0.5, 60): (-1.8, 8050, 500), ("noise", 0.5, 15): (-1.6, 9950, 2000),
+    ("noise", 1.0, 15): (-1.6, 9850, 1400), ("noise", 1.5, 15): (-1.6, 7700, 900),
+}
+#: Updates averaged for the 2-D MLP's curves and final plateau.
+SMOOTH = 10
+
+log = logging.getLogger("table1")
+
+
+# --------------------------------------------------------------------------- running jobs
+
+def sweep_jobs(experiment: str) -> list[list[str]]:
+    """The override lists of every job in ``experiment``'s Hydra sweeper params."""
+    from hydra import compose, initialize_config_dir
+
+    from sde_torchrl.build import register_resolvers
+
+    register_resolvers()
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=[f"+experiment={experiment}"], return_hydra_config=True)
+    params = {key: str(values).split(",") for key, values in cfg.hydra.sweeper.params.items()}
+    return [[f"{key}={value}" for key, value in zip(params, combo)]
+            for combo in itertools.product(*params.values())]
+
+
+def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
+    """Trains one job (in a worker process) into ``out_dir``; returns ``out_dir``."""
+    import torch
+    from hydra import compose, initialize_config_dir
+
+    from sde_torchrl.build import register_resolvers, run_job
+
+    torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
+    register_resolvers()
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("config", overrides=[f"+experiment={experiment}", *overrides])
+    choices = {"experiment": experiment, "env": "minimize", "estimator": "reinforce",
+               "actor": "mlp" if experiment == "minimize2d_mlp" else "linear",
+               "explorer": next(o.split("=")[1] for o in overrides if o.startswith("explorer="))}
+    run_job(cfg, out_dir, choices)
+    return out_dir
+
+
+def run_all(out: Path, workers: int, extra: list[str]) -> Path:
+    """Runs every job of :data:`EXPERIMENTS`, longest first, on ``workers`` processes."""
+    runs_dir = out / "runs"
+    jobs = []
+    for experiment in EXPERIMENTS:
+        for overrides in sweep_jobs(experiment):
+            name = experiment + "__" + "_".join(o.replace("=", "-") for o in overrides)
+            jobs.append((experiment, overrides + extra, str(runs_dir / name)))
+    jobs.sort(key=_expected_cost, reverse=True)
+    start = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for done in pool.map(run_one, *zip(*jobs)):
+            log.info("finished %s after %.0f s", Path(done).name, time.perf_counter() - start)
+    return runs_dir
+
+
+def _expected_cost(job: tuple[str, list[str], str]) -> float:
+    experiment, overrides, _ = job
+    if experiment == "minimize2d_mlp":
+        return 1e9
+    length = next((int(o.split("=")[1]) for o in overrides if o.startswith("env.episode_length=")), 15)
+    return length * (4 if "explorer=rex" in overrides else 1)
+
+
+# -------------------------------------------------------------------------- reading runs
+
+def load_runs(directory: Path) -> list[dict]:
+    """Every finished run under ``directory``: its summary and per-update mean returns."""
+    runs = []
+    for summary_path in sorted(directory.rglob("summary.json")):
+        summary = json.loads(summary_path.read_text())
+        if summary.get("experiment") not in EXPERIMENTS:
+            continue
+        with open(summary_path.parent / "metrics.csv") as f:
+            rows = list(csv.DictReader(f))
+        curves: dict[int, list[float]] = {}
+        for row in rows:
+            curves.setdefault(int(row["run"]), []).append(float(row["return_mean"]))
+        summary["curves"] = [curves[r] for r in sorted(curves)]  # [runs][updates]
+        runs.append(summary)
+    return runs
+
+
+def _setting(summary: dict) -> tuple[str, float, int]:
+    env = summary["config"]["env"]
+    return SWEEP_NAMES[summary["experiment"]], float(env["noise_std"]), int(env["episode_length"])
+
+
+def table_rows(runs: list[dict]) -> list[dict]:
+    """One row per (sweep, σ_noise, EL): mean episodes to ``R_lim`` for REX and SDE."""
+    by_setting: dict[tuple, dict[str, dict]] = {}
+    for summary in runs:
+        if summary["experiment"] in SWEEP_NAMES:
+            by_setting.setdefault(_setting(summary), {})[summary["explorer"]] = summary
+    rows = []
+    for setting in sorted(by_setting, key=lambda s: (s[0] != "noise", s[1], s[2])):
+        sweep, noise, length = setting
+        row = {"sweep": sweep, "sigma_noise": noise, "episode_length": length}
+        for explorer in ("rex", "sde"):
+            summary = by_setting[setting].get(explorer)
+            if summary is None:
+                continue
+            row["r_lim"] = summary["settings"]["r_lim"]
+            episodes = summary["episodes_to_threshold"]
+            reached = [e for e in episodes if e is not None]
+            row[f"{explorer}_episodes"] = statistics.mean(reached) if reached else None
+            row[f"{explorer}_spread"] = {
+                "std": statistics.pstdev(reached) if reached else None,
+                "median": statistics.median(reached) if reached else None,
+                "min": min(reached, default=None), "max": max(reached, default=None),
+                "runs": len(episodes), "not_converged": len(episodes) - len(reached),
+            }
+        if row.get("rex_episodes") and row.get("sde_episodes"):
+            row["speedup"] = row["rex_episodes"] / row["sde_episodes"]
+        paper = PAPER.get(setting)
+        if paper:
+            row["paper"] = {"r_lim": paper[0], "rex_episodes": paper[1], "sde_episodes": paper[2],
+                            "speedup": paper[1] / paper[2]}
+        rows.append(row)
+    return rows
+
+
+def _mean_curve(curves: list[list[float]], smooth: int = 1) -> tuple[list[float], list[float]]:
+    """Mean and std over runs per update (each run's curve smoothed over ``smooth`` updates)."""
+    def smoothed(curve):
+        return [statistics.mean(curve[max(0, i - smooth + 1): i + 1]) for i in range(len(curve))]
+
+    columns = list(zip(*[smoothed(c) for c in curves]))
+    return [statistics.mean(c) for c in columns], [statistics.pstdev(c) for c in columns]
+
+
+def mlp_summary(runs: list[dict]) -> dict | None:
+    """2-D MLP: REX's final plateau, episodes each method needs to reach it, final returns."""
+    mlp = {s["explorer"]: s for s in runs if s["experiment"] == "minimize2d_mlp"}
+    if set(mlp) != {"sde", "rex"}:
+        return None
+    per_update = mlp["rex"]["settings"]["episodes_per_update"]
+    means = {e: _mean_curve(s["curves"], SMOOTH)[0] for e, s in mlp.items()}
+    tail = max(1, len(means["rex"]) // 10)
+    plateau = statistics.mean(means["rex"][-tail:])
+
+    def first_reaching(curve):
+        index = next((i for i, v in enumerate(curve) if v >= plateau), None)
+        return None if index is None else (index + 1) * per_update
+
+    result = {
+        "rex_plateau": plateau,
+        "episodes_to_rex_plateau": {e: first_reaching(means[e]) for e in ("sde", "rex")},
+        "final_mean_return": {e: statistics.mean(means[e][-tail:]) for e in ("sde", "rex")},
+        "episodes": len(means["rex"]) * per_update, "runs": mlp["rex"]["runs"],
+        "smoothing_updates": SMOOTH,
+    }
+    reached = result["episodes_to_rex_plateau"]
+    if reached["sde"] and reached["rex"]:
+        result["plateau_speedup"] = reached["rex"] / reached["sde"]
+    return result
+
+
+# ------------------------------------------------------------------------------- writing
+
+def _fmt(value, digits=0):
+    return "—" if value is None else f"{value:.{digits}f}"
+
+
+def write_markdown(rows: list[dict], mlp: dict | None, path: Path) -> None:
+    """The paper's Table 1 layout, ours beside the paper's."""
+    lines = [
+        "| sweep | σ_noise | EL | R_lim (ours / paper) | REX (ours / paper) | SDE (ours / paper) "
+        "| speed-up (ours / paper) | not converged REX / SDE |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for row in rows:
+        paper = row.get("paper", {})
+        lines.append(
+            f"| {row['sweep']} | {row['sigma_noise']} | {row['episode_length']} "
+            f"| {_fmt(row.get('r_lim'), 2)} / {_fmt(paper.get('r_lim'), 1)} "
+            f"| {_fmt(row.get('rex_episodes'))} / {_fmt(paper.get('rex_episodes'))} "
+            f"| {_fmt(row.get('sde_episodes'))} / {_fmt(paper.get('sde_episodes'))} "
+            f"| {_fmt(row.get('speedup'), 2)} / {_fmt(paper.get('speedup'), 2)} "
+            f"| {row.get('rex_spread', {}).get('not_converged', '—')} / "
+            f"{row.get('sde_spread', {}).get('not_converged', '—')} |"
+        )
+    if mlp:
+        reached = mlp["episodes_to_rex_plateau"]
+        lines += [
+            "",
+            f"2-D MLP ({mlp['runs']} runs, {mlp['episodes']} episodes): REX's final plateau "
+            f"{mlp['rex_plateau']:.2f} reached after {_fmt(reached['sde'])} episodes by SDE and "
+            f"{_fmt(reached['rex'])} by REX (×{_fmt(mlp.get('plateau_speedup'), 1)}); final mean "
+            f"return SDE {mlp['final_mean_return']['sde']:.2f}, REX {mlp['final_mean_return']['rex']:.2f}.",
+        ]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
+    """One panel per setting of ``sweep``: mean ± std of the returns over runs, REX and SDE."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    chosen = sorted((s for s in runs if SWEEP_NAMES.get(s["experiment"]) == sweep),
+                    key=lambda s: _setting(s))
+    settings = sorted({_setting(s) for s in chosen})
+    fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
+    for ax, setting in zip(axes[0], settings):
+        for summary in (s for s in chosen if _setting(s) == setting):
+            _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX")
+            ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
+        label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
+        ax.set(title=label, xlabel="episodes", xscale="log")
+        ax.set_ylim(bottom=_lower_limit(chosen, setting))
+    axes[0][0].set_ylabel("mean return R")
+    axes[0][0].legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _lower_limit(chosen: list[dict], setting: tuple) -> float:
+    starts = [statistics.mean(c[0] for c in s["curves"]) for s in chosen if _setting(s) == setting]
+    return 1.5 * min(starts)
+
+
+def _plot_band(ax, summary: dict, label: str, smooth: int = 1) -> None:
+    mean, std = _mean_curve(summary["curves"], smooth)
+    per_update = summary["settings"]["episodes_per_update"]
+    episodes = [(i + 1) * per_update for i in range(len(mean))]
+    style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"}}[label]
+    ax.plot(episodes, mean, label=label, **style)
+    ax.fill_between(episodes, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
+                    color=style["color"], alpha=0.2)
+
+
+def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
+    """Fig. 3 right: the 2-D MLP task, REX and SDE, with REX's final plateau."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for summary in sorted((s for s in runs if s["experiment"] == "minimize2d_mlp"),
+                          key=lambda s: s["explorer"]):
+        _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX", SMOOTH)
+    ax.axhline(mlp["rex_plateau"], color="grey", lw=0.8, ls=":", label="REX final plateau")
+    start = min(statistics.mean(c[0] for c in s["curves"]) for s in runs
+                if s["experiment"] == "minimize2d_mlp")
+    ax.set(xlabel="episodes", ylabel=f"mean return R ({SMOOTH}-update average)",
+           title="2-D task, MLP with 18 parameters", ylim=(1.5 * start, 0))
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, required=True, help="where tables and figures go")
+    parser.add_argument("--from", dest="source", type=Path,
+                        help="read finished run directories instead of running the sweeps")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("overrides", nargs="*", help="extra config overrides for every job (e.g. runs=5)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    source = args.source or run_all(args.out, args.workers, args.overrides)
+    runs = load_runs(source)
+    if not runs:
+        log.error("no finished runs under %s", source)
+        return 1
+    rows, mlp = table_rows(runs), mlp_summary(runs)
+    (args.out / "table1.json").write_text(json.dumps(
+        {"rows": rows, "mlp2d": mlp, "wall_s": time.perf_counter() - start}, indent=2))
+    write_markdown(rows, mlp, args.out / "table1.md")
+    plot_convergence(runs, "noise", args.out / "fig2.png")
+    plot_convergence(runs, "episode_length", args.out / "fig3_left.png")
+    if mlp:
+        plot_mlp(runs, mlp, args.out / "fig3_right.png")
+    log.info("wrote %s in %.0f s", args.out, time.perf_counter() - start)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
