@@ -1,0 +1,57 @@
+"""analysis/table1.py: the sweep machinery on a tiny budget (fast), and the paper's claims on
+the full budget (slow: ``python -m pytest -m slow tests/test_table1.py``)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SETTINGS = {("noise", 0.5, 15), ("noise", 1.0, 15), ("noise", 1.5, 15), ("episode_length", 0.5, 5),
+            ("episode_length", 0.5, 15), ("episode_length", 0.5, 30), ("episode_length", 0.5, 45),
+            ("episode_length", 0.5, 60)}
+OUTPUTS = ("table1.json", "table1.md", "fig2.png", "fig3_left.png", "fig3_right.png")
+
+
+def _table1(out: Path, *args: str) -> dict:
+    result = subprocess.run([sys.executable, "analysis/table1.py", "--out", str(out), *args],
+                            cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads((out / "table1.json").read_text())
+
+
+def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
+    table = _table1(tmp_path / "a", "runs=2", "updates=8", "episodes_per_update=4")
+    assert {(r["sweep"], r["sigma_noise"], r["episode_length"]) for r in table["rows"]} == SETTINGS
+    for row in table["rows"]:
+        assert row["paper"]["rex_episodes"] > row["paper"]["sde_episodes"]
+        assert row["r_lim"] < 0
+        for explorer in ("rex", "sde"):
+            assert row[f"{explorer}_spread"]["runs"] == 2
+    assert table["mlp2d"]["runs"] == 2 and table["mlp2d"]["episodes"] == 32
+    for name in OUTPUTS:
+        assert (tmp_path / "a" / name).stat().st_size > 0, name
+    markdown = (tmp_path / "a" / "table1.md").read_text()
+    assert markdown.count("\n| noise |") == 3 and markdown.count("\n| episode_length |") == 5
+
+    again = _table1(tmp_path / "b", "--from", str(tmp_path / "a" / "runs"))
+    assert again["rows"] == table["rows"] and again["mlp2d"] == table["mlp2d"]
+
+
+@pytest.mark.slow
+def test_full_table_sde_faster_everywhere_more_so_for_longer_episodes(tmp_path):
+    table = _table1(tmp_path)
+    rows = {(r["sweep"], r["sigma_noise"], r["episode_length"]): r for r in table["rows"]}
+    assert set(rows) == SETTINGS
+    for setting, row in rows.items():
+        assert row["rex_spread"]["not_converged"] == row["sde_spread"]["not_converged"] == 0, setting
+        assert row["sde_episodes"] < row["rex_episodes"], setting
+    lengths = [rows[("episode_length", 0.5, n)]["speedup"] for n in (5, 15, 30, 45, 60)]
+    assert lengths == sorted(lengths) and lengths[-1] >= 2 * lengths[0]
+    mlp = table["mlp2d"]
+    assert mlp["plateau_speedup"] >= 5
+    assert mlp["final_mean_return"]["sde"] > mlp["final_mean_return"]["rex"]
