@@ -245,8 +245,9 @@ def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
             _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX")
             ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
         label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
-        ax.set(title=label, xlabel="episodes", xscale="log")
-        ax.set_ylim(bottom=_lower_limit(chosen, setting))
+        r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
+        ax.set(title=label, xlabel="episodes", xscale="log",
+               ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
     axes[0][0].set_ylabel("mean return R")
     axes[0][0].legend(loc="lower right")
     fig.tight_layout()
