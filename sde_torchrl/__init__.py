@@ -4,10 +4,16 @@ from __future__ import annotations
 
 from sde_torchrl.actors import LinearActor, MLPActor
 from sde_torchrl.envs import MinimizeEnv, make_minimize_env
+from sde_torchrl.envs.ballcatch import BallCatchEnv, register_ballcatch
+from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv
 from sde_torchrl.estimators import ENACEstimator, ReinforceEstimator, episode_returns, episode_scores
 from sde_torchrl.exploration import StateDependentExplorer, expln, expln_inverse
 
+register_ballcatch()  # gymnasium.make("sde_torchrl/BallCatch-v0")
+
 __all__ = [
+    "BallCatchEnv",
+    "BatchedBallCatchEnv",
     "ENACEstimator",
     "LinearActor",
     "MLPActor",

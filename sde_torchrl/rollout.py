@@ -23,7 +23,11 @@ from sde_torchrl.exploration import StateDependentExplorer, gaussian_log_prob
 
 @runtime_checkable
 class TensorStepEnv(Protocol):
-    """An env whose observation is its state, stepped by tensor functions."""
+    """An env stepped by tensor functions of the observation and the action.
+
+    The observation may be the whole state (:class:`~sde_torchrl.envs.MinimizeEnv`) or a view
+    of a state kept inside the env (the ball-catching worlds): ``transition`` then reads its own.
+    """
 
     batch_size: torch.Size
 

@@ -60,3 +60,30 @@ def test_envs_or_policies_it_cannot_reproduce_fall_back():
     assert tensor_step_env(env, TensorDictSequential(policy.module[0])) is None
     env.append_transform(RewardScaling(loc=0.0, scale=2.0))  # a transform that must run
     assert tensor_step_env(env, policy) is None
+
+
+def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
+    from torchrl.envs import Compose as _Compose, InitTracker, TransformedEnv
+
+    from sde_torchrl import BatchedBallCatchEnv
+
+    def setup():
+        torch.manual_seed(0)
+        explorer = StateDependentExplorer(4, 3, squash=True)
+        explorer.streams = RunStreams(0, 3, "explore")  # the primer's global draws then do not matter
+        env = TransformedEnv(BatchedBallCatchEnv(num_worlds=3, seed=5),
+                             _Compose(InitTracker(), explorer.make_tensordict_primer()))
+        return env, TensorDictSequential(LinearActor(3, 4, init=[-0.5, 0.5]), explorer)
+
+    env, policy = setup()
+    with torch.no_grad():
+        reference = env.rollout(40, policy, break_when_any_done=False)
+    env2, policy2 = setup()
+    base = tensor_step_env(env2, policy2)
+    assert base is env2.base_env
+    with torch.no_grad():
+        fast = tensor_rollout(base, policy2, 40)
+    for key in ["observation", "action", "sde_noise", ("next", "observation"), ("next", "reward")]:
+        torch.testing.assert_close(fast[key], reference[key], msg=lambda m: f"{key}: {m}")
+    env.close()
+    env2.close()

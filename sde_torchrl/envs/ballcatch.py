@@ -16,7 +16,8 @@ Physical design (see ``assets/ballcatch.urdf``):
 * Because the palm is tilted, a ball landing on an open hand rolls outwards onto the outer
   finger and stops against its bent-up tip, about 1.4 from the palm centre ("kept on the
   fingers", return about -1.37). Closing the hand once the ball has landed pulls it onto the palm
-  (return about -0.91). Closing before it arrives builds a cage the ball bounces off (about -2.6).
+  (return about -0.93). Closed before it arrives, the fingers form a crown (closing limits
+  1.3 rad) that the ball sits on, about 1.3 above the palm (return about -1.5).
 * Torque control only: pybullet's default velocity motors are disabled (force 0) and the
   action in ``[-1, 1]^4`` is scaled by :data:`MAX_TORQUES` (shoulder, elbow, wrist, fingers).
 
@@ -36,9 +37,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -46,13 +48,13 @@ import pybullet
 
 __all__ = [
     "BALLCATCH_ID",
-    "BallCatchConfig",
-    "BallCatchEnv",
-    "BallCatchWorld",
     "EPISODE_STEPS",
     "GROUND_Z",
     "MAX_TORQUES",
     "SCRIPTED_WEIGHTS",
+    "BallCatchConfig",
+    "BallCatchEnv",
+    "BallCatchWorld",
     "episode_return",
     "register_ballcatch",
     "scripted_action",
@@ -101,8 +103,8 @@ The ball's x coordinate (about 2.95, the palm centre) is nearly constant, so the
 a bias: the arm joints are pushed into their upper limits and the fingers stay open while the
 ball is high and close once its centre is below about z = 5.2, i.e. about 0.8 above its resting
 height on the palm (the palm centre is at z = 3.92). Any closing height between about 4.6 and 6.0
-catches; an always-open hand (ball rolls onto the outer finger) scores about -1.37, an
-always-closed hand (ball bounces off the finger cage) about -2.6.
+catches; an always-open hand (ball rolls onto the outer finger) scores about -1.36, an
+always-closed hand (ball sits on the crown of closed fingers) about -1.5.
 """
 
 
@@ -119,6 +121,14 @@ class BallCatchConfig:
         max_torques: maximum torques (shoulder, elbow, wrist, fingers) that scale the action.
         joint_damping: viscous damping of every joint.
         solver_iterations: pybullet ``numSolverIterations`` (pybullet's default is 50).
+
+    Examples:
+        >>> BallCatchConfig(jitter=0.0).max_torques
+        (150.0, 80.0, 30.0, 5.0)
+        >>> BallCatchConfig(jitter=-1.0)
+        Traceback (most recent call last):
+        ...
+        ValueError: jitter must lie in [0, 0.4], got -1.0
     """
 
     jitter: float = 0.05
@@ -397,7 +407,7 @@ class BallCatchEnv(gym.Env):
         >>> env.close()
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1 / TIME_STEP))}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": round(1 / TIME_STEP)}
 
     def __init__(
         self,

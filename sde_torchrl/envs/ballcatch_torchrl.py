@@ -77,7 +77,7 @@ class BatchedBallCatchEnv(EnvBase):
         self.num_worlds = num_worlds
         self.max_steps = max_steps
         self._rng = np.random.default_rng(seed)
-        self._torque_scale = torch.tensor(self.config.max_torques, dtype=torch.float64)
+        self._torque_scale = np.asarray(self.config.max_torques, dtype=np.float64)
         self._t = np.zeros(num_worlds, dtype=np.int64)
         self._grounded = np.zeros(num_worlds, dtype=bool)
         self._ball = np.zeros((num_worlds, 3), dtype=np.float64)
@@ -112,9 +112,11 @@ class BatchedBallCatchEnv(EnvBase):
 
     # ------------------------------------------------------------------ EnvBase API
     def _set_seed(self, seed: int | None) -> None:
+        """Reseed the env's private generator (release jitter); global RNGs are not touched."""
         self._rng = np.random.default_rng(seed)
 
-    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs: object) -> TensorDictBase:
+        """Reset the worlds selected by ``"_reset"`` (all if absent); others keep their state."""
         mask = self._reset_mask(tensordict)
         jitter = self.config.jitter
         for i in np.flatnonzero(mask):
@@ -129,17 +131,36 @@ class BatchedBallCatchEnv(EnvBase):
         return self._pack(distance, truncated)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        forces = self._forces(tensordict.get("action"))
+        """Apply the ``[N, 4]`` action in every world, step once, observe and score."""
+        distance, reward = self._advance(tensordict.get("action"))
+        return self._pack(distance, self._t >= self.max_steps, reward)
+
+    def _advance(self, action: torch.Tensor | None) -> tuple[np.ndarray, np.ndarray]:
+        """One physics step of every world under ``action``: distances and rewards ``[N]``."""
+        forces = self._forces(action)
         observed = [world.step_and_observe(f) for world, f in zip(self.worlds, forces)]
         ball = self._ball = np.array([o[0] for o in observed])
         palm = self._palm = np.array([o[1] for o in observed])
         self._t += 1
         self._grounded |= ball[:, 2] < GROUND_Z
         distance = np.sqrt(((ball - palm) ** 2).sum(axis=1))
-        reward = np.where(self._grounded, GROUND_REWARD, -np.clip(distance, MIN_DISTANCE, DISTANCE_CAP))
-        out = self._pack(distance, self._t >= self.max_steps)
-        out.set("reward", torch.from_numpy(reward.astype(np.float32)).unsqueeze(-1).to(self.device))
-        return out
+        reward = np.where(self._grounded, GROUND_REWARD, -np.minimum(np.maximum(distance, MIN_DISTANCE), DISTANCE_CAP))
+        return distance, reward
+
+    # ---------------------------------------------- tensor stepping (sde_torchrl.rollout)
+    def initial_state(self) -> torch.Tensor:
+        """Resets every world; returns the ball positions ``[N, 3]`` (the observation)."""
+        return self._reset(None)["observation"]
+
+    def transition(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Steps every world under ``u`` (``x``, the current observation, lives in the worlds).
+
+        Returns:
+            Ball positions ``[N, 3]`` and rewards ``[N, 1]``, as :meth:`_step` computes them.
+        """
+        _, reward = self._advance(u)
+        return (torch.from_numpy(self._ball.astype(np.float32)),
+                torch.from_numpy(reward.astype(np.float32)).unsqueeze(-1))
 
     # ------------------------------------------------------------------ helpers
     def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
@@ -155,26 +176,26 @@ class BatchedBallCatchEnv(EnvBase):
             raise ValueError("the input tensordict has no 'action' entry")
         if tuple(action.shape) != (self.num_worlds, 4):
             raise ValueError(f"action must have shape ({self.num_worlds}, 4), got {tuple(action.shape)}")
-        finite = torch.isfinite(action).all(-1)
-        if not bool(finite.all()):
-            bad = torch.nonzero(~finite).flatten().tolist()
-            raise ValueError(f"action contains non-finite values in worlds {bad}")
-        rows = (action.detach().to("cpu", torch.float64).clamp(-1.0, 1.0) * self._torque_scale).tolist()
+        a = action.detach().cpu().numpy().astype(np.float64)  # numpy: far cheaper than torch ops here
+        finite = np.isfinite(a).all(axis=-1)
+        if not finite.all():
+            raise ValueError(f"action contains non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
+        rows = (np.minimum(np.maximum(a, -1.0), 1.0) * self._torque_scale).tolist()
         return [joint_torques(row) for row in rows]
 
-    def _pack(self, distance: np.ndarray, truncated: np.ndarray) -> TensorDict:
+    def _pack(self, distance: np.ndarray, truncated: np.ndarray, reward: np.ndarray | None = None) -> TensorDict:
+        """Observations, done flags (never terminated) and, after a step, rewards as a ``[N]`` TensorDict."""
         trunc = torch.from_numpy(truncated).unsqueeze(-1)
-        return TensorDict(
-            {
-                "observation": torch.from_numpy(self._ball.astype(np.float32)),
-                "distance": torch.from_numpy(distance.astype(np.float32)).unsqueeze(-1),
-                "done": trunc,
-                "terminated": torch.zeros_like(trunc),
-                "truncated": trunc.clone(),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        data = {
+            "observation": torch.from_numpy(self._ball.astype(np.float32)),
+            "distance": torch.from_numpy(distance.astype(np.float32)).unsqueeze(-1),
+            "done": trunc,
+            "terminated": torch.zeros_like(trunc),
+            "truncated": trunc.clone(),
+        }
+        if reward is not None:
+            data["reward"] = torch.from_numpy(reward.astype(np.float32)).unsqueeze(-1)
+        return TensorDict(data, batch_size=self.batch_size, device=self.device)
 
     def _close_worlds(self) -> None:
         for world in self.worlds:
@@ -184,11 +205,6 @@ class BatchedBallCatchEnv(EnvBase):
         """Disconnect every physics client."""
         self._close_worlds()
         super().close(raise_if_closed=raise_if_closed)
-
-    def raw_step(self, forces: list[list[float]]) -> None:
-        """Apply torques and call only ``stepSimulation`` in every world (benchmark baseline)."""
-        for world, f in zip(self.worlds, forces):
-            world.step_forces(f)
 
 
 def make_parallel_ballcatch(

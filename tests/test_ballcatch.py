@@ -1,0 +1,257 @@
+"""Tests of the pybullet ball-catching task (gymnasium env and batched TorchRL env)."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pybullet
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from sde_torchrl.envs.ballcatch import (
+    BALLCATCH_ID,
+    EPISODE_STEPS,
+    SCRIPTED_WEIGHTS,
+    BallCatchConfig,
+    BallCatchEnv,
+    episode_return,
+    main,
+    register_ballcatch,
+    scripted_action,
+)
+from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_parallel_ballcatch
+
+SEEDS = range(5)
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = BallCatchEnv()
+    yield e
+    e.close()
+
+
+def scripted_policy(td):
+    """The scripted controller on a batch, computed exactly as for the gymnasium env."""
+    obs = td["observation"].reshape(-1, 3).numpy()
+    action = np.stack([scripted_action(o).astype(np.float32) for o in obs])
+    return td.set("action", torch.from_numpy(action).reshape(*td.batch_size, 4))
+
+
+# ---------------------------------------------------------------------------- the task itself
+def test_scripted_linear_controller_catches(env):
+    returns = [episode_return(env, "scripted", seed) for seed in SEEDS]
+    assert np.mean(returns) >= -1.1
+    assert min(returns) >= -1.0  # every one a "good catch" in the paper's terms
+
+
+def test_zero_torque_drops_the_ball(env):
+    returns = [episode_return(env, "zero", seed) for seed in SEEDS]
+    assert np.mean(returns) <= -1.5
+
+
+@pytest.mark.parametrize(
+    ("finger_row", "low", "high"),
+    [([-5.0, 0.0, 0.0], -1.5, -1.2), ([5.0, 0.0, 0.0], -1.7, -1.3)],
+    ids=["always-open", "always-closed"],
+)
+def test_catch_needs_timed_closing(env, monkeypatch, finger_row, low, high):
+    """Holding the arm up is not enough: an open hand keeps the ball on its outer finger, a hand
+    closed too early keeps it on top of the fingers (the paper's R ~ -1.5 regime, not a catch)."""
+    weights = SCRIPTED_WEIGHTS.copy()
+    weights[3] = finger_row
+    monkeypatch.setattr("sde_torchrl.envs.ballcatch.SCRIPTED_WEIGHTS", weights)
+    assert low <= episode_return(env, "scripted", 0) <= high
+
+
+def test_rewards_info_and_truncation(env):
+    obs, info = env.reset(seed=3)
+    assert obs.dtype == np.float32 and obs.shape == (3,)
+    assert info["distance"] == pytest.approx(5.0, abs=0.1)
+    rewards, held = [], []
+    for t in range(EPISODE_STEPS):
+        obs, reward, terminated, truncated, info = env.step(scripted_action(obs))
+        rewards.append(reward)
+        held.append(info["held"])
+        assert not terminated
+        assert truncated == (t == EPISODE_STEPS - 1)
+    rewards = np.array(rewards)
+    assert rewards.min() >= -3.0 and rewards.max() <= -0.5
+    assert rewards[0] == -3.0  # distance 5 is capped at 3
+    assert all(held[200:]) and not any(held[:50])
+    assert info["distance"] == pytest.approx(0.5, abs=0.05)
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(np.zeros(4))
+
+
+def test_ground_gives_minus_three_forever(env):
+    env.reset(seed=0)
+    rewards = [env.step(np.zeros(4))[1] for _ in range(300)]
+    first = rewards.index(-3.0, 100)
+    assert all(r == -3.0 for r in rewards[first:])
+
+
+def test_same_seed_same_episode(env):
+    def run(seed):
+        rng = np.random.default_rng(123)
+        obs = [env.reset(seed=seed)[0]]
+        obs += [env.step(rng.uniform(-1, 1, 4))[0] for _ in range(150)]
+        return np.array(obs)
+
+    a, b, c = run(7), run(7), run(8)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a[0], c[0])  # the seed moves the release point (jitter 0.05)
+    assert np.abs(a[0, :2] - c[0, :2]).max() <= 0.1
+
+
+@pytest.mark.parametrize(
+    ("action", "match"),
+    [(np.zeros(3), "shape"), (np.zeros((1, 4)), "shape"), (np.array([0.0, np.nan, 0.0, 0.0]), "non-finite")],
+)
+def test_bad_action_raises(env, action, match):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=match):
+        env.step(action)
+
+
+def test_gymnasium_check_env_and_render():
+    e = BallCatchEnv(render_mode="rgb_array", render_size=(64, 48))
+    try:
+        check_env(e)
+        e.reset(seed=0)
+        frame = e.render()
+        assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8
+        assert frame.std() > 5  # not a blank image
+    finally:
+        e.close()
+
+
+def test_register_is_idempotent():
+    register_ballcatch()
+    register_ballcatch()
+    assert BALLCATCH_ID in gym.registry
+    e = gym.make(BALLCATCH_ID)
+    try:
+        obs, _ = e.reset(seed=0)
+        assert e.observation_space.contains(obs)
+    finally:
+        e.close()
+
+
+def test_bad_config_raises():
+    with pytest.raises(ValueError, match="jitter"):
+        BallCatchConfig(jitter=-1.0)
+    with pytest.raises(ValueError, match="render_mode"):
+        BallCatchEnv(render_mode="human")
+
+
+def test_cli_prints_one_json_line(capsys):
+    main(["--policy", "zero", "--episodes", "1", "--seed", "2"])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1
+    result = json.loads(out[0])
+    assert result["returns"] == [pytest.approx(-3.0)] and result["mean_return"] == pytest.approx(-3.0)
+
+
+# ---------------------------------------------------------------------------- batched TorchRL env
+@pytest.fixture()
+def benv():
+    e = BatchedBallCatchEnv(num_worlds=3, seed=0)
+    yield e
+    e.close()
+
+
+def test_batched_check_env_specs(benv):
+    check_env_specs(benv)
+    assert benv.action_spec.shape == (3, 4)
+    assert benv.observation_spec["observation"].shape == (3, 3)
+
+
+def test_batched_matches_gym_env_without_jitter():
+    config = BallCatchConfig(jitter=0.0)
+    gym_env, benv = BallCatchEnv(config=config), BatchedBallCatchEnv(2, config=config, seed=0)
+    try:
+        obs, _ = gym_env.reset(seed=0)
+        total = 0.0
+        for _ in range(EPISODE_STEPS):
+            obs, reward, *_ = gym_env.step(scripted_action(obs).astype(np.float32))
+            total += reward
+        expected = total / EPISODE_STEPS
+        with torch.no_grad():
+            td = benv.rollout(EPISODE_STEPS, scripted_policy)
+        returns = td["next", "reward"].mean(dim=(1, 2))
+        torch.testing.assert_close(returns, torch.full((2,), expected, dtype=torch.float32))
+        assert expected >= -1.0
+        assert td["next", "truncated"][:, -1].all() and not td["next", "truncated"][:, :-1].any()
+        assert not td["next", "terminated"].any()
+    finally:
+        gym_env.close()
+        benv.close()
+
+
+def test_batched_partial_reset(benv):
+    td = benv.reset()
+    start = td["observation"].clone()
+    for _ in range(60):
+        td = benv.step(td.set("action", torch.zeros(3, 4)))["next"]
+    moved = td["observation"].clone()
+    assert (moved[:, 2] < start[:, 2] - 1.0).all()  # the balls fell
+    td.set("_reset", torch.tensor([[False], [True], [False]]))
+    out = benv.reset(td)
+    assert out["observation"][1, 2] == pytest.approx(float(start[1, 2]), abs=1e-5)  # back up top
+    assert (out["observation"][1, :2] - start[1, :2]).abs().max() <= 0.1  # within twice the jitter
+    torch.testing.assert_close(out["observation"][[0, 2]], moved[[0, 2]])
+    np.testing.assert_array_equal(benv._t, [60, 0, 60])
+
+
+def test_batched_seed_is_private_and_reproducible(benv):
+    np_state, torch_state = np.random.get_state()[1].copy(), torch.get_rng_state().clone()
+    benv.set_seed(5)
+    a = benv.reset()["observation"]
+    benv.set_seed(5)
+    b = benv.reset()["observation"]
+    benv.set_seed(6)
+    c = benv.reset()["observation"]
+    torch.testing.assert_close(a, b)
+    assert not torch.equal(a, c)
+    assert len({tuple(x) for x in a[:, :2].tolist()}) == 3  # worlds get different jitter
+    np.testing.assert_array_equal(np.random.get_state()[1], np_state)
+    assert torch.equal(torch.get_rng_state(), torch_state)
+
+
+@pytest.mark.parametrize(
+    ("action", "match"),
+    [
+        (torch.zeros(2, 4), "shape"),
+        (torch.zeros(3, 3), "shape"),
+        (torch.tensor([[0.0, 0, 0, 0], [0, float("inf"), 0, 0], [0, 0, 0, 0]]), r"worlds \[1\]"),
+    ],
+)
+def test_batched_bad_action_raises(benv, action, match):
+    benv.reset()
+    with pytest.raises(ValueError, match=match):
+        benv._step(TensorDict({"action": action}, batch_size=[]))
+
+
+def test_batched_dead_client_names_the_world(benv):
+    td = benv.reset()
+    pybullet.disconnect(physicsClientId=benv.worlds[1].client)
+    with pytest.raises(RuntimeError, match="world 1"):
+        benv.step(td.set("action", torch.zeros(3, 4)))
+
+
+def test_parallel_helper_runs_two_processes():
+    env = make_parallel_ballcatch(num_workers=2, worlds_per_worker=2)
+    try:
+        env.set_seed(0)
+        with torch.no_grad():
+            td = env.rollout(5, scripted_policy)
+        assert td.batch_size == torch.Size([2, 2, 5])
+        assert (td["next", "reward"] == -3.0).all()  # ball still 5 units above the palm
+    finally:
+        env.close()
