@@ -255,3 +255,22 @@ def test_parallel_helper_runs_two_processes():
         assert (td["next", "reward"] == -3.0).all()  # ball still 5 units above the palm
     finally:
         env.close()
+
+
+def test_stacked_runs_layout_and_per_run_streams():
+    """With runs, the batch is [runs, worlds] and run r's release jitter is that of a one-run
+    env with first_run=r (same seed), so batched and single training jobs agree."""
+    stacked = BatchedBallCatchEnv(num_worlds=2, runs=3, seed=4)
+    single = BatchedBallCatchEnv(num_worlds=2, runs=1, first_run=2, seed=4)
+    try:
+        check_env_specs(stacked)
+        stacked.set_seed(4)
+        first = stacked.reset()["observation"]
+        assert first.shape == (3, 2, 3)
+        torch.testing.assert_close(first[2], single.reset()["observation"][0])
+        assert not torch.equal(first[0], first[1])
+        td = stacked.rand_step(stacked.reset())
+        assert td["next", "reward"].shape == (3, 2, 1)
+    finally:
+        stacked.close()
+        single.close()

@@ -29,6 +29,7 @@ from sde_torchrl.envs.ballcatch import (
     BallCatchWorld,
     joint_torques,
 )
+from sde_torchrl.rng import RunStreams
 
 __all__ = ["BatchedBallCatchEnv", "make_parallel_ballcatch"]
 
@@ -42,12 +43,19 @@ class BatchedBallCatchEnv(EnvBase):
     ``"done"``/``"terminated"``/``"truncated"`` ``[N, 1]``. Episodes are never terminated; they are
     truncated after ``max_steps`` (500) steps. A ``"_reset"`` mask resets only the selected worlds.
 
+    With ``runs`` set, the batch is ``[runs, num_worlds]`` (``runs × num_worlds`` worlds): the
+    layout of independent learners trained side by side, each run drawing its release jitter
+    from its own stream (:class:`~sde_torchrl.rng.RunStreams`, seeded by :meth:`set_seed`).
+
     Args:
-        num_worlds: number of worlds N (one pybullet DIRECT client each).
+        num_worlds: number of worlds N (one pybullet DIRECT client each), per run if ``runs``.
         config: physical parameters shared by all worlds (default :class:`BallCatchConfig`).
         max_steps: episode length (the paper's 500).
         seed: seed of the env's private generator for the ball's release jitter.
         device: torch device of the returned tensors (physics always runs on the CPU).
+        runs: number of independent runs (leading batch dimension), or ``None``.
+        first_run: global index of the first run (seeding shards of a sweep).
+        stream: random stream name for the runs (``"env"`` or ``"eval_env"``).
 
     Examples:
         >>> import torch
@@ -67,16 +75,24 @@ class BatchedBallCatchEnv(EnvBase):
         max_steps: int = EPISODE_STEPS,
         seed: int | None = None,
         device: torch.device | str = "cpu",
+        runs: int | None = None,
+        first_run: int = 0,
+        stream: str = "env",
     ) -> None:
         if num_worlds < 1:
             raise ValueError(f"num_worlds must be >= 1, got {num_worlds}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        super().__init__(device=device, batch_size=torch.Size([num_worlds]))
+        if runs is not None and runs < 1:
+            raise ValueError(f"runs must be >= 1, got {runs}")
+        batch = (num_worlds,) if runs is None else (runs, num_worlds)
+        super().__init__(device=device, batch_size=torch.Size(batch))
         self.config = config or BallCatchConfig()
-        self.num_worlds = num_worlds
+        self.num_worlds = num_worlds * (runs or 1)  # worlds in all, stored flat
+        num_worlds = self.num_worlds
         self.max_steps = max_steps
-        self._rng = np.random.default_rng(seed)
+        self.runs, self.first_run, self.stream = runs, first_run, stream
+        self._set_seed(seed)
         self._torque_scale = np.asarray(self.config.max_torques, dtype=np.float64)
         self._t = np.zeros(num_worlds, dtype=np.int64)
         self._grounded = np.zeros(num_worlds, dtype=bool)
@@ -93,35 +109,47 @@ class BatchedBallCatchEnv(EnvBase):
 
     # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
-        n = self.num_worlds
+        n = tuple(self.batch_size)
         self.observation_spec = Composite(
-            observation=Unbounded(shape=(n, 3), dtype=torch.float32, device=self.device),
-            distance=Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device),
-            shape=(n,),
+            observation=Unbounded(shape=(*n, 3), dtype=torch.float32, device=self.device),
+            distance=Unbounded(shape=(*n, 1), dtype=torch.float32, device=self.device),
+            shape=n,
             device=self.device,
         )
-        self.action_spec = Bounded(-1.0, 1.0, shape=(n, 4), dtype=torch.float32, device=self.device)
-        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32, device=self.device)
+        self.action_spec = Bounded(-1.0, 1.0, shape=(*n, 4), dtype=torch.float32, device=self.device)
+        self.reward_spec = Unbounded(shape=(*n, 1), dtype=torch.float32, device=self.device)
         self.done_spec = Composite(
-            done=Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device),
-            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device),
-            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool, device=self.device),
-            shape=(n,),
+            done=Categorical(2, shape=(*n, 1), dtype=torch.bool, device=self.device),
+            terminated=Categorical(2, shape=(*n, 1), dtype=torch.bool, device=self.device),
+            truncated=Categorical(2, shape=(*n, 1), dtype=torch.bool, device=self.device),
+            shape=n,
             device=self.device,
         )
 
     # ------------------------------------------------------------------ EnvBase API
     def _set_seed(self, seed: int | None) -> None:
         """Reseed the env's private generator (release jitter); global RNGs are not touched."""
-        self._rng = np.random.default_rng(seed)
+        if self.runs is None:
+            self._rng = np.random.default_rng(seed)
+        else:
+            self._streams = RunStreams(0 if seed is None else int(seed), self.runs, self.stream, self.first_run)
+
+    def _jitter(self) -> np.ndarray:
+        """Horizontal release offsets ``[worlds, 2]`` for every world (drawn for all, so the
+        streams do not depend on which worlds reset)."""
+        jitter = self.config.jitter
+        if self.runs is None:
+            return self._rng.uniform(-jitter, jitter, size=(self.num_worlds, 2))
+        u = self._streams.uniform((*self.batch_size, 2)).double().numpy().reshape(-1, 2)
+        return jitter * (2 * u - 1)
 
     def _reset(self, tensordict: TensorDictBase | None, **kwargs: object) -> TensorDictBase:
         """Reset the worlds selected by ``"_reset"`` (all if absent); others keep their state."""
         mask = self._reset_mask(tensordict)
-        jitter = self.config.jitter
+        offsets = self._jitter()
         for i in np.flatnonzero(mask):
             world = self.worlds[i]
-            world.reset(self._rng.uniform(-jitter, jitter, size=2))
+            world.reset(offsets[i])
             self._ball[i] = world.ball_position()
             self._palm[i] = world.palm_position()
         self._t[mask] = 0
@@ -159,8 +187,9 @@ class BatchedBallCatchEnv(EnvBase):
             Ball positions ``[N, 3]`` and rewards ``[N, 1]``, as :meth:`_step` computes them.
         """
         _, reward = self._advance(u)
-        return (torch.from_numpy(self._ball.astype(np.float32)),
-                torch.from_numpy(reward.astype(np.float32)).unsqueeze(-1))
+        batch = tuple(self.batch_size)
+        return (torch.from_numpy(self._ball.astype(np.float32)).reshape(*batch, 3),
+                torch.from_numpy(reward.astype(np.float32)).reshape(*batch, 1))
 
     # ------------------------------------------------------------------ helpers
     def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
@@ -174,9 +203,9 @@ class BatchedBallCatchEnv(EnvBase):
         """Validate the ``[N, 4]`` action and turn it into per-world lists of 11 joint torques."""
         if action is None:
             raise ValueError("the input tensordict has no 'action' entry")
-        if tuple(action.shape) != (self.num_worlds, 4):
-            raise ValueError(f"action must have shape ({self.num_worlds}, 4), got {tuple(action.shape)}")
-        a = action.detach().cpu().numpy().astype(np.float64)  # numpy: far cheaper than torch ops here
+        if tuple(action.shape) != (*self.batch_size, 4):
+            raise ValueError(f"action must have shape {(*self.batch_size, 4)}, got {tuple(action.shape)}")
+        a = action.detach().cpu().reshape(-1, 4).numpy().astype(np.float64)  # numpy: far cheaper than torch ops here
         finite = np.isfinite(a).all(axis=-1)
         if not finite.all():
             raise ValueError(f"action contains non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
@@ -185,16 +214,17 @@ class BatchedBallCatchEnv(EnvBase):
 
     def _pack(self, distance: np.ndarray, truncated: np.ndarray, reward: np.ndarray | None = None) -> TensorDict:
         """Observations, done flags (never terminated) and, after a step, rewards as a ``[N]`` TensorDict."""
-        trunc = torch.from_numpy(truncated).unsqueeze(-1)
+        batch = tuple(self.batch_size)
+        trunc = torch.from_numpy(truncated).reshape(*batch, 1)
         data = {
-            "observation": torch.from_numpy(self._ball.astype(np.float32)),
-            "distance": torch.from_numpy(distance.astype(np.float32)).unsqueeze(-1),
+            "observation": torch.from_numpy(self._ball.astype(np.float32)).reshape(*batch, 3),
+            "distance": torch.from_numpy(distance.astype(np.float32)).reshape(*batch, 1),
             "done": trunc,
             "terminated": torch.zeros_like(trunc),
             "truncated": trunc.clone(),
         }
         if reward is not None:
-            data["reward"] = torch.from_numpy(reward.astype(np.float32)).unsqueeze(-1)
+            data["reward"] = torch.from_numpy(reward.astype(np.float32)).reshape(*batch, 1)
         return TensorDict(data, batch_size=self.batch_size, device=self.device)
 
     def _close_worlds(self) -> None:
