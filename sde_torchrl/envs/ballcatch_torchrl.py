@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase, ParallelEnv
+from torchrl.envs import EnvBase, InitTracker, ParallelEnv, TransformedEnv
 
 from sde_torchrl.envs.ballcatch import (
     DISTANCE_CAP,
@@ -31,7 +31,7 @@ from sde_torchrl.envs.ballcatch import (
 )
 from sde_torchrl.rng import RunStreams
 
-__all__ = ["BatchedBallCatchEnv", "make_parallel_ballcatch"]
+__all__ = ["BatchedBallCatchEnv", "make_ballcatch_env", "make_parallel_ballcatch"]
 
 
 class BatchedBallCatchEnv(EnvBase):
@@ -257,3 +257,31 @@ def make_parallel_ballcatch(
     """
     make = functools.partial(BatchedBallCatchEnv, num_worlds=worlds_per_worker, config=config)
     return ParallelEnv(num_workers, make, **parallel_kwargs)
+
+
+def make_ballcatch_env(
+    episodes: int = 1, *, runs: int | None = None, first_run: int = 0, stream: str = "env",
+    episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None,
+) -> TransformedEnv:
+    """The batched ball-catching env as the trainer builds envs: ``[runs, episodes]`` worlds
+    with ``is_init`` (episodes end by themselves after ``episode_length`` steps).
+
+    Args:
+        episodes: worlds per run (episodes collected side by side).
+        runs: independent runs, or ``None``.
+        first_run: global index of the first run.
+        stream: ``"env"`` or ``"eval_env"``.
+        episode_length: steps per episode (the paper's 500).
+        jitter: half-width of the uniform horizontal release offset.
+        seed: seed of the release jitter.
+
+    Returns:
+        ``TransformedEnv(BatchedBallCatchEnv(...), InitTracker())`` with ``episode_length`` set.
+    """
+    base = BatchedBallCatchEnv(
+        num_worlds=episodes, config=BallCatchConfig(jitter=jitter), max_steps=episode_length,
+        seed=seed, runs=runs, first_run=first_run, stream=stream,
+    )
+    env = TransformedEnv(base, InitTracker())
+    env.episode_length = episode_length
+    return env

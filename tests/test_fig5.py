@@ -1,0 +1,69 @@
+"""analysis/fig5.py: catch counts from evaluation curves, merging shards of a sweep."""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
+import fig5  # noqa: E402
+
+
+def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]]) -> None:
+    """A run directory as train.py writes it: evaluations every 20 updates."""
+    directory.mkdir(parents=True)
+    with open(directory / "metrics.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=["run", "update", "episodes", "return_mean", "eval_return"])
+        writer.writeheader()
+        for offset, curve in enumerate(evals):
+            for i, value in enumerate(curve):
+                for update in range(20 * i, 20 * i + 20):
+                    writer.writerow({"run": first_run + offset, "update": update, "episodes": update + 20,
+                                     "return_mean": -2.0,
+                                     "eval_return": value if update == 20 * i + 19 else ""})
+    summary = {"estimator": "reinforce", "explorer": explorer, "first_run": first_run,
+               "final_eval_return": [curve[-1] for curve in evals]}
+    (directory / "summary.json").write_text(json.dumps(summary))
+
+
+CURVES = {"sde": [[-2.5, -0.95, -1.05], [-2.5, -1.4, -1.2], [-3.0, -2.1, -1.6], [-1.8, -1.09, -1.3]],
+          "rex": [[-3.0, -2.5, -1.9], [-2.2, -1.45, -1.6], [-3.0, -3.0, -3.0], [-2.4, -2.0, -0.99]]}
+
+
+def test_counts_best_and_final_levels(tmp_path):
+    for explorer, curves in CURVES.items():
+        _write_job(tmp_path / explorer, explorer, 0, curves)
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "fig5.json").read_text())
+    sde, rex = result["explorers"]["sde"], result["explorers"]["rex"]
+    assert sde["best"] == {"-2.0": 4, "-1.5": 3, "-1.1": 2, "-1.0": 1}
+    assert sde["final"] == {"-2.0": 4, "-1.5": 3, "-1.1": 1, "-1.0": 0}
+    assert rex["best"] == {"-2.0": 3, "-1.5": 2, "-1.1": 1, "-1.0": 1}
+    assert sde["paper"] == {"-1.0": 68, "-1.1": 98} and sde["runs"] == 4
+    assert (tmp_path / "out" / "fig5.png").stat().st_size > 0
+    assert "(paper 68)" in (tmp_path / "out" / "fig5.md").read_text()
+
+
+def test_shards_merge_to_the_single_process_result(tmp_path):
+    for explorer, curves in CURVES.items():
+        _write_job(tmp_path / "whole" / explorer, explorer, 0, curves)
+        _write_job(tmp_path / "shard_a" / explorer, explorer, 0, curves[:2])
+        _write_job(tmp_path / "shard_b" / explorer, explorer, 2, curves[2:])
+    fig5.main([str(tmp_path / "whole"), "--out", str(tmp_path / "one")])
+    fig5.main([str(tmp_path / "shard_a"), str(tmp_path / "shard_b"), "--out", str(tmp_path / "two")])
+    assert (tmp_path / "one" / "fig5.json").read_text() == (tmp_path / "two" / "fig5.json").read_text()
+
+
+def test_conflicting_copies_of_a_run_are_refused(tmp_path):
+    _write_job(tmp_path / "a", "sde", 0, CURVES["sde"][:1])
+    _write_job(tmp_path / "b", "sde", 0, CURVES["sde"][1:2])
+    with pytest.raises(ValueError, match="appears twice"):
+        fig5.load_runs([tmp_path], "reinforce")
+
+
+def test_no_runs_of_the_estimator_is_an_error(tmp_path):
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out"), "--estimator", "enac"]) == 1
