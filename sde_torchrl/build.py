@@ -14,7 +14,11 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 
+from sde_torchrl.config import register_configs, validate
 from sde_torchrl.envs.minimize import midway_threshold
+
+#: Key of extra exploration features an env may write (``sde_torchrl.envs.gym.FEATURES_KEY``).
+FEATURES_KEY = "sde_features"
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.trainer import Trainer, TrainingSettings
 
@@ -23,7 +27,9 @@ LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator")
 
 
 def register_resolvers() -> None:
-    """Config resolvers: ``${midway_r_lim:T,x0,s,noise_std,theta0}`` (see ``midway_threshold``)."""
+    """Config resolvers (``${midway_r_lim:T,x0,s,noise_std,theta0}``, see ``midway_threshold``)
+    and the config schemas of :mod:`sde_torchrl.config`: call before composing a config."""
+    register_configs()
     OmegaConf.register_new_resolver(
         "midway_r_lim",
         lambda T, x0, s, noise, theta0: midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0)),
@@ -49,15 +55,21 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
     Returns:
         The trainer; call ``train(out_dir)``.
     """
+    validate(cfg)
     torch.manual_seed(cfg.seed)
     env = build_env(cfg, cfg.episodes_per_update, "env")
     eval_env = build_env(cfg, cfg.eval_episodes, "eval_env")
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
+    # The explorer's features: the observation, or what the env writes for it (a constant
+    # feature appended, see sde_torchrl.envs.gym).
+    feature_key = FEATURES_KEY if FEATURES_KEY in env.observation_spec.keys() else "observation"
+    feature_dim = env.observation_spec[feature_key].shape[-1]
 
     actor = instantiate(cfg.actor, in_features=obs_dim, out_features=act_dim, runs=cfg.runs)
     actor.module.reset_parameters(RunStreams(cfg.seed, cfg.runs, "init", cfg.first_run))
-    explorer = instantiate(cfg.explorer, action_dim=act_dim, feature_dim=obs_dim, runs=cfg.runs)
+    explorer = instantiate(cfg.explorer, action_dim=act_dim, feature_dim=feature_dim, runs=cfg.runs,
+                           feature_key=feature_key)
     explorer.streams = RunStreams(cfg.seed, cfg.runs, "explore", cfg.first_run)
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())
@@ -77,18 +89,28 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
     return Trainer(env, eval_env, policy, estimator, optimizer, settings, logger)
 
 
-def run_job(cfg: DictConfig, out_dir: str, choices: dict[str, str | None]) -> dict[str, Any]:
-    """Builds and trains one job; its summary is labelled with the chosen config options,
-    the seed and the whole resolved config, so that a run directory describes itself.
+def run_job(
+    cfg: DictConfig, out_dir: str, choices: dict[str, str | None], progress: bool = False,
+) -> dict[str, Any]:
+    """Builds and trains (or resumes) one job; its summary is labelled with the chosen config
+    options, the seed and the whole resolved config, so that a run directory describes itself.
 
     Args:
         cfg: the composed config.
-        out_dir: the run directory.
+        out_dir: the run directory; a checkpoint there from the same config is resumed.
         choices: group → chosen option (Hydra's ``runtime.choices``).
+        progress: show a progress bar.
 
     Returns:
         The summary written to ``summary.json``.
+
+    Raises:
+        ConfigError: for a config value that is not allowed (before anything is built).
     """
+    validate(cfg)
+    config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
-    labels.update(seed=cfg.seed, config=OmegaConf.to_container(cfg, resolve=True))
-    return build_trainer(cfg, out_dir).train(out_dir, labels)
+    labels.update(seed=cfg.seed, config=config)
+    trainer = build_trainer(cfg, out_dir)
+    return trainer.train(out_dir, labels, config=config,
+                         checkpoint_period=cfg.get("checkpoint_period", 0), progress=progress)

@@ -417,8 +417,10 @@ def test_every_n_choice_with_its_option(jobs):
 
 def test_unknown_group_option_fails(jobs):
     result = jobs["nonsense"]
-    assert result.returncode != 0
+    assert result.returncode == 2  # a config error
     assert "nonsense" in result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith("error: explorer=nonsense: expected one of ")
+    assert "Traceback" not in result.stderr
     assert not (result.out_dir / "summary.json").exists()
 
 

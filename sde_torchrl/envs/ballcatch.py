@@ -46,6 +46,8 @@ import gymnasium as gym
 import numpy as np
 import pybullet
 
+from sde_torchrl.envs.registration import BALLCATCH_ID, EPISODE_STEPS, register_ballcatch
+
 __all__ = [
     "BALLCATCH_ID",
     "EPISODE_STEPS",
@@ -60,11 +62,9 @@ __all__ = [
     "scripted_action",
 ]
 
-BALLCATCH_ID = "sde_torchrl/BallCatch-v0"
 URDF_PATH = Path(__file__).with_name("assets") / "ballcatch.urdf"
 
 TIME_STEP = 0.01
-EPISODE_STEPS = 500
 GRAVITY = -9.81
 BALL_RADIUS = 0.45
 BALL_MASS = 0.5
@@ -476,25 +476,6 @@ def scripted_action(observation: Sequence[float]) -> np.ndarray:
     """The hand-written catching controller: ``tanh(SCRIPTED_WEIGHTS @ ball_xyz)``, a bias-free
     linear map squashed by tanh, i.e. exactly the paper's controller class."""
     return np.tanh(SCRIPTED_WEIGHTS @ np.asarray(observation, dtype=np.float64))
-
-
-def register_ballcatch() -> None:
-    """Register ``sde_torchrl/BallCatch-v0`` with gymnasium (safe to call more than once).
-
-    Examples:
-        >>> import gymnasium as gym
-        >>> register_ballcatch()
-        >>> register_ballcatch()
-        >>> env = gym.make("sde_torchrl/BallCatch-v0")
-        >>> env.close()
-    """
-    if BALLCATCH_ID in gym.registry:
-        return
-    gym.register(
-        id=BALLCATCH_ID,
-        entry_point="sde_torchrl.envs.ballcatch:BallCatchEnv",
-        max_episode_steps=EPISODE_STEPS,
-    )
 
 
 def episode_return(

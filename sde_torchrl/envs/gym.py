@@ -1,0 +1,261 @@
+"""Any gymnasium continuous-control env, batched ``[runs, episodes]`` for episodic training.
+
+``env=gym env.id=Pendulum-v1`` trains on any registered gymnasium env with a continuous
+(``Box``) action space. Each batch element is a TorchRL ``GymEnv``; :class:`GymRunsEnv` steps
+them side by side and gives the trainer the ``[runs, episodes]`` batch it expects.
+
+Per-run randomness: every reset reseeds each episode's env with a seed drawn from its run's
+stream (:class:`~sde_torchrl.rng.RunStreams`, like :class:`~sde_torchrl.envs.MinimizeEnv`), so
+run ``r`` of a batched job sees the start states a single job with ``first_run=r`` sees, and a
+checkpoint of the streams resumes the env exactly.
+
+Fixed horizon: the episodic estimators want ``T`` steps per episode. An episode that ends
+earlier (the task terminates, or gymnasium's time limit truncates it) is held in an absorbing
+state until step ``T``: observation frozen, reward 0, the env not stepped.
+
+Two options matter for SDE, whose exploration ``Θ̂ x`` scales with the features ``|x|``:
+
+* ``normalize_obs``: ``"bounds"`` maps a bounded observation space to ``[-1, 1]``;
+  ``"stats"`` standardises with the mean and standard deviation of ``norm_init_steps`` steps
+  of uniformly random actions (seeded, the same for every job and run). Both are fixed
+  TorchRL ``ObservationNorm`` transforms: no running statistics to checkpoint, and training and
+  evaluation see the same features.
+* ``constant_feature``: append a constant 1 to the explorer's features (``sde_features``), so
+  that the exploration does not vanish where the observation is near 0.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import Compose, EnvBase, InitTracker, ObservationNorm, StepCounter, Transform, TransformedEnv
+from torchrl.envs.libs.gym import GymEnv
+
+from sde_torchrl.config import ConfigError
+from sde_torchrl.rng import RunStreams
+
+#: Key of the explorer's features when ``constant_feature`` is set.
+FEATURES_KEY = "sde_features"
+NORMALIZATIONS = ("bounds", "stats")
+
+
+class GymRunsEnv(EnvBase):
+    """``runs × episodes`` copies of a gymnasium env as one TorchRL env of batch ``[runs, episodes]``.
+
+    Args:
+        env_id: a registered gymnasium id (``"Pendulum-v1"``; ``"module:Env-v0"`` imports
+            ``module`` first).
+        episodes: episodes per run, simulated side by side.
+        runs: independent runs (the leading batch dimension).
+        first_run: global index of the first run (seeding shards of a sweep).
+        stream: ``"env"`` (training) or ``"eval_env"`` (evaluation).
+        seed: job seed (``None``: 0; :meth:`set_seed` changes it).
+        gym_kwargs: passed to ``gymnasium.make`` through ``GymEnv``.
+        reset_options: passed to every ``reset`` (``options=``), e.g. Pendulum's start range
+            ``{"x_init": 0.3, "y_init": 0.3}``.
+
+    Examples:
+        >>> env = GymRunsEnv("Pendulum-v1", episodes=2, runs=1)
+        >>> env.rollout(3)["next", "reward"].shape
+        torch.Size([1, 2, 3, 1])
+    """
+
+    def __init__(
+        self, env_id: str, episodes: int = 10, runs: int = 1, *, first_run: int = 0,
+        stream: str = "env", seed: int | None = None, gym_kwargs: dict[str, Any] | None = None,
+        reset_options: dict[str, Any] | None = None,
+    ) -> None:
+        for name, value in (("episodes", episodes), ("runs", runs)):
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        batch = torch.Size((runs, episodes))
+        super().__init__(batch_size=batch)
+        self.env_id, self.runs, self.first_run, self.stream = env_id, runs, first_run, stream
+        self.reset_options = dict(reset_options) if reset_options else None
+        self.envs = [GymEnv(env_id, **(gym_kwargs or {})) for _ in range(runs * episodes)]
+        proto = self.envs[0]
+        if proto.action_spec.domain != "continuous":
+            raise ValueError(f"{env_id} has a {proto.action_spec.domain} action space; SDE needs a "
+                             "continuous (Box) one")
+        if list(proto.observation_spec.keys()) != ["observation"]:
+            raise ValueError(f"{env_id} has observations {list(proto.observation_spec.keys())}; "
+                             "only flat Box observations are supported")
+        self.max_episode_steps = getattr(proto._env.spec, "max_episode_steps", None)
+        self.observation_spec = proto.observation_spec.expand(batch).clone()
+        self.action_spec = proto.action_spec.expand(*batch, *proto.action_spec.shape).clone()
+        self.reward_spec = proto.reward_spec.expand(*batch, *proto.reward_spec.shape).clone()
+        self._absorbed = torch.zeros(*batch, 1, dtype=torch.bool)
+        self._last_obs = self.observation_spec["observation"].zero()
+        self._streams: RunStreams | None = None
+        self.set_seed(0 if seed is None else seed)
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._streams = RunStreams(0 if seed is None else int(seed), self.runs, self.stream, self.first_run)
+
+    def episode_seeds(self) -> torch.Tensor:
+        """One 48-bit seed per ``(run, episode)`` from the runs' streams, ``[runs, episodes]``."""
+        halves = (self._streams.uniform((*self.batch_size, 2)) * 2**24).long().clamp(max=2**24 - 1)
+        return halves[..., 0] * 2**24 + halves[..., 1]
+
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+        seeds = self.episode_seeds().flatten()  # drawn for all: streams stay data-independent
+        mask = torch.ones(len(self.envs), dtype=torch.bool)
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(len(self.envs), -1).any(-1)
+        obs = self._last_obs.reshape(len(self.envs), -1).clone()
+        for i in mask.nonzero().flatten().tolist():
+            obs[i] = self.envs[i]._reset(seed=int(seeds[i]), options=self.reset_options)["observation"]
+        self._absorbed.view(-1)[mask] = False
+        self._last_obs = obs.reshape(self._last_obs.shape)
+        return TensorDict({"observation": self._last_obs.clone()}, batch_size=self.batch_size)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        actions = tensordict.get("action").reshape(len(self.envs), -1)
+        obs = self._last_obs.reshape(len(self.envs), -1).clone()
+        reward = torch.zeros(len(self.envs), 1)
+        absorbed = self._absorbed.view(-1)
+        for i, env in enumerate(self.envs):
+            if absorbed[i]:
+                continue  # episode over: frozen observation, no reward
+            out = env._step(TensorDict({"action": actions[i]}, batch_size=[]))
+            obs[i], reward[i] = out["observation"], out["reward"]
+            absorbed[i] = bool(out["done"].any())
+        self._last_obs = obs.reshape(self._last_obs.shape)
+        done = torch.zeros(*self.batch_size, 1, dtype=torch.bool)  # the horizon is StepCounter's
+        return TensorDict({
+            "observation": self._last_obs.clone(),
+            "reward": reward.reshape(*self.batch_size, 1),
+            "done": done, "terminated": done.clone(), "truncated": done.clone(),
+        }, batch_size=self.batch_size)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        for env in self.envs:
+            env.close()
+        super().close(raise_if_closed=raise_if_closed)
+
+
+class ConstantFeature(Transform):
+    """Writes ``sde_features = [observation, 1]``: exploration features with a constant.
+
+    SDE's exploration ``Θ̂ x`` vanishes at ``x = 0``; the constant adds a state-independent
+    part (one more column of ``Θ̂``, drawn per episode like the rest).
+
+    Examples:
+        >>> env = TransformedEnv(GymRunsEnv("Pendulum-v1", episodes=2), ConstantFeature())
+        >>> env.reset()["sde_features"].shape
+        torch.Size([1, 2, 4])
+    """
+
+    def __init__(self, in_key: str = "observation", out_key: str = FEATURES_KEY) -> None:
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+
+    def _apply_transform(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.cat([obs, torch.ones_like(obs[..., :1])], dim=-1)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        spec = observation_spec[self.in_keys[0]]
+        observation_spec[self.out_keys[0]] = Unbounded(
+            shape=(*spec.shape[:-1], spec.shape[-1] + 1), dtype=spec.dtype, device=spec.device)
+        return observation_spec
+
+
+def observation_norm(env: GymRunsEnv, kind: str, steps: int = 1000) -> ObservationNorm:
+    """A fixed ``ObservationNorm`` for ``env``'s observations.
+
+    Args:
+        env: the batched env (its spec gives the bounds).
+        kind: ``"bounds"`` (map a bounded space to ``[-1, 1]``) or ``"stats"`` (standardise with
+            the mean and standard deviation of ``steps`` uniformly random steps, seeded).
+        steps: random steps for ``"stats"``.
+
+    Returns:
+        The transform (``(x - loc) / scale``).
+    """
+    if kind == "bounds":
+        spec = env.observation_spec["observation"]
+        low, high = spec.space.low.reshape(-1, spec.shape[-1])[0], spec.space.high.reshape(-1, spec.shape[-1])[0]
+        if not bool(torch.isfinite(low).all() and torch.isfinite(high).all()):
+            raise ValueError(f"{env.env_id} has unbounded observations; use env.normalize_obs=stats")
+        loc, scale = (high + low) / 2, ((high - low) / 2).clamp_min(1e-6)
+    elif kind == "stats":
+        loc, scale = random_observation_stats(env.envs[0], steps)
+    else:
+        raise ValueError(f"unknown normalize_obs {kind!r}; expected one of {NORMALIZATIONS} or None")
+    return ObservationNorm(loc=loc, scale=scale, in_keys=["observation"], standard_normal=True)
+
+
+def random_observation_stats(env: GymEnv, steps: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and standard deviation of the observations of ``steps`` uniformly random steps.
+
+    Uses its own seeded generators (not the job's streams), so every job and run, training
+    and evaluation, gets the same statistics.
+    """
+    gym_env = env._env
+    rng = np.random.default_rng(seed)
+    space = gym_env.action_space
+    obs, _ = gym_env.reset(seed=seed)
+    seen = [np.asarray(obs, dtype=np.float64)]
+    for _ in range(steps - 1):
+        action = rng.uniform(space.low, space.high).astype(space.dtype)
+        obs, _, terminated, truncated, _ = gym_env.step(action)
+        if terminated or truncated:
+            obs, _ = gym_env.reset(seed=int(rng.integers(2**31)))
+        seen.append(np.asarray(obs, dtype=np.float64))
+    data = np.stack(seen)
+    return (torch.as_tensor(data.mean(0), dtype=torch.float32),
+            torch.as_tensor(data.std(0), dtype=torch.float32).clamp_min(1e-6))
+
+
+def make_gym_env(
+    id: str, episode_length: int = 200, *, episodes: int = 10, runs: int = 1, first_run: int = 0,
+    stream: str = "env", normalize_obs: str | None = None, norm_init_steps: int = 1000,
+    constant_feature: bool = False, gym_kwargs: dict[str, Any] | None = None,
+    reset_options: dict[str, Any] | None = None, seed: int | None = None,
+) -> TransformedEnv:
+    """A gymnasium env for episodic training: batch ``[runs, episodes]``, ``episode_length`` steps.
+
+    Args:
+        id: gymnasium id, e.g. ``"Pendulum-v1"``.
+        episode_length: ``T``; at most the env's own time limit.
+        episodes: episodes per run and update.
+        runs: independent runs.
+        first_run: global index of the first run.
+        stream: ``"env"`` or ``"eval_env"``.
+        normalize_obs: ``None``, ``"bounds"`` or ``"stats"`` (see the module docstring).
+        norm_init_steps: random steps for ``"stats"``.
+        constant_feature: add ``sde_features = [observation, 1]`` for the explorer.
+        gym_kwargs: passed to ``gymnasium.make``.
+        reset_options: passed to every reset (``options=``), e.g. a start-state range.
+        seed: job seed (``None``: 0).
+
+    Returns:
+        ``GymRunsEnv`` with ``[ObservationNorm,] [ConstantFeature,] StepCounter, InitTracker``.
+
+    Examples:
+        >>> env = make_gym_env("Pendulum-v1", 50, episodes=3, runs=2, normalize_obs="bounds")
+        >>> env.rollout(50, break_when_any_done=False).batch_size
+        torch.Size([2, 3, 50])
+    """
+    if not isinstance(episode_length, int) or episode_length < 1:
+        raise ValueError(f"episode_length must be a positive integer, got {episode_length!r}")
+    base = GymRunsEnv(id, episodes, runs, first_run=first_run, stream=stream, seed=seed,
+                      gym_kwargs=dict(gym_kwargs or {}), reset_options=reset_options)
+    if base.max_episode_steps is not None and episode_length > base.max_episode_steps:
+        raise ConfigError("env.episode_length", episode_length, f"at most {base.max_episode_steps} "
+                          f"({id}'s time limit; raise it with env.gym_kwargs.max_episode_steps)")
+    transforms: list[Transform] = []
+    if normalize_obs is not None:
+        transforms.append(observation_norm(base, normalize_obs, norm_init_steps))
+    if constant_feature:
+        transforms.append(ConstantFeature())
+    transforms += [StepCounter(episode_length), InitTracker()]
+    env = TransformedEnv(base, Compose(*transforms))
+    env.episode_length = episode_length
+    return env

@@ -1,0 +1,159 @@
+"""Checkpoint and resume: an interrupted job, started again, ends exactly like an uninterrupted one."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+import torch
+from _helpers import REPO, build, own_stderr_lines, read_rows, run_cli, summary_without_wall, train_command
+
+from sde_torchrl.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
+from sde_torchrl.trainer import write_json_atomic
+
+
+# ------------------------------------------------------------------------------ in process
+
+class Crash(RuntimeError):
+    """Stands in for a kill: raised from inside the training loop."""
+
+
+def crash_at(trainer, at: int) -> None:
+    """Makes ``trainer`` raise :class:`Crash` when it starts update ``at``."""
+    original = trainer.update
+
+    def crashing_update(episodes, k):
+        if k == at:
+            raise Crash(f"crash at {k}")
+        return original(episodes, k)
+
+    trainer.update = crashing_update
+
+
+@pytest.mark.parametrize("overrides", [
+    ("explorer=sde",), ("explorer=rex", "estimator=enac"), ("explorer=sde_gauss", "tensor_rollout=false"),
+])
+def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
+    budget = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5", *overrides)
+    reference = build(*budget).train(tmp_path / "ref", checkpoint_period=4)
+
+    crashed = build(*budget)
+    crash_at(crashed, 10)  # after the checkpoint at update 8: updates 8 and 9 are lost
+    with pytest.raises(Crash):
+        crashed.train(tmp_path / "resumed", checkpoint_period=4)
+    assert len(read_rows(tmp_path / "resumed")) == 2 * 10  # rows beyond the checkpoint
+    assert load_checkpoint(tmp_path / "resumed" / "checkpoint.pt")["updates"] == 8
+    # A fresh process would do torch.manual_seed(seed) again: the checkpoint must not need more.
+    torch.manual_seed(1234)
+    resumed = build(*budget).train(tmp_path / "resumed", checkpoint_period=4)
+
+    assert (tmp_path / "resumed" / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
+    reference.pop("wall_s"), resumed.pop("wall_s")
+    assert resumed == reference
+
+
+def test_finished_job_is_not_trained_again(tmp_path):
+    trainer = build("updates=3")
+    first = trainer.train(tmp_path, checkpoint_period=1)
+    again = build("updates=3")
+    crash_at(again, 0)  # would raise if it trained
+    (tmp_path / "summary.json").unlink()  # e.g. killed between checkpoint and summary
+    assert again.train(tmp_path) == first
+
+
+def test_checkpoint_of_another_config_is_refused(tmp_path):
+    build("updates=3").train(tmp_path, config={"lr": 0.005, "updates": 3})
+    with pytest.raises(CheckpointMismatchError, match=r"lr: 0.005 -> 0.01"):
+        build("updates=3").train(tmp_path, config={"lr": 0.01, "updates": 3})
+    # Keys that do not change the numbers may differ.
+    build("updates=3").train(tmp_path, config={"lr": 0.005, "updates": 3, "logger": {"x": 1},
+                                               "checkpoint_period": 9, "progress": True})
+
+
+def test_config_differences_names_nested_keys():
+    saved = {"explorer": {"sharing": "element"}, "runs": 2}
+    assert config_differences(saved, {"explorer": {"sharing": "single"}, "runs": 2}) == [
+        "explorer.sharing: 'element' -> 'single'"]
+
+
+def test_json_written_atomically(tmp_path, monkeypatch):
+    path = tmp_path / "summary.json"
+    write_json_atomic(path, {"a": 1})
+
+    def broken_dump(data, f, **kwargs):
+        f.write('{"a": ')
+        raise OSError("disk full")
+
+    monkeypatch.setattr(json, "dump", broken_dump)
+    with pytest.raises(OSError):
+        write_json_atomic(path, {"a": 2})
+    assert json.loads(path.read_text()) == {"a": 1}  # the old file, whole
+
+
+# --------------------------------------------------------------------------- command line
+
+CLI = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=7")
+
+
+def rows_in(path: Path) -> int:
+    try:
+        return max(len(path.read_bytes().splitlines()) - 1, 0)
+    except FileNotFoundError:
+        return 0
+
+
+def start_and_signal(run_dir: Path, sig: int, after_rows: int) -> subprocess.CompletedProcess:
+    """Starts ``train.py`` with :data:`CLI`, sends ``sig`` once metrics.csv has ``after_rows``
+    rows, and waits for the process to end."""
+    proc = subprocess.Popen(train_command(*CLI, run_dir=run_dir), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while rows_in(run_dir / "metrics.csv") < after_rows:
+        assert proc.poll() is None, f"ended before the signal:\n{proc.stderr.read()[-2000:]}"
+        assert time.monotonic() < deadline, "no progress"
+        time.sleep(0.01)
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert not (run_dir / "summary.json").exists(), "the job finished before the signal"
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        reference = pool.submit(run_cli, *CLI, run_dir=tmp_path / "ref")
+        run_dir = tmp_path / "interrupted"
+
+        # Ctrl-C: a checkpoint after the current update, a message, a clean exit.
+        stopped = start_and_signal(run_dir, signal.SIGINT, after_rows=40)
+        assert stopped.returncode == 130, stopped.stderr[-2000:]
+        lines = own_stderr_lines(stopped.stderr)
+        assert len(lines) == 1 and lines[0].startswith("interrupted: checkpoint after update "), lines
+        assert f"hydra.run.dir={run_dir}" in lines[0]
+        done = load_checkpoint(run_dir / "checkpoint.pt")["updates"]
+        assert rows_in(run_dir / "metrics.csv") == 2 * done  # saved exactly where it stopped
+
+        # SIGKILL at an arbitrary moment of the resumed job: rows after its last checkpoint
+        # are lost from the checkpoint's point of view and must be redone identically.
+        killed = start_and_signal(run_dir, signal.SIGKILL, after_rows=2 * done + 110)
+        assert killed.returncode == -signal.SIGKILL
+        assert load_checkpoint(run_dir / "checkpoint.pt")["updates"] > done
+
+        finished = run_cli(*CLI, run_dir=run_dir)
+        assert finished.returncode == 0, finished.stderr[-2000:]
+        assert "resuming" in finished.stdout
+        ref = reference.result()
+        assert ref.returncode == 0, ref.stderr[-2000:]
+
+    ref_dir = tmp_path / "ref"
+    assert (run_dir / "metrics.csv").read_bytes() == (ref_dir / "metrics.csv").read_bytes()
+    resumed, uninterrupted = summary_without_wall(run_dir), summary_without_wall(ref_dir)
+    assert resumed == uninterrupted
+    assert resumed["updates_done"] == 150
+    scalars = Path("sde_torchrl", "scalars", "return_mean.csv")  # TorchRL's CSV logger too
+    assert (run_dir / scalars).read_bytes() == (ref_dir / scalars).read_bytes()
+    assert not list(run_dir.glob("*.tmp"))

@@ -1,0 +1,116 @@
+"""Config schemas and validation: bad configs fail before any work, in one line."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+from _helpers import compose_config, own_stderr_lines, run_cli
+
+from sde_torchrl import actors, exploration
+from sde_torchrl.config import (
+    ACTIVATIONS, SCHEDULES, SHARINGS, ConfigError, describe_error, validate,
+)
+
+
+def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
+    """The one line a bad config produces, composing and validating in this process."""
+    with pytest.raises(Exception) as info:
+        validate(compose_config(f"+experiment={experiment}", *overrides))
+    line = describe_error(info.value)
+    assert line is not None, f"not recognised as a config error: {info.value!r}"
+    assert "\n" not in line
+    return line
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    (("explorer=nonsense",), "explorer=nonsense: expected one of every_n, rex, sde, sde_gauss"),
+    (("logger=nope",), "logger=nope: expected one of csv, none, tensorboard, wandb"),
+    (("env.episode_length=-3",), "env.episode_length=-3: a positive integer"),
+    (("env.episode_length=ten",), "env.episode_length=ten: an integer"),
+    (("explorer.sharing=both",), "explorer.sharing=both: one of element, action, single"),
+    (("explorer.schedule=sometimes",), "explorer.schedule=sometimes: one of episode, step, every_n"),
+    (("explorer=every_n", "explorer.every_n=0"), "explorer.every_n=0: a positive integer"),
+    (("explorer.every_n=3",), "explorer.every_n=3: null unless explorer.schedule=every_n"),
+    (("updates=abc",), "updates=abc: an integer"),
+    (("runs=0",), "runs=0: a positive integer"),
+    (("seed=-1",), "seed=-1: an integer >= 0"),
+    (("lr=-0.1",), "lr=-0.1: a finite number > 0"),
+    (("actor=mlp", "actor.activation=gelu"), "actor.activation=gelu: one of sigmoid, tanh, relu"),
+    (("actor.init=[0,-1]",), "actor.init=[0, -1]: a number, or [low, high] with low < high"),
+    (("estimator.max_grad_norm=0",), "estimator.max_grad_norm=0.0: a number > 0, or null (no bound)"),
+    (("env.noise_std=-1",), "env.noise_std=-1.0: a finite number >= 0"),
+    (("r_lim=null", "stop_at_threshold=true"),
+     "stop_at_threshold=true: needs a convergence threshold r_lim (not null)"),
+    (("explorer.bogus=1",), "explorer.bogus: unknown key"),
+])
+def test_bad_value_gives_one_line_naming_key_value_and_allowed(overrides, expected):
+    assert config_error_line(*overrides) == expected
+
+
+def test_unknown_gym_id_is_rejected_before_building():
+    line = config_error_line("env.id=Pendulm-v1", experiment="pendulum")
+    assert line.startswith("env.id=Pendulm-v1: a registered gymnasium env id")
+
+
+@pytest.mark.parametrize("overrides", [
+    (), ("explorer=rex",), ("explorer=every_n",), ("explorer=sde_gauss",), ("estimator=enac",),
+    ("actor=mlp", "env.dim=2"), ("logger=tensorboard",), ("logger=wandb",), ("logger=none",),
+])
+def test_shipped_options_validate(overrides):
+    validate(compose_config("+experiment=minimize", *overrides))
+
+
+@pytest.mark.parametrize("overrides", [
+    ("env=gym",), ("env=gym", "actor.bias=true", "env.id=MountainCarContinuous-v0"),
+    ("env=gym", "env.normalize_obs=stats", "env.constant_feature=true", "explorer=rex", "estimator=enac"),
+])
+def test_gym_options_validate(overrides):
+    validate(compose_config(*overrides))
+
+
+def test_gym_normalisation_must_be_known():
+    line = config_error_line("env.normalize_obs=running", experiment="pendulum")
+    assert line == "env.normalize_obs=running: null or one of bounds, stats"
+
+
+@pytest.mark.parametrize("experiment", ["minimize", "noise_sweep", "episode_length_sweep", "minimize2d_mlp",
+                                        "pendulum"])
+def test_experiments_validate(experiment):
+    validate(compose_config(f"+experiment={experiment}"))
+
+
+def test_allowed_values_match_the_modules():
+    assert SCHEDULES == exploration.SCHEDULES
+    assert SHARINGS == exploration.SHARINGS
+    assert set(ACTIVATIONS) == set(actors.ACTIVATIONS)
+
+
+def test_config_error_message():
+    error = ConfigError("explorer.sharing", "both", "one of element, action, single")
+    assert str(error) == "explorer.sharing=both: one of element, action, single"
+    assert isinstance(error, ValueError) and error.key == "explorer.sharing"
+
+
+# The command line: one line on stderr, exit code 2, nothing trained.
+CLI_CASES = {
+    "unknown_explorer": (("explorer=nonsense",), "error: explorer=nonsense: expected one of"),
+    "negative_length": (("env.episode_length=-3",), "error: env.episode_length=-3: a positive integer"),
+    "no_such_sharing": (("explorer.sharing=both",), "error: explorer.sharing=both: one of element"),
+    "wrong_type": (("updates=1.5",), "error: updates=1.5: an integer"),
+}
+
+
+def test_bad_configs_on_the_command_line_fail_in_one_line(tmp_path):
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = {name: pool.submit(run_cli, "+experiment=minimize", *overrides, run_dir=tmp_path / name)
+                   for name, (overrides, _) in CLI_CASES.items()}
+        results = {name: future.result() for name, future in results.items()}
+    for name, (_, expected) in CLI_CASES.items():
+        result = results[name]
+        assert result.returncode == 2, (name, result.returncode, result.stderr[-2000:])
+        lines = own_stderr_lines(result.stderr)
+        assert len(lines) == 1, (name, lines)
+        assert lines[0].startswith(expected), (name, lines[0])
+        assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+        assert not (tmp_path / name / "metrics.csv").exists(), name  # failed before any work
