@@ -85,6 +85,7 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
         episode_length=cfg.env.episode_length, eval_period=cfg.eval_period,
         eval_episodes=cfg.eval_episodes, r_lim=cfg.r_lim, first_run=cfg.first_run,
         stop_at_threshold=cfg.stop_at_threshold, tensor_rollout=cfg.tensor_rollout,
+        episode_queue=cfg.episode_queue,
     )
     return Trainer(env, eval_env, policy, estimator, optimizer, settings, logger)
 

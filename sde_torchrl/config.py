@@ -73,6 +73,15 @@ class MinimizeEnvConf:
 
 
 @dataclass
+class BallCatchEnvConf:
+    """``env=ballcatch``: the pybullet ball-catching task (paper section 4.2)."""
+
+    _target_: str = "sde_torchrl.envs.ballcatch_torchrl.make_ballcatch_env"
+    episode_length: int = 500
+    jitter: float = 0.05
+
+
+@dataclass
 class GymEnvConf:
     """``env=gym``: any gymnasium continuous-control env, through TorchRL's ``GymEnv``."""
 
@@ -174,6 +183,7 @@ class TrainConf:
     r_lim: Optional[float] = None
     stop_at_threshold: bool = False
     tensor_rollout: bool = True
+    episode_queue: int = 0  # > 0: each update uses the last Q episodes per run (ball catching)
     checkpoint_period: int = 25
     progress: Optional[bool] = None  # null: a bar only on a terminal and outside multirun
 
@@ -183,6 +193,7 @@ SCHEMAS: dict[str, type] = {
     "config": TrainConf,
     "env/minimize": MinimizeEnvConf,
     "env/gym": GymEnvConf,
+    "env/ballcatch": BallCatchEnvConf,
     "actor/linear": LinearActorConf,
     "actor/mlp": MLPActorConf,
     "explorer/sde": ExplorerConf,
@@ -224,8 +235,11 @@ def validate(cfg: DictConfig) -> None:
 def _check_top_level(cfg: DictConfig) -> None:
     for key in ("runs", "updates", "episodes_per_update", "eval_episodes"):
         _positive_int(cfg, key, key)
-    for key in ("seed", "first_run", "eval_period", "checkpoint_period"):
+    for key in ("seed", "first_run", "eval_period", "checkpoint_period", "episode_queue"):
         _non_negative_int(cfg, key, key)
+    queue, per_update = cfg.get("episode_queue", 0), cfg.get("episodes_per_update")
+    if queue and queue % per_update:
+        raise ConfigError("episode_queue", queue, f"0 or a multiple of episodes_per_update ({per_update})")
     _positive_float(cfg, "lr", "lr")
     r_lim = cfg.get("r_lim")
     if r_lim is not None and not _is_finite_number(r_lim):
@@ -245,6 +259,10 @@ def _check_env(env: DictConfig, prefix: str) -> None:
                 raise ConfigError(f"{prefix}.{key}", value, "a finite number >= 0")
         if not _is_finite_number(env.get("step_size")):
             raise ConfigError(f"{prefix}.step_size", env.get("step_size"), "a finite number")
+    elif target.endswith("make_ballcatch_env"):
+        jitter = env.get("jitter")
+        if not _is_finite_number(jitter) or not 0 <= jitter <= 0.4:
+            raise ConfigError(f"{prefix}.jitter", jitter, "a number in [0, 0.4]")
     elif target.endswith("make_gym_env"):
         _check_gym_id(env.get("id"), f"{prefix}.id")
         norm = env.get("normalize_obs")

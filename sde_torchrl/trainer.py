@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -82,6 +83,7 @@ class LoopState:
         evals: update index → mean deterministic return of each run ``[runs]``.
         wall_s: training time of earlier sessions of this job (resumed jobs).
         finished: the job ran to its end.
+        queue: with an episode queue, its episodes ``[runs, Q, T]`` as a nested dict of tensors.
     """
 
     update: int
@@ -90,12 +92,13 @@ class LoopState:
     evals: dict[int, torch.Tensor] = field(default_factory=dict)
     wall_s: float = 0.0
     finished: bool = False
+    queue: dict[str, Any] | None = None
 
     def state_dict(self) -> dict[str, Any]:
         return {"update": self.update, "reached": self.reached.clone(),
                 "returns": [r.clone() for r in self.returns],
                 "evals": {k: v.clone() for k, v in self.evals.items()},
-                "wall_s": self.wall_s, "finished": self.finished}
+                "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue}
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any]) -> LoopState:
@@ -120,6 +123,10 @@ class TrainingSettings:
             sweeps need nothing after that).
         tensor_rollout: collect by tensor stepping where the env supports it
             (:mod:`sde_torchrl.rollout`); ``False`` forces TorchRL's ``env.rollout``.
+        episode_queue: 0 for fresh episodes at every update; ``Q > 0`` for the paper's
+            ball-catching schedule: each update uses the last ``Q`` episodes of each run,
+            filled at the start by ``Q / N`` collections, then renewed by ``N`` new
+            episodes after every update (``Q`` must be a multiple of ``N``).
     """
 
     updates: int
@@ -131,6 +138,7 @@ class TrainingSettings:
     first_run: int = 0
     stop_at_threshold: bool = False
     tensor_rollout: bool = True
+    episode_queue: int = 0
 
     def __post_init__(self) -> None:
         for name in ("updates", "episodes_per_update", "episode_length", "eval_episodes"):
@@ -139,6 +147,9 @@ class TrainingSettings:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not isinstance(self.eval_period, int) or self.eval_period < 0:
             raise ValueError(f"eval_period must be a non-negative integer, got {self.eval_period!r}")
+        if self.episode_queue < 0 or self.episode_queue % self.episodes_per_update:
+            raise ValueError(f"episode_queue must be 0 or a multiple of episodes_per_update "
+                             f"({self.episodes_per_update}), got {self.episode_queue}")
         if self.stop_at_threshold and self.r_lim is None:
             raise ValueError("stop_at_threshold needs a convergence threshold r_lim")
 
@@ -302,7 +313,7 @@ class Trainer:
                 _DeferredInterrupt() as interrupt:
             try:
                 for k in range(state.update, s.updates):
-                    stats = self.update(self.collect(), k)
+                    stats = self.update(self._batch(state), k)
                     state.returns.append(stats["return_mean"])
                     if s.r_lim is not None:
                         state.reached |= stats["return_mean"] > s.r_lim
@@ -331,10 +342,33 @@ class Trainer:
             metrics.sync()
         self._save(out, state, config)
 
+    def _batch(self, state: LoopState) -> Any:
+        """The episodes of the next update: fresh ones, or the renewed episode queue."""
+        s = self.settings
+        if not s.episode_queue:
+            return self.collect()
+        if state.queue is None:
+            fill = [self.collect() for _ in range(s.episode_queue // s.episodes_per_update)]
+            queue = torch.cat([self._queued(e) for e in fill], dim=1)
+        else:
+            old = TensorDict(state.queue, batch_size=[self.runs, s.episode_queue, s.episode_length])
+            queue = torch.cat([old[:, s.episodes_per_update:], self._queued(self.collect())], dim=1)
+        state.queue = queue.to_dict()
+        return queue
+
+    def _queued(self, episodes: Any) -> Any:
+        """Only what the estimator reads: the queue is checkpointed."""
+        return episodes.select(*self.estimator.log_likelihood.in_keys, self.estimator.tensor_keys.reward)
+
+    def episodes_after(self, update: int) -> int:
+        """Episodes each run has collected by the end of update ``update`` (0-based)."""
+        s = self.settings
+        return (update + 1) * s.episodes_per_update + max(s.episode_queue - s.episodes_per_update, 0)
+
     def _rows(self, k: int, stats: dict, eval_return: torch.Tensor | None) -> list[dict[str, Any]]:
         s = self.settings
         return [{
-            "run": s.first_run + r, "update": k, "episodes": (k + 1) * s.episodes_per_update,
+            "run": s.first_run + r, "update": k, "episodes": self.episodes_after(k),
             "return_mean": float(stats["return_mean"][r]),
             "eval_return": "" if eval_return is None else float(eval_return[r]),
             "grad_norm": float(stats["grad_norm"][r]),
@@ -388,12 +422,12 @@ class Trainer:
         state = LoopState.from_state_dict(saved["loop"])
         (out / "error.txt").unlink(missing_ok=True)
         if not state.finished:
-            truncate_logger_csv(out, state.update * self.settings.episodes_per_update)
+            truncate_logger_csv(out, self.episodes_after(state.update - 1) if state.update else 0)
         log.info("resuming %s after update %d of %d", out, state.update, self.settings.updates)
         return state
 
     def _log(self, update: int, stats: dict, eval_return: torch.Tensor | None, speed: float) -> None:
-        step = (update + 1) * self.settings.episodes_per_update
+        step = self.episodes_after(update)
         if self.logger is not None:
             self.logger.log_scalar("return_mean", float(stats["return_mean"].mean()), step=step)
             if eval_return is not None:
@@ -418,12 +452,12 @@ class Trainer:
             "initial_return": returns[0].tolist(),
             "final_return": returns[-1].tolist(),
             "final_eval_return": final_eval.tolist(),
-            "episodes_to_threshold": [None if i is None else (i + 1) * s.episodes_per_update for i in first],
+            "episodes_to_threshold": [None if i is None else self.episodes_after(i) for i in first],
             "final_parameters": {  # named as in checkpoint.pt's policy state dict
                 name: p.detach().reshape(self.runs, -1).tolist()
                 for name, p in self.policy.named_parameters()
             },
-            "env_steps": updates_done * s.episodes_per_update * s.episode_length * self.runs,
+            "env_steps": self.episodes_after(updates_done - 1) * s.episode_length * self.runs,
             "wall_s": state.wall_s,
         }
 

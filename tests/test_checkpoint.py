@@ -37,6 +37,7 @@ def crash_at(trainer, at: int) -> None:
 
 @pytest.mark.parametrize("overrides", [
     ("explorer=sde",), ("explorer=rex", "estimator=enac"), ("explorer=sde_gauss", "tensor_rollout=false"),
+    ("episode_queue=8",),
 ])
 def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
     budget = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5", *overrides)
