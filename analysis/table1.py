@@ -61,16 +61,18 @@ def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
     """Trains one job (in a worker process) into ``out_dir``; returns ``out_dir``."""
     import torch
     from hydra import compose, initialize_config_dir
+    from omegaconf import open_dict
 
     from sde_torchrl.build import register_resolvers, run_job
 
     torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
     register_resolvers()
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=[f"+experiment={experiment}", *overrides])
-    choices = {"experiment": experiment, "env": "minimize", "estimator": "reinforce",
-               "actor": "mlp" if experiment == "minimize2d_mlp" else "linear",
-               "explorer": next(o.split("=")[1] for o in overrides if o.startswith("explorer="))}
+        cfg = compose("config", overrides=[f"+experiment={experiment}", *overrides],
+                      return_hydra_config=True)
+    choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
+    with open_dict(cfg):
+        del cfg["hydra"]
     run_job(cfg, out_dir, choices)
     return out_dir
 

@@ -211,23 +211,8 @@ class EpisodicEstimator(LossModule):
         pass
 
     def _set_in_keys(self) -> None:
-        self._in_keys = [self.tensor_keys.reward]
-
-    @property
-    def in_keys(self):
-        return self._in_keys
-
-    @in_keys.setter
-    def in_keys(self, values):
-        self._in_keys = values
-
-    @property
-    def out_keys(self):
-        return ["loss_objective", "return_mean", "gradient"]
-
-    @out_keys.setter
-    def out_keys(self, values):
-        pass
+        self.in_keys = [self.tensor_keys.reward]
+        self.out_keys = ["loss_objective", "return_mean", "gradient"]
 
     def learnable_parameters(self) -> dict[str, nn.Parameter]:
         """The parameters the scores cover, in the order of the flattened gradient."""
