@@ -14,6 +14,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from sde_torchrl.envs.ballcatch import (
+    GROUND_Z,
     BALLCATCH_ID,
     EPISODE_STEPS,
     SCRIPTED_WEIGHTS,
@@ -94,6 +95,34 @@ def test_ground_gives_minus_three_forever(env):
     rewards = [env.step(np.zeros(4))[1] for _ in range(300)]
     first = rewards.index(-3.0, 100)
     assert all(r == -3.0 for r in rewards[first:])
+
+
+def test_ground_contact_freezes_the_world(env):
+    """Ground contact is absorbing: no more physics, the observation stays put, rewards are -3."""
+    obs, _ = env.reset(seed=0)
+    rewards, observations = [], []
+    for _ in range(300):
+        obs, reward, *_ = env.step(np.zeros(4))
+        rewards.append(reward)
+        observations.append(obs)
+    first = next(t for t, o in enumerate(observations) if o[2] < GROUND_Z)
+    assert all(np.array_equal(o, observations[first]) for o in observations[first:])
+    assert all(r == -3.0 for r in rewards[first:])
+
+
+def test_batched_ground_contact_freezes_only_that_world():
+    benv = BatchedBallCatchEnv(2, seed=0)
+    try:
+        action = torch.tensor([[0.0] * 4, [1.0, 1.0, 1.0, -1.0]])  # world 0 drops, world 1 holds
+        with torch.no_grad():
+            td = benv.rollout(300, lambda td: td.set("action", action))
+        height = td["next", "observation"][..., 2]
+        grounded = (height[0] < GROUND_Z).nonzero()[0, 0]
+        assert (height[0, grounded:] == height[0, grounded]).all()
+        assert (td["next", "reward"][0, grounded:] == -3.0).all()
+        assert (height[1] > GROUND_Z).all() and height[1, -1] != height[1, -2]  # still simulated
+    finally:
+        benv.close()
 
 
 def test_same_seed_same_episode(env):

@@ -164,11 +164,19 @@ class BatchedBallCatchEnv(EnvBase):
         return self._pack(distance, self._t >= self.max_steps, reward)
 
     def _advance(self, action: torch.Tensor | None) -> tuple[np.ndarray, np.ndarray]:
-        """One physics step of every world under ``action``: distances and rewards ``[N]``."""
+        """One physics step of every world under ``action``: distances and rewards ``[N]``.
+
+        Worlds whose ball has touched the ground are frozen (absorbing state, reward -3): they
+        are not stepped and keep their last positions.
+        """
         forces = self._forces(action)
-        observed = [world.step_and_observe(f) for world, f in zip(self.worlds, forces)]
-        ball = self._ball = np.array([o[0] for o in observed])
-        palm = self._palm = np.array([o[1] for o in observed])
+        live = np.flatnonzero(~self._grounded)
+        if len(live):
+            worlds = self.worlds
+            observed = [worlds[i].step_and_observe(forces[i]) for i in live]
+            self._ball[live] = [o[0] for o in observed]
+            self._palm[live] = [o[1] for o in observed]
+        ball, palm = self._ball, self._palm
         self._t += 1
         self._grounded |= ball[:, 2] < GROUND_Z
         distance = np.sqrt(((ball - palm) ** 2).sum(axis=1))
