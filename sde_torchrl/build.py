@@ -109,6 +109,7 @@ def run_job(
         ConfigError: for a config value that is not allowed (before anything is built).
     """
     validate(cfg)
+    torch.set_num_threads(cfg.threads)
     config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
     labels.update(seed=cfg.seed, config=config)

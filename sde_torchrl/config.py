@@ -186,6 +186,7 @@ class TrainConf:
     episode_queue: int = 0  # > 0: each update uses the last Q episodes per run (ball catching)
     checkpoint_period: int = 25
     progress: Optional[bool] = None  # null: a bar only on a terminal and outside multirun
+    threads: int = 1  # torch intra-op threads per job (jobs of a sweep share the cores)
 
 
 #: ``schema/<name>`` → dataclass; YAML files name these first in their defaults list.
@@ -233,7 +234,7 @@ def validate(cfg: DictConfig) -> None:
 
 
 def _check_top_level(cfg: DictConfig) -> None:
-    for key in ("runs", "updates", "episodes_per_update", "eval_episodes"):
+    for key in ("runs", "updates", "episodes_per_update", "eval_episodes", "threads"):
         _positive_int(cfg, key, key)
     for key in ("seed", "first_run", "eval_period", "checkpoint_period", "episode_queue"):
         _non_negative_int(cfg, key, key)

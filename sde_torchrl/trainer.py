@@ -208,7 +208,8 @@ class Trainer:
         self._check_finite(update, "return", episode_returns(episodes))
         out = self.estimator(episodes)
         if not bool(torch.isfinite(out["score_norm"]).all()):
-            self._raise_named(update, "score", episode_scores(self.estimator.log_likelihood, episodes))
+            self._raise_named(update, "score", episode_scores(self.estimator.log_likelihood, episodes),
+                              out["score_norm"])
         if not bool(torch.isfinite(out["gradient"]).all()):
             self._raise_named(update, "gradient", self._split(out["gradient"]))
         self.optimizer.zero_grad(set_to_none=True)
@@ -244,14 +245,19 @@ class Trainer:
         flat = param.detach().flatten()
         return name, float(flat[flat.abs().argmax()])
 
-    def _raise_named(self, update: int, what: str, values: dict[str, torch.Tensor]) -> None:
+    def _raise_named(
+        self, update: int, what: str, values: dict[str, torch.Tensor], norm: torch.Tensor | None = None,
+    ) -> None:
         """Raises for the first non-finite entry of ``values`` (estimator names → tensors),
-        naming the parameter as in the policy's state dict."""
+        naming the parameter as in the policy's state dict. If every entry is finite, their
+        per-run ``norm`` overflowed: the runs whose norm is not finite are named."""
         policy_names = self._policy_names()
         for name, value in values.items():
             if not bool(torch.isfinite(value).all()):
                 raise NonFiniteError(update, what, self._bad_runs(value), policy_names.get(name, name), value)
-        raise NonFiniteError(update, what, self._bad_runs(torch.full((self.runs,), float("nan"))))
+        overflow = torch.full((self.runs,), float("nan")) if norm is None else norm
+        raise NonFiniteError(update, f"{what} norm", self._bad_runs(overflow), values=overflow,
+                             detail=" (finite entries too large to square in float32)")
 
     def _policy_names(self) -> dict[str, str]:
         """Estimator parameter names → the policy's (``module.0.module.weight``)."""

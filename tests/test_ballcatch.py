@@ -58,12 +58,12 @@ def test_zero_torque_drops_the_ball(env):
 
 @pytest.mark.parametrize(
     ("finger_row", "low", "high"),
-    [([-5.0, 0.0, 0.0], -1.5, -1.2), ([5.0, 0.0, 0.0], -1.7, -1.3)],
+    [([-5.0, 0.0, 0.0], -1.5, -1.2), ([5.0, 0.0, 0.0], -1.0, -0.5)],
     ids=["always-open", "always-closed"],
 )
-def test_catch_needs_timed_closing(env, monkeypatch, finger_row, low, high):
-    """Holding the arm up is not enough: an open hand keeps the ball on its outer finger, a hand
-    closed too early keeps it on top of the fingers (the paper's R ~ -1.5 regime, not a catch)."""
+def test_catch_needs_a_closed_hand(env, monkeypatch, finger_row, low, high):
+    """Holding the arm up is not enough: an open hand keeps the ball on its outer finger (the
+    paper's R ~ -1.5 regime, not a catch); a hand closed from the start holds the ball in its cup."""
     weights = SCRIPTED_WEIGHTS.copy()
     weights[3] = finger_row
     monkeypatch.setattr("sde_torchrl.envs.ballcatch.SCRIPTED_WEIGHTS", weights)

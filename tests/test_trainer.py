@@ -91,6 +91,25 @@ def test_nan_gradient_or_score_names_the_parameter(tmp_path, what):
     assert len(read_rows(tmp_path)) == 2 * error.update
 
 
+def test_overflowing_score_norm_names_its_run(tmp_path):
+    """Finite scores whose norm overflows float32 (seen with an unbounded gradient) name the run."""
+    trainer = build("runs=3", "updates=5")
+    collect, calls = trainer.collect, []
+
+    def huge_sample():  # a finite action sample so far off that the scores square past float32
+        episodes = collect()
+        if len(calls) == 1:
+            episodes["action_sample"][2, 0, 4] = 1e17
+        calls.append(1)
+        return episodes
+    trainer.collect = huge_sample
+    with pytest.raises(NonFiniteError) as info:
+        trainer.train(tmp_path)
+    error = info.value
+    assert (error.what, error.update, error.runs) == ("score norm", 1, [2])
+    assert "non-finite score norm at update 1 in run 2" in str(error)
+
+
 def test_nan_run_on_the_command_line_fails_in_one_line(tmp_path):
     result = run_cli("+experiment=minimize", "updates=5", "runs=2", "lr=1e38", "logger=none", run_dir=tmp_path)
     assert result.returncode == 1

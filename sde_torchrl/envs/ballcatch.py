@@ -15,9 +15,11 @@ Physical design (see ``assets/ballcatch.urdf``):
   the ball drops past it to the ground.
 * Because the palm is tilted, a ball landing on an open hand rolls outwards onto the outer
   finger and stops against its bent-up tip, about 1.4 from the palm centre ("kept on the
-  fingers", return about -1.37). Closing the hand once the ball has landed pulls it onto the palm
-  (return about -0.93). Closed before it arrives, the fingers form a crown (closing limits
-  1.3 rad) that the ball sits on, about 1.3 above the palm (return about -1.5).
+  fingers but hasn't learned to close the hand", the paper's R ~ -1.5 regime; here about -1.36).
+  Closing the hand holds the ball on the palm, inside the cup of closed fingers (closing limits
+  proximal 1.2, distal 1.0 rad leave an opening of radius about 0.55 for the 0.45 ball), whether
+  it closes before the ball arrives or after it has landed (return about -0.93): the paper's
+  "catch" is "closing the hand and holding the ball".
 * Torque control only: pybullet's default velocity motors are disabled (force 0) and the
   action in ``[-1, 1]^4`` is scaled by :data:`MAX_TORQUES` (shoulder, elbow, wrist, fingers).
 
@@ -106,9 +108,8 @@ SCRIPTED_WEIGHTS = np.array(
 The ball's x coordinate (about 2.95, the palm centre) is nearly constant, so the x column acts as
 a bias: the arm joints are pushed into their upper limits and the fingers stay open while the
 ball is high and close once its centre is below about z = 5.2, i.e. about 0.8 above its resting
-height on the palm (the palm centre is at z = 3.92). Any closing height between about 4.6 and 6.0
-catches; an always-open hand (ball rolls onto the outer finger) scores about -1.36, an
-always-closed hand (ball sits on the crown of closed fingers) about -1.5.
+height on the palm (the palm centre is at z = 3.92). An always-closed hand catches as well
+(about -0.93); an always-open hand (ball rolls onto the outer finger) scores about -1.36.
 """
 
 
