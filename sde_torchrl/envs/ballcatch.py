@@ -127,8 +127,8 @@ class BallCatchConfig:
         joint_damping: viscous damping of every joint.
         solver_iterations: pybullet ``numSolverIterations`` (pybullet's default is 50). With 25
             to 50 the scripted catch, the open hand and the closed hand give the same returns
-            (-0.93, -1.34, -1.48); with 20 the ball on an open hand slides further (-1.65) and
-            with 10 it slips through. 30 keeps a margin and steps 1.17x faster than 50.
+            (about -0.95, -1.34, -0.94); with 20 the ball on an open hand slides further
+            (-1.65). 30 keeps a margin and steps 1.17x faster than 50.
 
     Examples:
         >>> BallCatchConfig(jitter=0.0).max_torques

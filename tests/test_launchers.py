@@ -1,0 +1,79 @@
+"""Sweeps on distributed engines: Ray (hydra-ray-launcher, a local cluster started on loopback)
+and Slurm's launcher (hydra-submitit-launcher, with submitit's local executor).
+
+These need the ``ray`` / ``sweeps`` extras and take a while (a Ray head node starts), so they
+are marked ``launchers`` and skipped in the default run; run them with
+``python -m pytest tests/test_launchers.py`` (or ``-m launchers``). Each trains a sweep split
+into shards through the launcher and checks that the merged shards equal one process.
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from test_sweeps import _metrics, _train
+
+pytestmark = pytest.mark.launchers
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _shards_equal_one_process(tmp_path: Path, *launcher: str) -> None:
+    _train("runs=4", f"hydra.run.dir={tmp_path / 'one'}")
+    _train("runs=2", "first_run=0,2", *launcher, f"hydra.sweep.dir={tmp_path / 'shards'}", multirun=True)
+    one, shards = _metrics(tmp_path / "one"), _metrics(tmp_path / "shards")
+    assert len(one) == 4 * 6 and len(list((tmp_path / "shards").rglob("summary.json"))) == 2
+    assert shards == one
+
+
+def test_submitit_local_executor_shards_equal_one_process(tmp_path):
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    _shards_equal_one_process(tmp_path, "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10")
+
+
+def test_slurm_config_composes_for_submitit(tmp_path):
+    """The shipped Slurm config is a submitit_slurm launcher with our per-shard resources."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    result = subprocess.run(
+        [sys.executable, "train.py", "+experiment=ballcatch_sweep", "hydra/launcher=slurm", "--cfg", "hydra"],
+        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "SlurmLauncher" in result.stdout and "cpus_per_task: 1" in result.stdout
+
+
+@pytest.fixture()
+def ray_head():
+    """A Ray head node on 127.0.0.1 (2 CPUs, no dashboard), stopped afterwards. Its temp dir is
+    short: Ray's Unix socket paths must fit in 107 characters."""
+    pytest.importorskip("hydra_plugins.hydra_ray_launcher")
+    ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or shutil.which("ray")
+    if ray is None:
+        pytest.skip("the ray command is not installed")
+    port = _free_port()
+    start = [ray, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
+             "--include-dashboard=false", "--disable-usage-stats"]
+    temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")
+    start.append(f"--temp-dir={temp}")
+    started = subprocess.run(start, capture_output=True, text=True, timeout=180)
+    assert started.returncode == 0, started.stderr[-2000:]
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        subprocess.run([ray, "stop", "--force"], capture_output=True, timeout=120)
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_ray_cluster_shards_equal_one_process(tmp_path, ray_head):
+    _shards_equal_one_process(tmp_path, "hydra/launcher=ray_cluster", f"hydra.launcher.ray.init.address={ray_head}")
