@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -67,3 +68,34 @@ def test_conflicting_copies_of_a_run_are_refused(tmp_path):
 
 def test_no_runs_of_the_estimator_is_an_error(tmp_path):
     assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out"), "--estimator", "enac"]) == 1
+
+
+def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
+    """Real (short) ball-catching jobs: two shards over Hydra's joblib launcher and one process
+    training both runs give the same fig5.json; the video script films the best run."""
+    tiny = ["+experiment=ballcatch", "updates=2", "episode_queue=2", "eval_period=1", "eval_episodes=1",
+            "env.episode_length=40", "logger=none"]
+    root = Path(__file__).resolve().parents[1]
+
+    def train(*args: str) -> None:
+        result = subprocess.run([sys.executable, "train.py", *args], cwd=root, capture_output=True, text=True,
+                                timeout=600)
+        assert result.returncode == 0, result.stderr[-2000:]
+
+    train(*tiny, "runs=2", f"hydra.run.dir={tmp_path / 'one'}")
+    train("-m", *tiny, "runs=1", "first_run=0,1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+          f"hydra.sweep.dir={tmp_path / 'shards'}")
+    assert fig5.main([str(tmp_path / "one"), "--out", str(tmp_path / "fig_one")]) == 0
+    assert fig5.main([str(tmp_path / "shards"), "--out", str(tmp_path / "fig_shards")]) == 0
+    one = json.loads((tmp_path / "fig_one" / "fig5.json").read_text())
+    assert one == json.loads((tmp_path / "fig_shards" / "fig5.json").read_text())
+    assert one["explorers"]["sde"]["runs"] == 2
+
+    video = subprocess.run([sys.executable, "analysis/ballcatch_video.py", str(tmp_path / "shards"),
+                            "--out", str(tmp_path / "best.gif")], cwd=root, capture_output=True, text=True,
+                           timeout=600)
+    assert video.returncode == 0, video.stderr[-2000:]
+    line = json.loads(video.stdout.strip().splitlines()[-1])
+    finals = json.loads((tmp_path / "one" / "summary.json").read_text())["final_eval_return"]
+    assert line["run"] == max(range(2), key=finals.__getitem__)
+    assert -3.0 <= line["filmed_return"] <= -0.5 and (tmp_path / "best.gif").stat().st_size > 0

@@ -43,7 +43,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -490,26 +490,28 @@ def scripted_action(observation: Sequence[float]) -> np.ndarray:
 
 
 def episode_return(
-    env: BallCatchEnv, policy: str, seed: int, rng: np.random.Generator | None = None, frames: list | None = None,
-    frame_every: int = 5,
+    env: BallCatchEnv, policy: str | Callable[[np.ndarray], np.ndarray], seed: int,
+    rng: np.random.Generator | None = None, frames: list | None = None, frame_every: int = 5,
 ) -> float:
     """Run one episode and return the paper's return (mean reward over the 500 steps).
 
     Args:
         env: the environment.
-        policy: ``"scripted"``, ``"zero"`` or ``"random"``.
+        policy: ``"scripted"``, ``"zero"``, ``"random"``, or a function observation → action.
         seed: reset seed.
         rng: generator for the random policy (defaults to one seeded with ``seed``).
         frames: if given, every ``frame_every``-th rendered frame is appended to it.
         frame_every: frame subsampling.
     """
-    if policy not in ("scripted", "zero", "random"):
-        raise ValueError(f"policy must be 'scripted', 'zero' or 'random', got {policy!r}")
+    if not callable(policy) and policy not in ("scripted", "zero", "random"):
+        raise ValueError(f"policy must be 'scripted', 'zero', 'random' or a function, got {policy!r}")
     rng = rng or np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
     total, truncated, t = 0.0, False, 0
     while not truncated:
-        if policy == "scripted":
+        if callable(policy):
+            action = policy(obs)
+        elif policy == "scripted":
             action = scripted_action(obs)
         elif policy == "zero":
             action = np.zeros(4)
