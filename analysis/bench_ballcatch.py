@@ -32,7 +32,6 @@ import argparse
 import json
 import time
 
-import numpy as np
 import pybullet
 import torch
 from tensordict import TensorDict

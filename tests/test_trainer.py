@@ -16,18 +16,23 @@ from sde_torchrl.trainer import NonFiniteError
 # ------------------------------------------------------------------------ non-finite guard
 
 
-def poison_rewards(trainer, at: int, run: int) -> None:
-    """Makes one reward of ``run`` NaN in the episodes of update ``at``."""
+def tamper(trainer, at: int, edit) -> None:
+    """Applies ``edit`` (in place) to the episodes collected for update ``at``."""
     collect, calls = trainer.collect, []
 
-    def poisoned():
+    def tampered():
         episodes = collect()
         if len(calls) == at:
-            episodes["next", "reward"][run, 0, 3] = float("nan")
+            edit(episodes)
         calls.append(1)
         return episodes
 
-    trainer.collect = poisoned
+    trainer.collect = tampered
+
+
+def poison_rewards(trainer, at: int, run: int) -> None:
+    """Makes one reward of ``run`` NaN in the episodes of update ``at``."""
+    tamper(trainer, at, lambda episodes: episodes["next", "reward"].__setitem__((run, 0, 3), float("nan")))
 
 
 def test_nan_return_names_update_and_run_and_keeps_metrics(tmp_path):
@@ -68,16 +73,10 @@ def test_nan_gradient_or_score_names_the_parameter(tmp_path, what):
             return gradient, diagnostics
         trainer.estimator.estimate = broken
     else:
-        collect, calls = trainer.collect, []
-
-        def infinite_sample():  # an infinite action sample: finite returns, non-finite σ̂ score
-            episodes = collect()
-            if len(calls) == 2:
-                episodes["action_sample"][0, 1, 4] = float("inf")
-                episodes["next", "reward"][0, 1, 4] = 0.0
-            calls.append(1)
-            return episodes
-        trainer.collect = infinite_sample
+        def infinite_sample(episodes):  # an infinite action sample: finite returns, non-finite σ̂ score
+            episodes["action_sample"][0, 1, 4] = float("inf")
+            episodes["next", "reward"][0, 1, 4] = 0.0
+        tamper(trainer, 2, infinite_sample)
     with pytest.raises(NonFiniteError) as info:
         trainer.train(tmp_path)
     error = info.value
@@ -94,15 +93,8 @@ def test_nan_gradient_or_score_names_the_parameter(tmp_path, what):
 def test_overflowing_score_norm_names_its_run(tmp_path):
     """Finite scores whose norm overflows float32 (seen with an unbounded gradient) name the run."""
     trainer = build("runs=3", "updates=5")
-    collect, calls = trainer.collect, []
-
-    def huge_sample():  # a finite action sample so far off that the scores square past float32
-        episodes = collect()
-        if len(calls) == 1:
-            episodes["action_sample"][2, 0, 4] = 1e17
-        calls.append(1)
-        return episodes
-    trainer.collect = huge_sample
+    # a finite action sample so far off that the scores square past float32
+    tamper(trainer, 1, lambda episodes: episodes["action_sample"].__setitem__((2, 0, 4), 1e17))
     with pytest.raises(NonFiniteError) as info:
         trainer.train(tmp_path)
     error = info.value

@@ -1,0 +1,43 @@
+"""The ball-catching comparisons of the paper (Fig. 5 and 6) on the full budget: 100 runs each of
+SDE and REX, with REINFORCE and with ENAC. Slow (about 50 minutes each on 2 cores):
+``python -m pytest -m slow tests/test_ballcatch_claims.py``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
+import fig5  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sweep(tmp_path: Path, experiment: str, estimator: str) -> dict:
+    result = subprocess.run([sys.executable, "train.py", "-m", f"+experiment={experiment}",
+                             f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert fig5.main([str(tmp_path / "sweep"), "--out", str(tmp_path / "out"), "--estimator", estimator]) == 0
+    name = fig5.FIGURE[estimator]
+    return json.loads((tmp_path / "out" / f"{name}.json").read_text())["explorers"]
+
+
+@pytest.mark.slow
+def test_reinforce_sde_catches_far_more_often_than_rex(tmp_path):
+    explorers = _sweep(tmp_path, "ballcatch_sweep", "reinforce")
+    sde, rex = explorers["sde"], explorers["rex"]
+    assert sde["runs"] == rex["runs"] == 100
+    assert sde["best"]["-1.0"] >= 3 * rex["best"]["-1.0"] and sde["best"]["-1.0"] > 0
+    assert sde["best"]["-1.1"] >= 80
+
+
+@pytest.mark.slow
+def test_enac_sde_catches_more_often_than_rex(tmp_path):
+    explorers = _sweep(tmp_path, "ballcatch_enac_sweep", "enac")
+    assert explorers["sde"]["runs"] == explorers["rex"]["runs"] == 100
+    assert explorers["sde"]["best"]["-1.1"] > explorers["rex"]["best"]["-1.1"]
