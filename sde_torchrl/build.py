@@ -114,5 +114,8 @@ def run_job(
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
     labels.update(seed=cfg.seed, config=config)
     trainer = build_trainer(cfg, out_dir)
-    return trainer.train(out_dir, labels, config=config,
-                         checkpoint_period=cfg.get("checkpoint_period", 0), progress=progress)
+    try:
+        return trainer.train(out_dir, labels, config=config,
+                             checkpoint_period=cfg.get("checkpoint_period", 0), progress=progress)
+    finally:
+        trainer.close()  # a launcher's worker process may run further jobs
