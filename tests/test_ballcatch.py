@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -318,3 +321,13 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     build.run_job(cfg, str(tmp_path), {})
     worlds = [w for env in (built[0].env, built[0].eval_env) for w in env.base_env.worlds]
     assert len(worlds) == 4 and not any(w.is_connected() for w in worlds)
+
+
+def test_benchmark_prints_one_json_line_with_its_figures():
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run([sys.executable, "analysis/bench_ballcatch.py", "--worlds", "2", "--steps", "5",
+                             "--repeats", "1"], cwd=root, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    figures = json.loads(result.stdout.strip().splitlines()[-1])
+    assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0
+    assert figures["ratio"] == pytest.approx(figures["env_steps_per_s"] / figures["raw_steps_per_s"], rel=1e-2)
