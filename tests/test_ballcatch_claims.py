@@ -5,7 +5,6 @@ SDE and REX, with REINFORCE and with ENAC. Slow (about 50 minutes each on 2 core
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,14 +12,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
 import fig5  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
+from _helpers import run_cli  # noqa: E402
 
 
 def _sweep(tmp_path: Path, experiment: str, estimator: str) -> dict:
-    result = subprocess.run([sys.executable, "train.py", "-m", f"+experiment={experiment}",
-                             f"hydra.sweep.dir={tmp_path / 'sweep'}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
+    result = run_cli(f"+experiment={experiment}", run_dir=tmp_path / "sweep", multirun=True, timeout=3 * 3600)
     assert result.returncode == 0, result.stderr[-3000:]
     assert fig5.main([str(tmp_path / "sweep"), "--out", str(tmp_path / "out"), "--estimator", estimator]) == 0
     name = fig5.FIGURE[estimator]

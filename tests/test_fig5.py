@@ -12,6 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
 import fig5  # noqa: E402
+from _helpers import REPO, run_cli  # noqa: E402
 
 
 def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]]) -> None:
@@ -75,16 +76,11 @@ def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
     training both runs give the same fig5.json; the video script films the best run."""
     tiny = ["+experiment=ballcatch", "updates=2", "episode_queue=2", "eval_period=1", "eval_episodes=1",
             "env.episode_length=40", "logger=none"]
-    root = Path(__file__).resolve().parents[1]
-
-    def train(*args: str) -> None:
-        result = subprocess.run([sys.executable, "train.py", *args], cwd=root, capture_output=True, text=True,
-                                timeout=600)
+    single = run_cli(*tiny, "runs=2", run_dir=tmp_path / "one", timeout=600)
+    sharded = run_cli(*tiny, "runs=1", "first_run=0,1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+                     run_dir=tmp_path / "shards", multirun=True, timeout=600)
+    for result in (single, sharded):
         assert result.returncode == 0, result.stderr[-2000:]
-
-    train(*tiny, "runs=2", f"hydra.run.dir={tmp_path / 'one'}")
-    train("-m", *tiny, "runs=1", "first_run=0,1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-          f"hydra.sweep.dir={tmp_path / 'shards'}")
     assert fig5.main([str(tmp_path / "one"), "--out", str(tmp_path / "fig_one")]) == 0
     assert fig5.main([str(tmp_path / "shards"), "--out", str(tmp_path / "fig_shards")]) == 0
     one = json.loads((tmp_path / "fig_one" / "fig5.json").read_text())
@@ -92,7 +88,7 @@ def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
     assert one["explorers"]["sde"]["runs"] == 2
 
     video = subprocess.run([sys.executable, "analysis/ballcatch_video.py", str(tmp_path / "shards"),
-                            "--out", str(tmp_path / "best.gif")], cwd=root, capture_output=True, text=True,
+                            "--out", str(tmp_path / "best.gif")], cwd=REPO, capture_output=True, text=True,
                            timeout=600)
     assert video.returncode == 0, video.stderr[-2000:]
     line = json.loads(video.stdout.strip().splitlines()[-1])
