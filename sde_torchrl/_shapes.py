@@ -30,3 +30,30 @@ def align(param: torch.Tensor, run_dims: int, batch_dims: int) -> torch.Tensor:
         )
     shape = param.shape
     return param.reshape(*shape[:run_dims], *([1] * (batch_dims - run_dims)), *shape[run_dims:])
+
+
+def stacked_matvec(matrix: torch.Tensor, x: torch.Tensor, run_dims: int) -> torch.Tensor:
+    """``y[..., a] = Σ_s matrix[a, s] · x[..., s]`` for a (run-stacked) matrix.
+
+    One matrix product per run over all of that run's data rows: a broadcast ``matrix @
+    x.unsqueeze(-1)`` would expand the matrix to every row and multiply millions of tiny
+    matrices (the episode queue's log-likelihood is 5-10x slower that way).
+
+    Args:
+        matrix: ``[*runs, A, S]`` with ``len(runs) == run_dims``.
+        x: ``[*runs, *B, S]``.
+        run_dims: number of leading run dimensions of ``matrix`` (0 or 1).
+
+    Returns:
+        Tensor of shape ``[*runs, *B, A]``.
+
+    Raises:
+        ValueError: if ``x`` has fewer batch dimensions than ``matrix`` has run dims.
+    """
+    if x.dim() - 1 < run_dims:
+        raise ValueError(
+            f"data with {x.dim() - 1} batch dims cannot hold {run_dims} run dims; "
+            "stacked runs expect inputs shaped [runs, ..., features]"
+        )
+    rows = x.reshape(*x.shape[:run_dims], -1, x.shape[-1])
+    return (rows @ matrix.transpose(-1, -2)).reshape(*x.shape[:-1], matrix.shape[-2])

@@ -14,7 +14,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
 
-from sde_torchrl._shapes import align
+from sde_torchrl._shapes import align, stacked_matvec
 from sde_torchrl.rng import RunStreams, draw_uniform
 
 ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "relu": torch.relu}
@@ -69,7 +69,7 @@ class BatchedLinear(nn.Module):
         if x.shape[-1] != self.in_features:
             raise ValueError(f"input has {x.shape[-1]} features, expected {self.in_features}")
         batch_dims = x.dim() - 1
-        y = (align(self.weight, self.run_dims, batch_dims) @ x.unsqueeze(-1)).squeeze(-1)
+        y = stacked_matvec(self.weight, x, self.run_dims)
         if self.bias is not None:
             y = y + align(self.bias, self.run_dims, batch_dims)
         return y

@@ -19,7 +19,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, TensorDictPrimer
 from torchrl.envs.utils import ExplorationType, exploration_type
 
-from sde_torchrl._shapes import align
+from sde_torchrl._shapes import align, stacked_matvec
 from sde_torchrl.rng import RunStreams, draw_normal
 
 SCHEDULES = ("episode", "step", "every_n")
@@ -197,8 +197,7 @@ class StateDependentExplorer(TensorDictModuleBase):
             ``σ`` of shape ``[*batch, A]`` with ``σ_j² = Σ_i (x_i σ̂_ji)² + σ_gauss_j²``.
         """
         batch_dims = features.dim() - 1
-        sigma_hat = align(self.sde_sigma, self.run_dims, batch_dims)
-        variance = (features.unsqueeze(-2).square() * sigma_hat.square()).sum(-1)
+        variance = stacked_matvec(self.sde_sigma.square(), features.square(), self.run_dims)
         if self.has_gaussian:
             variance = variance + align(expln(self.gaussian_param), self.run_dims, batch_dims).square()
         return variance.clamp_min(MIN_VARIANCE).sqrt()

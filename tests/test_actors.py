@@ -7,6 +7,7 @@ import torch
 from tensordict import TensorDict
 
 from sde_torchrl import LinearActor, MLPActor
+from sde_torchrl._shapes import stacked_matvec
 from sde_torchrl.rng import RunStreams
 
 
@@ -64,3 +65,16 @@ def test_bad_input_is_rejected_by_name():
         LinearActor(1, 1, init=[0.0, -1.0])
     with pytest.raises(ValueError, match="features"):
         LinearActor(3, 2)(TensorDict({"observation": torch.zeros(4, 2)}, [4]))
+
+
+@pytest.mark.parametrize(("run_shape", "batch"), [((), (7,)), ((), (2, 5)), ((3,), (3, 4)), ((3,), (3, 2, 6))])
+def test_stacked_matvec_is_theta_x_per_run(run_shape, batch):
+    matrix, x = torch.randn(*run_shape, 4, 3), torch.randn(*batch, 3)
+    run_dims = len(run_shape)
+    expected = torch.einsum("ras,r...s->r...a" if run_dims else "as,...s->...a", matrix, x)
+    torch.testing.assert_close(stacked_matvec(matrix, x, run_dims), expected)
+
+
+def test_stacked_matvec_needs_a_run_dimension_in_the_data():
+    with pytest.raises(ValueError, match="cannot hold 1 run dims"):
+        stacked_matvec(torch.randn(3, 4, 3), torch.randn(3), run_dims=1)
