@@ -61,7 +61,7 @@ def catching_policy(seed: int) -> tuple[TensorDictSequential, StateDependentExpl
 def joint_forces(env: BatchedBallCatchEnv, actions: torch.Tensor) -> list[list[list[float]]]:
     """Per step and world, the 11 joint torques the env applies for ``actions [N, K, 4]``."""
     scaled = (actions.clamp(-1, 1).double() * torch.tensor(env.config.max_torques, dtype=torch.float64)).numpy()
-    return [[joint_torques(row) for row in scaled[:, k].tolist()] for k in range(scaled.shape[1])]
+    return [joint_torques(scaled[:, k]).tolist() for k in range(scaled.shape[1])]
 
 
 def time_raw(env: BatchedBallCatchEnv, forces: list[list[list[float]]]) -> tuple[float, float]:

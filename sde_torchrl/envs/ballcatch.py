@@ -270,7 +270,7 @@ class BallCatchWorld:
 
         ``action`` must already be validated (4 finite numbers in [-1, 1]).
         """
-        self.step_forces(joint_torques([float(a) * m for a, m in zip(action, self._max_torques)]))
+        self.step_forces(joint_torques(np.asarray(action, dtype=np.float64) * self._max_torques).tolist())
 
     def step_forces(self, forces: list[float]) -> None:
         """Apply 11 joint torques (arm, then the 8 finger joints) and step the physics once."""
@@ -350,14 +350,16 @@ class BallCatchWorld:
             self.client = -1
 
 
-def joint_torques(scaled: list[float]) -> list[float]:
-    """The 11 joint torques from the 4 actuator torques ``action * max_torques``.
+def joint_torques(scaled: np.ndarray) -> np.ndarray:
+    """The 11 joint torques ``[..., 11]`` from the 4 actuator torques ``action * max_torques``
+    ``[..., 4]`` (any leading dimensions: one row per world).
 
     Shoulder, elbow and wrist take theirs directly; the one finger actuator drives every proximal
     finger joint with its full torque and every distal joint with :data:`DISTAL_TORQUE_RATIO` of it.
     """
-    f = scaled[3]
-    return scaled[:3] + [f, f * DISTAL_TORQUE_RATIO] * len(FINGER_NAMES)
+    finger = scaled[..., 3:]
+    one_finger = np.concatenate([finger, finger * DISTAL_TORQUE_RATIO], axis=-1)
+    return np.concatenate([scaled[..., :3], np.tile(one_finger, len(FINGER_NAMES))], axis=-1)
 
 
 def step_reward(ball: Sequence[float], palm: Sequence[float], grounded: bool) -> tuple[float, float]:

@@ -169,11 +169,12 @@ class BatchedBallCatchEnv(EnvBase):
         Worlds whose ball has touched the ground are frozen (absorbing state, reward -3): they
         are not stepped and keep their last positions.
         """
-        forces = self._forces(action)
+        scaled = self._scaled_action(action)
         live = np.flatnonzero(~self._grounded)
         if len(live):
             worlds = self.worlds
-            observed = [worlds[i].step_and_observe(forces[i]) for i in live]
+            forces = joint_torques(scaled[live]).tolist()
+            observed = [worlds[i].step_and_observe(f) for i, f in zip(live.tolist(), forces)]
             self._ball[live] = [o[0] for o in observed]
             self._palm[live] = [o[1] for o in observed]
         ball, palm = self._ball, self._palm
@@ -207,8 +208,8 @@ class BatchedBallCatchEnv(EnvBase):
             return np.ones(self.num_worlds, dtype=bool)
         return reset.reshape(self.num_worlds, -1).any(-1).cpu().numpy()
 
-    def _forces(self, action: torch.Tensor | None) -> list[list[float]]:
-        """Validate the ``[N, 4]`` action and turn it into per-world lists of 11 joint torques."""
+    def _scaled_action(self, action: torch.Tensor | None) -> np.ndarray:
+        """Validate the ``[N, 4]`` action; the actuator torques ``clip(action) * max_torques``."""
         if action is None:
             raise ValueError("the input tensordict has no 'action' entry")
         if tuple(action.shape) != (*self.batch_size, 4):
@@ -217,8 +218,7 @@ class BatchedBallCatchEnv(EnvBase):
         finite = np.isfinite(a).all(axis=-1)
         if not finite.all():
             raise ValueError(f"action contains non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
-        rows = (np.minimum(np.maximum(a, -1.0), 1.0) * self._torque_scale).tolist()
-        return [joint_torques(row) for row in rows]
+        return np.minimum(np.maximum(a, -1.0), 1.0) * self._torque_scale
 
     def _pack(self, distance: np.ndarray, truncated: np.ndarray, reward: np.ndarray | None = None) -> TensorDict:
         """Observations, done flags (never terminated) and, after a step, rewards as a ``[N]`` TensorDict."""
