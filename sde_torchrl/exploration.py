@@ -289,6 +289,37 @@ class StateDependentExplorer(TensorDictModuleBase):
             sample = sample + gauss * draw_normal(loc.shape, self.streams)
         return sample
 
+    def episode_matrix(self, weight: torch.Tensor, batch: torch.Size, steps: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The linear map an episode of a linear controller ``Θ x`` follows: ``Θ + σ̂ ⊙ ξ``
+        (eqs. 17-19), or ``Θ`` under deterministic exploration.
+
+        Only for the ``episode`` schedule without Gaussian noise, where one ``ξ`` holds for the
+        whole episode. The random streams advance exactly as ``steps`` calls of :meth:`act`
+        from an episode start (one fresh draw per step, the first one kept), so both ways of
+        collecting produce the same episodes.
+
+        Args:
+            weight: ``Θ``, ``[*runs, A, S]``.
+            batch: batch shape of the episodes, runs first.
+            steps: episode length.
+
+        Returns:
+            ``(M [*batch, A, S], ξ [*batch, A, S] or None)``.
+
+        Raises:
+            ValueError: for another schedule or with Gaussian noise.
+        """
+        if self.schedule != "episode" or self.has_gaussian:
+            raise ValueError("a fixed linear map per episode needs schedule='episode' and no Gaussian noise")
+        theta = align(weight, self.run_dims, len(batch)).expand(*batch, self.action_dim, self.feature_dim)
+        if exploration_type() in _DETERMINISTIC:
+            return theta, None
+        shape = (*batch, self.action_dim, self.feature_dim)
+        noise = draw_normal(shape, self.streams)
+        for _ in range(steps - 1):
+            draw_normal(shape, self.streams)
+        return theta + align(self.sde_sigma, self.run_dims, len(batch)) * noise, noise
+
     def _next_noise(
         self, previous: torch.Tensor | None, is_init: torch.Tensor | None,
         age: torch.Tensor | None, batch: torch.Size,

@@ -18,6 +18,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
+from sde_torchrl.actors import BatchedLinear
 from sde_torchrl.exploration import StateDependentExplorer, gaussian_log_prob
 
 
@@ -103,12 +104,63 @@ def tensor_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int)
         x = x_next
     stacked = {key: torch.stack(values, dim=len(env.batch_size)) for key, values in columns.items()
                if values[0] is not None}
-    batch = (*env.batch_size, steps)
+    return _episodes(explorer, stacked.pop("observation"), stacked.pop("next_observation"), stacked.pop("loc"),
+                     stacked.pop("action_sample"), stacked.pop("reward"), stacked.get("sde_noise"))
+
+
+def linear_episode_env(env: EnvBase, policy: TensorDictSequential) -> TensorStepEnv | None:
+    """The env to hand to :func:`linear_episode_rollout`, or ``None``.
+
+    That needs what :func:`tensor_step_env` needs, an env that runs whole episodes of fixed
+    linear controllers (``linear_episodes``, as :class:`~sde_torchrl.envs.BatchedBallCatchEnv`
+    does), a bias-free :class:`~sde_torchrl.actors.LinearActor` and an explorer with the
+    ``episode`` schedule and no Gaussian noise (the paper's ball-catching controller).
+    """
+    base = tensor_step_env(env, policy)
+    if base is None or not hasattr(base, "linear_episodes"):
+        return None
+    actor, explorer = policy.module
+    linear = isinstance(actor.module, BatchedLinear) and actor.module.bias is None
+    return base if linear and explorer.schedule == "episode" and not explorer.has_gaussian else None
+
+
+def linear_episode_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
+    """Fresh episodes as :func:`tensor_rollout` collects them, for a linear controller whose
+    exploration is fixed per episode: the env runs each world's whole episode under its map
+    ``Θ + σ̂ ⊙ ξ`` (:meth:`~sde_torchrl.exploration.StateDependentExplorer.episode_matrix`),
+    then the actor and explorer compute ``loc``, ``scale`` and log-likelihoods for all steps
+    at once. Same random streams and keys as :func:`tensor_rollout`; the actions agree to
+    float32 rounding (the env evaluates the map in float64).
+
+    Args:
+        env: an env accepted by :func:`linear_episode_env`.
+        policy: ``TensorDictSequential(LinearActor, StateDependentExplorer)``.
+        steps: episode length ``T``.
+
+    Returns:
+        TensorDict ``[*batch, T]`` with the keys of :func:`tensor_rollout`.
+    """
+    actor, explorer = policy.module
+    batch = env.batch_size
+    matrices, noise = explorer.episode_matrix(actor.module.weight, batch, steps)
+    observations, sample, reward = env.linear_episodes(matrices, steps, explorer.squash)
+    observation = observations[..., :-1, :]
+    if noise is not None:
+        noise = noise.unsqueeze(len(batch)).expand(*batch, steps, *noise.shape[len(batch):])
+    return _episodes(explorer, observation, observations[..., 1:, :], actor.module(observation), sample, reward,
+                     noise)
+
+
+def _episodes(
+    explorer: StateDependentExplorer, observation: torch.Tensor, next_observation: torch.Tensor,
+    loc: torch.Tensor, sample: torch.Tensor, reward: torch.Tensor, noise: torch.Tensor | None,
+) -> TensorDict:
+    """The episode TensorDict ``[*batch, T]`` that ``env.rollout`` writes, from its step tensors."""
+    batch = observation.shape[:-1]
     done = torch.zeros(*batch, 1, dtype=torch.bool)
     done[..., -1, :] = True
     first = torch.zeros(*batch, 1, dtype=torch.bool)
     first[..., 0, :] = True
-    sample, loc, observation = stacked.pop("action_sample"), stacked.pop("loc"), stacked.pop("observation")
     scale = explorer.scale(observation)  # eq. 20, once for all steps
     episodes = TensorDict({
         "observation": observation,
@@ -118,8 +170,8 @@ def tensor_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int)
         "action_sample": sample,
         "action": torch.tanh(sample) if explorer.squash else sample,
         "is_init": first,
-        "next": {"observation": stacked.pop("next_observation"), "reward": stacked.pop("reward"),
-                 "done": done, "truncated": done.clone()},
-        **stacked,
+        "next": {"observation": next_observation, "reward": reward, "done": done, "truncated": done.clone()},
     }, batch_size=batch)
+    if noise is not None:
+        episodes.set("sde_noise", noise)
     return episodes

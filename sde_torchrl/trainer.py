@@ -34,7 +34,7 @@ from sde_torchrl.checkpoint import (
 from sde_torchrl.estimators import EpisodicEstimator, episode_returns, episode_scores
 from sde_torchrl.progress import Progress, RateMeter
 from sde_torchrl.rng import RunStreams
-from sde_torchrl.rollout import tensor_rollout, tensor_step_env
+from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
 
 log = logging.getLogger(__name__)
 
@@ -180,13 +180,18 @@ class Trainer:
         self.runs = env.batch_size[0]
 
     def _rollout(self, env: EnvBase) -> Any:
-        """Fresh whole episodes on ``env``: by tensor stepping where the env and policy allow
-        (same episodes, a fraction of the overhead), else by ``env.rollout``."""
-        base = tensor_step_env(env, self.policy) if self.settings.tensor_rollout else None
+        """Fresh whole episodes on ``env``: where the env and policy allow, a world at a time
+        under its episode's linear map (:func:`linear_episode_rollout`) or by tensor stepping
+        (:func:`tensor_rollout`); both give ``env.rollout``'s episodes at a fraction of its
+        overhead. Else by ``env.rollout``."""
+        steps = self.settings.episode_length
         with torch.no_grad():
-            if base is not None:
-                return tensor_rollout(base, self.policy, self.settings.episode_length)
-            return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False)
+            if self.settings.tensor_rollout:
+                if (base := linear_episode_env(env, self.policy)) is not None:
+                    return linear_episode_rollout(base, self.policy, steps)
+                if (base := tensor_step_env(env, self.policy)) is not None:
+                    return tensor_rollout(base, self.policy, steps)
+            return env.rollout(steps, self.policy, break_when_any_done=False)
 
     def collect(self) -> Any:
         """``N`` fresh exploratory episodes per run, ``[runs, N, T]``."""

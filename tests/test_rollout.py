@@ -8,10 +8,12 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
+from sde_torchrl.envs.ballcatch import GROUND_Z, SCRIPTED_WEIGHTS
+from sde_torchrl.envs.ballcatch_torchrl import make_ballcatch_env
 from sde_torchrl.rng import RunStreams
 from torchrl.envs import RewardScaling
 
-from sde_torchrl.rollout import tensor_rollout, tensor_step_env
+from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
 
 
 def _setup(schedule, every_n=None, actor="linear", squash=False, gaussian=None):
@@ -87,3 +89,120 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
         torch.testing.assert_close(fast[key], reference[key], msg=lambda m: f"{key}: {m}")
     env.close()
     env2.close()
+
+
+# ---------------------------------------------- whole episodes of fixed linear maps (fast path)
+def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, worlds=2, steps=120):
+    """The paper's controller (scripted weights) with SDE on ``[runs, worlds]`` ball-catching worlds."""
+
+    actor = LinearActor(3, 4, bias=bias, runs=runs)
+    with torch.no_grad():
+        actor.module.weight.copy_(torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float32))
+    explorer = StateDependentExplorer(4, 3, schedule=schedule, squash=True, init_param=-2.0, runs=runs,
+                                      gaussian_init_param=gaussian)
+    explorer.streams = RunStreams(0, runs, "explore")
+    env = make_ballcatch_env(worlds, runs=runs, episode_length=steps)
+    env.set_seed(3)
+    env.append_transform(explorer.make_tensordict_primer())
+    return env, TensorDictSequential(actor, explorer)
+
+
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode):
+    # The worlds run the same physics under the same release jitter and noise; only the
+    # controller's float64 arithmetic differs (float32 on the step path), so the episodes agree
+    # to rounding until contacts amplify it (the ball reaches the hand after ~95 steps).
+    steps, before_contact = 120, 60
+    env, policy = _catching_setup()
+    env2, policy2 = _catching_setup()
+    base = linear_episode_env(env2, policy2)
+    assert base is env2.base_env
+    with torch.no_grad(), set_exploration_type(mode):
+        reference = tensor_rollout(tensor_step_env(env, policy), policy, steps)
+        fast = linear_episode_rollout(base, policy2, steps)
+    assert set(fast.keys(True, True)) == set(reference.keys(True, True))
+    assert ("sde_noise" in fast.keys()) == (mode == ExplorationType.RANDOM)
+    for key in ["is_init", ("next", "done"), ("next", "truncated"), "sde_noise", "observation"]:
+        if key in reference.keys(True, True):
+            torch.testing.assert_close(fast[key][..., :before_contact, :], reference[key][..., :before_contact, :],
+                                       rtol=0, atol=0, msg=lambda m: f"{key}: {m}")
+    for key in ["loc", "action_sample", "action", "scale", ("next", "observation"), ("next", "reward")]:
+        torch.testing.assert_close(fast[key][..., :before_contact, :], reference[key][..., :before_contact, :],
+                                   rtol=1e-4, atol=1e-4, msg=lambda m: f"{key}: {m}")
+    torch.testing.assert_close(fast["next", "reward"].mean((-1, -2)), reference["next", "reward"].mean((-1, -2)),
+                               rtol=0, atol=0.02)
+    env.close()
+    env2.close()
+
+
+def test_linear_episodes_freeze_a_dropped_ball_as_the_step_path_does():
+    env, _ = _catching_setup(steps=200)
+    env2, _ = _catching_setup(steps=200)  # the same release jitter
+    with torch.no_grad():
+        reference = env.rollout(200, lambda td: td.set("action", torch.zeros(2, 2, 4)), break_when_any_done=False)
+    observations, samples, rewards = env2.base_env.linear_episodes(torch.zeros(2, 2, 4, 3), 200)
+    assert samples.abs().max() == 0
+    torch.testing.assert_close(observations[..., 1:, :], reference["next", "observation"])
+    torch.testing.assert_close(rewards, reference["next", "reward"])
+    grounded = observations[..., 1:, 2] < GROUND_Z  # after step t
+    assert grounded[..., -1].all()  # zero torques drop the ball
+    first = grounded.float().argmax(-1)
+    for r in range(2):
+        for w in range(2):
+            t = int(first[r, w])
+            assert 50 < t < 190 and (rewards[r, w, t:] == -3.0).all()
+            assert (observations[r, w, t + 1:] == observations[r, w, -1]).all()  # frozen
+    env.close()
+    env2.close()
+
+
+def test_linear_episodes_reject_bad_matrices():
+    env, _ = _catching_setup()
+    with pytest.raises(ValueError, match=r"matrices must have shape \(2, 2, 4, 3\)"):
+        env.base_env.linear_episodes(torch.zeros(2, 4, 3), 10)
+    bad = torch.zeros(2, 2, 4, 3)
+    bad[0, 1, 2, 0] = float("nan")
+    with pytest.raises(ValueError, match=r"non-finite values in worlds \[1\]"):
+        env.base_env.linear_episodes(bad, 10)
+    env.close()
+
+
+@pytest.mark.parametrize("setup, usable", [
+    (dict(), True),
+    (dict(bias=True), False),
+    (dict(schedule="step"), False),
+    (dict(gaussian=-1.0), False),
+])
+def test_linear_episode_path_needs_a_bias_free_linear_map_fixed_per_episode(setup, usable):
+    env, policy = _catching_setup(**setup)
+    assert (linear_episode_env(env, policy) is env.base_env) == usable
+    env.close()
+
+
+def test_linear_episode_path_needs_an_env_that_runs_linear_episodes():
+    env, policy = _setup("episode")  # the minimisation task steps tensors only
+    assert tensor_step_env(env, policy) is not None
+    assert linear_episode_env(env, policy) is None
+
+
+def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act():
+    runs, steps = 2, 5
+    env, policy = _catching_setup(runs=runs)
+    actor, explorer = policy.module
+    weight = actor.module.weight.detach()
+    matrix, noise = explorer.episode_matrix(weight, torch.Size([runs, 3]), steps)
+    after_matrix = explorer.streams.normal((runs, 7))
+
+    explorer.streams = RunStreams(0, runs, "explore")
+    x, previous = torch.randn(runs, 3, 3), None
+    for t in range(steps):
+        _, previous, _ = explorer.act(torch.zeros(runs, 3, 4), x, previous,
+                                      torch.full((runs, 3, 1), t == 0))
+    torch.testing.assert_close(noise, previous, rtol=0, atol=0)
+    torch.testing.assert_close(explorer.streams.normal((runs, 7)), after_matrix, rtol=0, atol=0)
+    sigma = explorer.sde_sigma.detach()[:, None]
+    torch.testing.assert_close(matrix, weight[:, None] + sigma * noise)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        deterministic, none = explorer.episode_matrix(weight, torch.Size([runs, 3]), steps)
+    assert none is None and torch.equal(deterministic, weight[:, None].expand(runs, 3, 4, 3))
+    env.close()

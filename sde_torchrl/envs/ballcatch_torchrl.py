@@ -12,6 +12,7 @@ To use a second core, run two batched envs in two processes with :func:`make_par
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import torch
@@ -20,8 +21,10 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, InitTracker, ParallelEnv, TransformedEnv
 
 from sde_torchrl.envs.ballcatch import (
+    DISTAL_TORQUE_RATIO,
     DISTANCE_CAP,
     EPISODE_STEPS,
+    FINGER_NAMES,
     GROUND_REWARD,
     GROUND_Z,
     MIN_DISTANCE,
@@ -200,6 +203,52 @@ class BatchedBallCatchEnv(EnvBase):
         return (torch.from_numpy(self._ball.astype(np.float32)).reshape(*batch, 3),
                 torch.from_numpy(reward.astype(np.float32)).reshape(*batch, 1))
 
+    # ----------------------------------- whole episodes of fixed linear controllers (fast path)
+    def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
+        """Fresh episodes of every world under a fixed linear controller ``u = M x`` each.
+
+        SDE with its episode schedule makes the exploratory policy one linear map of the
+        observation for a whole episode (``Θ + Θ̂``, eqs. 17-19), and the deterministic policy
+        is ``Θ`` itself. Such a controller needs no batched policy call per step, so each world
+        runs its whole episode on its own, while its physics state stays in the CPU cache
+        (stepping N worlds in turn evicts it at every step). Physics, release jitter, reward
+        and grounding are those of :meth:`_step`; the controller works in float64 where the
+        step-by-step path rounds the observation and action to float32 (differences ~1e-7).
+
+        Args:
+            matrices: ``M``, shaped ``[*batch_size, 4, 3]``.
+            steps: episode length.
+            squash: apply ``tanh`` to ``u`` (else ``u`` is clipped to ``[-1, 1]`` like any action).
+
+        Returns:
+            ``(observations [*batch, steps + 1, 3], samples [*batch, steps, 4], rewards
+            [*batch, steps, 1])``: the ball positions from the reset on, the pre-squash ``u``
+            and the rewards, float32.
+
+        Raises:
+            ValueError: for matrices of the wrong shape or with non-finite entries.
+        """
+        batch = tuple(self.batch_size)
+        if tuple(matrices.shape) != (*batch, 4, 3):
+            raise ValueError(f"matrices must have shape {(*batch, 4, 3)}, got {tuple(matrices.shape)}")
+        flat = matrices.detach().cpu().double().reshape(-1, 4, 3).numpy()
+        finite = np.isfinite(flat).all(axis=(1, 2))
+        if not finite.all():
+            raise ValueError(f"controller matrices contain non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
+        offsets = self._jitter()
+        observations = np.empty((self.num_worlds, steps + 1, 3))
+        samples = np.empty((self.num_worlds, steps, 4))
+        rewards = np.empty((self.num_worlds, steps))
+        for i, world in enumerate(self.worlds):
+            world.reset(offsets[i])
+            self._ball[i], self._palm[i], self._grounded[i] = _linear_episode(
+                world, flat[i].tolist(), self._torque_scale.tolist(), squash, observations[i], samples[i], rewards[i],
+            )
+        self._t[:] = steps
+        return (torch.from_numpy(observations.astype(np.float32)).reshape(*batch, steps + 1, 3),
+                torch.from_numpy(samples.astype(np.float32)).reshape(*batch, steps, 4),
+                torch.from_numpy(rewards.astype(np.float32)).reshape(*batch, steps, 1))
+
     # ------------------------------------------------------------------ helpers
     def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
         """Boolean ``[N]`` mask of the worlds to reset (all if no ``"_reset"`` entry)."""
@@ -243,6 +292,38 @@ class BatchedBallCatchEnv(EnvBase):
         """Disconnect every physics client."""
         self._close_worlds()
         super().close(raise_if_closed=raise_if_closed)
+
+
+def _linear_episode(
+    world: BallCatchWorld, matrix: list[list[float]], torque_scale: list[float], squash: bool,
+    observations: np.ndarray, samples: np.ndarray, rewards: np.ndarray,
+) -> tuple[tuple[float, ...], tuple[float, ...], bool]:
+    """One episode of a freshly reset ``world`` under ``u = M x`` (the hot loop of
+    :meth:`BatchedBallCatchEnv.linear_episodes`, in plain Python floats: numpy is slower on
+    3-vectors). Fills ``observations [T + 1, 3]``, ``samples [T, 4]``, ``rewards [T]``; a world
+    whose ball touched the ground is frozen, as in :meth:`BatchedBallCatchEnv._advance`.
+
+    Returns:
+        The last ball and palm positions and whether the ball is on the ground.
+    """
+    ball, palm = world.ball_position(), world.palm_position()
+    observations[0] = ball
+    grounded = False
+    (m0, m1, m2, m3), (s0, s1, s2, s3) = matrix, torque_scale
+    for t in range(len(rewards)):
+        x0, x1, x2 = ball
+        u = (m0[0] * x0 + m0[1] * x1 + m0[2] * x2, m1[0] * x0 + m1[1] * x1 + m1[2] * x2,
+             m2[0] * x0 + m2[1] * x1 + m2[2] * x2, m3[0] * x0 + m3[1] * x1 + m3[2] * x2)
+        samples[t] = u
+        if not grounded:
+            a0, a1, a2, a3 = (min(max(math.tanh(v) if squash else v, -1.0), 1.0) for v in u)
+            finger = a3 * s3
+            forces = [a0 * s0, a1 * s1, a2 * s2] + [finger, finger * DISTAL_TORQUE_RATIO] * len(FINGER_NAMES)
+            ball, palm = world.step_and_observe(forces)
+            grounded = ball[2] < GROUND_Z
+        observations[t + 1] = ball
+        rewards[t] = GROUND_REWARD if grounded else -min(max(math.dist(ball, palm), MIN_DISTANCE), DISTANCE_CAP)
+    return ball, palm, grounded
 
 
 def make_parallel_ballcatch(
