@@ -8,16 +8,21 @@ is simulated at every step. (A dropping policy is cheaper still: grounded worlds
 
 Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats`` interleaved runs:
 
-* ``raw_steps_per_s``: time spent inside ``stepSimulation`` alone, replaying the env run's
-  torques on the same N worlds (so the physics is the same trajectory; the torque calls and
-  the loop are *not* counted: the strictest denominator);
-* ``raw_loop_steps_per_s``: the bare replay loop, ``setJointMotorControlArray`` + ``stepSimulation``
-  per world and step;
-* ``env_core_steps_per_s``: the env's own ``_step`` alone, replaying the same actions (validation,
-  physics, the two position reads the reward needs, TensorDict out);
 * ``env_steps_per_s``: the env with the policy in the loop, collected as the trainer collects
-  (:func:`sde_torchrl.rollout.tensor_rollout`: the env's ``transition`` and the policy's
-  tensors, no per-step TensorDict); ``ratio`` = ``env_steps_per_s / raw_steps_per_s``;
+  for this policy (:func:`sde_torchrl.rollout.linear_episode_rollout`: each world runs its
+  whole episode under its map ``Θ + σ̂ ⊙ ξ``, the policy's log-likelihood tensors are computed
+  for all steps afterwards);
+* ``raw_steps_per_s``: time spent inside ``stepSimulation`` alone, replaying the env run's
+  actions as torques on the same N worlds (the same physics regime; the torque calls, reads
+  and loop are *not* counted), in whichever order is faster: world by world
+  (``raw_episode_order_steps_per_s``, the order the env uses) or all worlds per step
+  (``raw_lockstep_steps_per_s``); ``ratio = env_steps_per_s / raw_steps_per_s``;
+* ``raw_loop_steps_per_s``: the bare lockstep replay loop, ``setJointMotorControlArray`` +
+  ``stepSimulation`` per world and step;
+* ``step_env_steps_per_s`` and ``step_ratio``: the env stepped for all worlds at once with the
+  policy called once per step (:func:`sde_torchrl.rollout.tensor_rollout`, the path for any
+  other policy), against ``raw_lockstep_steps_per_s``; ``env_core_steps_per_s``: the env's
+  own ``_step`` alone in that mode;
 * ``torchrl_rollout_steps_per_s`` and ``torchrl_rollout_ratio``: the same env and policy through
   ``TransformedEnv(env, InitTracker + primer).rollout`` (TorchRL's per-step machinery);
 * with ``--workers 2``: ``parallel_env_steps_per_s``, ``env.rollout`` on a ``ParallelEnv`` of
@@ -42,7 +47,7 @@ from sde_torchrl.actors import LinearActor
 from sde_torchrl.envs.ballcatch import SCRIPTED_WEIGHTS, joint_torques
 from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_parallel_ballcatch
 from sde_torchrl.exploration import StateDependentExplorer
-from sde_torchrl.rollout import tensor_rollout, tensor_step_env
+from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
 
 SIGMA_PARAM = -3.0
 """log-scale of the exploration noise of the benchmark policy (σ̂ = e^-3)."""
@@ -64,25 +69,27 @@ def joint_forces(env: BatchedBallCatchEnv, actions: torch.Tensor) -> list[list[l
     return [joint_torques(scaled[:, k]).tolist() for k in range(scaled.shape[1])]
 
 
-def time_raw(env: BatchedBallCatchEnv, forces: list[list[list[float]]]) -> tuple[float, float]:
-    """Replay ``forces`` on the env's worlds: world-steps per second inside ``stepSimulation``
-    alone, and of the whole replay loop."""
+def time_raw(env: BatchedBallCatchEnv, forces: list[list[list[float]]], lockstep: bool) -> tuple[float, float]:
+    """Replay ``forces`` (per step, per world) on the env's worlds, all worlds per step
+    (``lockstep``) or each world's whole episode in turn: world-steps per second inside
+    ``stepSimulation`` alone, and of the whole replay loop."""
     env.reset()
     worlds = env.worlds
     torque, step, set_torques, clock = (
         pybullet.TORQUE_CONTROL, pybullet.stepSimulation, pybullet.setJointMotorControlArray, time.perf_counter
     )
+    order = ([(w, k) for k in range(len(forces)) for w in range(len(worlds))] if lockstep
+             else [(w, k) for w in range(len(worlds)) for k in range(len(forces))])
     physics = 0.0
     start = clock()
-    for per_world in forces:
-        for world, f in zip(worlds, per_world):
-            set_torques(world.robot, world.joints, torque, forces=f, physicsClientId=world.client)
-            t0 = clock()
-            step(physicsClientId=world.client)
-            physics += clock() - t0
+    for w, k in order:
+        world = worlds[w]
+        set_torques(world.robot, world.joints, torque, forces=forces[k][w], physicsClientId=world.client)
+        t0 = clock()
+        step(physicsClientId=world.client)
+        physics += clock() - t0
     loop = clock() - start
-    count = len(forces) * len(worlds)
-    return count / physics, count / loop
+    return len(order) / physics, len(order) / loop
 
 
 def time_core(env: BatchedBallCatchEnv, actions: torch.Tensor) -> float:
@@ -95,15 +102,17 @@ def time_core(env: BatchedBallCatchEnv, actions: torch.Tensor) -> float:
     return actions.shape[1] * env.num_worlds / (time.perf_counter() - start)
 
 
-def time_tensor(env: BatchedBallCatchEnv, steps: int, seed: int) -> tuple[float, torch.Tensor, float]:
-    """The trainer's collection path; returns ``(world-steps/s, actions [N, K, 4], mean reward)``."""
+def time_collect(env: BatchedBallCatchEnv, steps: int, seed: int, episodes: bool) -> tuple[float, torch.Tensor, float]:
+    """One collection as the trainer does it, by whole episodes per world (``episodes``) or by
+    stepping all worlds together; returns ``(world-steps/s, actions [N, K, 4], mean reward)``."""
     policy, explorer = catching_policy(seed)
     tenv = TransformedEnv(env, Compose(InitTracker(), explorer.make_tensordict_primer()))
-    base = tensor_step_env(tenv, policy)
+    base = linear_episode_env(tenv, policy) if episodes else tensor_step_env(tenv, policy)
+    collect = linear_episode_rollout if episodes else tensor_rollout
     with torch.no_grad():
-        tensor_rollout(base, policy, 2)  # warm-up (first-call overheads)
+        collect(base, policy, 2)  # warm-up (first-call overheads)
         start = time.perf_counter()
-        td = tensor_rollout(base, policy, steps)
+        td = collect(base, policy, steps)
         elapsed = time.perf_counter() - start
     return steps * env.num_worlds / elapsed, td["action"].clone(), float(td["next", "reward"].mean())
 
@@ -137,15 +146,20 @@ def main() -> None:
         parser.error(f"--worlds ({args.worlds}) must be divisible by --workers ({args.workers})")
     torch.set_num_threads(1)
     env = BatchedBallCatchEnv(num_worlds=args.worlds, seed=args.seed)
-    timings: dict[str, list[float]] = {k: [] for k in ("env", "raw", "raw_loop", "core", "torchrl")}
+    kinds = ("env", "raw_episode", "raw_lockstep", "raw_loop", "step_env", "core", "torchrl")
+    timings: dict[str, list[float]] = {k: [] for k in kinds}
     try:
         for _ in range(args.repeats):  # interleaved, so background load hits all alike
-            sps, actions, mean_reward = time_tensor(env, args.steps, args.seed)
+            sps, actions, mean_reward = time_collect(env, args.steps, args.seed, episodes=True)
             timings["env"].append(sps)
-            raw, raw_loop = time_raw(env, joint_forces(env, actions))
-            timings["raw"].append(raw)
+            forces = joint_forces(env, actions)
+            timings["raw_episode"].append(time_raw(env, forces, lockstep=False)[0])
+            raw, raw_loop = time_raw(env, forces, lockstep=True)
+            timings["raw_lockstep"].append(raw)
             timings["raw_loop"].append(raw_loop)
-            timings["core"].append(time_core(env, actions))
+            step_sps, step_actions, _ = time_collect(env, args.steps, args.seed, episodes=False)
+            timings["step_env"].append(step_sps)
+            timings["core"].append(time_core(env, step_actions))
             timings["torchrl"].append(time_torchrl(env, args.steps, args.seed, args.worlds))
     finally:
         env.close()
@@ -158,16 +172,21 @@ def main() -> None:
             extra["parallel_env_steps_per_s"] = round(time_torchrl(parallel, args.steps, args.seed, args.worlds), 1)
         finally:
             parallel.close()
+    raw = max(best["raw_episode"], best["raw_lockstep"])
     print(json.dumps({
         "worlds": args.worlds,
         "steps": args.steps,
-        "raw_steps_per_s": round(best["raw"], 1),
-        "raw_loop_steps_per_s": round(best["raw_loop"], 1),
-        "env_core_steps_per_s": round(best["core"], 1),
         "env_steps_per_s": round(best["env"], 1),
-        "ratio": round(best["env"] / best["raw"], 3),
+        "raw_steps_per_s": round(raw, 1),
+        "ratio": round(best["env"] / raw, 3),
+        "raw_episode_order_steps_per_s": round(best["raw_episode"], 1),
+        "raw_lockstep_steps_per_s": round(best["raw_lockstep"], 1),
+        "raw_loop_steps_per_s": round(best["raw_loop"], 1),
+        "step_env_steps_per_s": round(best["step_env"], 1),
+        "step_ratio": round(best["step_env"] / best["raw_lockstep"], 3),
+        "env_core_steps_per_s": round(best["core"], 1),
         "torchrl_rollout_steps_per_s": round(best["torchrl"], 1),
-        "torchrl_rollout_ratio": round(best["torchrl"] / best["raw"], 3),
+        "torchrl_rollout_ratio": round(best["torchrl"] / best["raw_lockstep"], 3),
         "policy_mean_reward": round(mean_reward, 4),
         **extra,
     }))

@@ -331,3 +331,8 @@ def test_benchmark_prints_one_json_line_with_its_figures():
     figures = json.loads(result.stdout.strip().splitlines()[-1])
     assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0
     assert figures["ratio"] == pytest.approx(figures["env_steps_per_s"] / figures["raw_steps_per_s"], rel=1e-2)
+    # the stricter of the two replay orders is the denominator
+    assert figures["raw_steps_per_s"] == max(figures["raw_episode_order_steps_per_s"],
+                                             figures["raw_lockstep_steps_per_s"])
+    assert figures["step_ratio"] == pytest.approx(
+        figures["step_env_steps_per_s"] / figures["raw_lockstep_steps_per_s"], rel=1e-2)
