@@ -164,6 +164,8 @@ def test_linear_episodes_reject_bad_matrices():
     bad[0, 1, 2, 0] = float("nan")
     with pytest.raises(ValueError, match=r"non-finite values in worlds \[1\]"):
         env.base_env.linear_episodes(bad, 10)
+    with pytest.raises(ValueError, match="steps must be >= 1"):
+        env.base_env.linear_episodes(torch.zeros(2, 2, 4, 3), 0)
     env.close()
 
 

@@ -226,8 +226,11 @@ class BatchedBallCatchEnv(EnvBase):
             and the rewards, float32.
 
         Raises:
-            ValueError: for matrices of the wrong shape or with non-finite entries.
+            ValueError: for matrices of the wrong shape or with non-finite entries, or
+                ``steps < 1``.
         """
+        if steps < 1:
+            raise ValueError(f"steps must be >= 1, got {steps}")
         batch = tuple(self.batch_size)
         if tuple(matrices.shape) != (*batch, 4, 3):
             raise ValueError(f"matrices must have shape {(*batch, 4, 3)}, got {tuple(matrices.shape)}")
