@@ -238,19 +238,17 @@ class BatchedBallCatchEnv(EnvBase):
         finite = np.isfinite(flat).all(axis=(1, 2))
         if not finite.all():
             raise ValueError(f"controller matrices contain non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
-        offsets = self._jitter()
-        observations = np.empty((self.num_worlds, steps + 1, 3))
-        samples = np.empty((self.num_worlds, steps, 4))
-        rewards = np.empty((self.num_worlds, steps))
+        offsets, scale = self._jitter(), self._torque_scale.tolist()
+        episodes = []
         for i, world in enumerate(self.worlds):
             world.reset(offsets[i])
-            self._ball[i], self._palm[i], self._grounded[i] = _linear_episode(
-                world, flat[i].tolist(), self._torque_scale.tolist(), squash, observations[i], samples[i], rewards[i],
-            )
+            episodes.append(_linear_episode(world, flat[i].tolist(), scale, squash, steps))
+            observations, _, _, self._palm[i], self._grounded[i] = episodes[-1]
+            self._ball[i] = observations[-1]
         self._t[:] = steps
-        return (torch.from_numpy(observations.astype(np.float32)).reshape(*batch, steps + 1, 3),
-                torch.from_numpy(samples.astype(np.float32)).reshape(*batch, steps, 4),
-                torch.from_numpy(rewards.astype(np.float32)).reshape(*batch, steps, 1))
+        observations, samples, rewards = (torch.tensor([e[k] for e in episodes], dtype=torch.float64) for k in range(3))
+        return (observations.float().reshape(*batch, steps + 1, 3), samples.float().reshape(*batch, steps, 4),
+                rewards.float().reshape(*batch, steps, 1))
 
     # ------------------------------------------------------------------ helpers
     def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
@@ -298,35 +296,37 @@ class BatchedBallCatchEnv(EnvBase):
 
 
 def _linear_episode(
-    world: BallCatchWorld, matrix: list[list[float]], torque_scale: list[float], squash: bool,
-    observations: np.ndarray, samples: np.ndarray, rewards: np.ndarray,
-) -> tuple[tuple[float, ...], tuple[float, ...], bool]:
+    world: BallCatchWorld, matrix: list[list[float]], torque_scale: list[float], squash: bool, steps: int,
+) -> tuple[list, list, list, tuple[float, ...], bool]:
     """One episode of a freshly reset ``world`` under ``u = M x`` (the hot loop of
     :meth:`BatchedBallCatchEnv.linear_episodes`, in plain Python floats: numpy is slower on
-    3-vectors). Fills ``observations [T + 1, 3]``, ``samples [T, 4]``, ``rewards [T]``; a world
-    whose ball touched the ground is frozen, as in :meth:`BatchedBallCatchEnv._advance`.
+    3-vectors). A world whose ball touched the ground is frozen, as in
+    :meth:`BatchedBallCatchEnv._advance`.
 
     Returns:
-        The last ball and palm positions and whether the ball is on the ground.
+        The ball positions (``steps + 1``), the pre-squash ``u`` and the rewards (``steps``
+        each) as lists, the last palm position and whether the ball is on the ground.
     """
     ball, palm = world.ball_position(), world.palm_position()
-    observations[0] = ball
+    observations, samples, rewards = [ball], [], []
     grounded = False
     (m0, m1, m2, m3), (s0, s1, s2, s3) = matrix, torque_scale
-    for t in range(len(rewards)):
+    tanh, clip = math.tanh, (lambda v: min(max(v, -1.0), 1.0))
+    for _ in range(steps):
         x0, x1, x2 = ball
         u = (m0[0] * x0 + m0[1] * x1 + m0[2] * x2, m1[0] * x0 + m1[1] * x1 + m1[2] * x2,
              m2[0] * x0 + m2[1] * x1 + m2[2] * x2, m3[0] * x0 + m3[1] * x1 + m3[2] * x2)
-        samples[t] = u
+        samples.append(u)
         if not grounded:
-            a0, a1, a2, a3 = (min(max(math.tanh(v) if squash else v, -1.0), 1.0) for v in u)
+            # tanh's values lie in [-1, 1] already: the clip of any action is needed without it.
+            a0, a1, a2, a3 = (tanh(u[0]), tanh(u[1]), tanh(u[2]), tanh(u[3])) if squash else map(clip, u)
             finger = a3 * s3
             forces = [a0 * s0, a1 * s1, a2 * s2] + [finger, finger * DISTAL_TORQUE_RATIO] * len(FINGER_NAMES)
             ball, palm = world.step_and_observe(forces)
             grounded = ball[2] < GROUND_Z
-        observations[t + 1] = ball
-        rewards[t] = GROUND_REWARD if grounded else -min(max(math.dist(ball, palm), MIN_DISTANCE), DISTANCE_CAP)
-    return ball, palm, grounded
+        observations.append(ball)
+        rewards.append(GROUND_REWARD if grounded else -min(max(math.dist(ball, palm), MIN_DISTANCE), DISTANCE_CAP))
+    return observations, samples, rewards, palm, grounded
 
 
 def make_parallel_ballcatch(
