@@ -1,5 +1,5 @@
 """The ball-catching comparisons of the paper (Fig. 5 and 6) on the full budget: 100 runs each of
-SDE and REX, with REINFORCE and with ENAC. Slow (about 50 minutes each on 2 cores):
+SDE and REX, with REINFORCE and with ENAC. Slow (about 45 and 35 minutes on 2 cores):
 ``python -m pytest -m slow tests/test_ballcatch_claims.py``."""
 
 from __future__ import annotations
