@@ -23,11 +23,7 @@ def align(param: torch.Tensor, run_dims: int, batch_dims: int) -> torch.Tensor:
     Raises:
         ValueError: if the data has fewer batch dimensions than the parameter has run dims.
     """
-    if batch_dims < run_dims:
-        raise ValueError(
-            f"data with {batch_dims} batch dims cannot hold {run_dims} run dims; "
-            "stacked runs expect inputs shaped [runs, ..., features]"
-        )
+    _check_run_dims(batch_dims, run_dims)
     shape = param.shape
     return param.reshape(*shape[:run_dims], *([1] * (batch_dims - run_dims)), *shape[run_dims:])
 
@@ -50,10 +46,14 @@ def stacked_matvec(matrix: torch.Tensor, x: torch.Tensor, run_dims: int) -> torc
     Raises:
         ValueError: if ``x`` has fewer batch dimensions than ``matrix`` has run dims.
     """
-    if x.dim() - 1 < run_dims:
-        raise ValueError(
-            f"data with {x.dim() - 1} batch dims cannot hold {run_dims} run dims; "
-            "stacked runs expect inputs shaped [runs, ..., features]"
-        )
+    _check_run_dims(x.dim() - 1, run_dims)
     rows = x.reshape(*x.shape[:run_dims], -1, x.shape[-1])
     return (rows @ matrix.transpose(-1, -2)).reshape(*x.shape[:-1], matrix.shape[-2])
+
+
+def _check_run_dims(batch_dims: int, run_dims: int) -> None:
+    if batch_dims < run_dims:
+        raise ValueError(
+            f"data with {batch_dims} batch dims cannot hold {run_dims} run dims; "
+            "stacked runs expect inputs shaped [runs, ..., features]"
+        )

@@ -282,8 +282,7 @@ class StateDependentExplorer(TensorDictModuleBase):
     def perturb(self, loc: torch.Tensor, features: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """``u = f(x) + Θ̂ x (+ ε)`` with ``Θ̂ = σ̂ ⊙ ξ`` (eqs. 17-19, 22), before squashing."""
         batch_dims = loc.dim() - 1
-        theta_hat = align(self.sde_sigma, self.run_dims, batch_dims) * noise
-        sample = loc + (theta_hat @ features.unsqueeze(-1)).squeeze(-1)
+        sample = loc + (self.noise_matrix(noise) @ features.unsqueeze(-1)).squeeze(-1)
         if self.has_gaussian:
             gauss = align(expln(self.gaussian_param), self.run_dims, batch_dims)
             sample = sample + gauss * draw_normal(loc.shape, self.streams)
@@ -318,7 +317,11 @@ class StateDependentExplorer(TensorDictModuleBase):
         noise = draw_normal(shape, self.streams)
         for _ in range(steps - 1):
             draw_normal(shape, self.streams)
-        return theta + align(self.sde_sigma, self.run_dims, len(batch)) * noise, noise
+        return theta + self.noise_matrix(noise), noise
+
+    def noise_matrix(self, noise: torch.Tensor) -> torch.Tensor:
+        """``Θ̂ = σ̂ ⊙ ξ`` (eq. 18) for noise ``ξ`` shaped ``[*batch, A, S]`` (runs first)."""
+        return align(self.sde_sigma, self.run_dims, noise.dim() - 2) * noise
 
     def _next_noise(
         self, previous: torch.Tensor | None, is_init: torch.Tensor | None,

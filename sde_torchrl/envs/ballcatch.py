@@ -88,6 +88,9 @@ DISTAL_TORQUE_RATIO = 0.4
 
 ARM_JOINTS = ("shoulder", "elbow", "wrist")
 FINGER_NAMES = ("front", "left", "back", "right")
+JOINT_TRANSMISSION = ((0, 1.0), (1, 1.0), (2, 1.0)) + ((3, 1.0), (3, DISTAL_TORQUE_RATIO)) * len(FINGER_NAMES)
+"""For each of the 11 joints (arm, then proximal and distal joint of every finger): the actuator
+driving it and the fraction of that actuator's torque it gets."""
 INITIAL_ARM_POSE = (0.0, 0.0, -0.15)
 """Catching pose = upper limits of shoulder, elbow and wrist (palm tilted 0.15 rad outwards)."""
 INITIAL_FINGER_POSE = (0.0, 0.9)
@@ -355,11 +358,11 @@ def joint_torques(scaled: np.ndarray) -> np.ndarray:
     ``[..., 4]`` (any leading dimensions: one row per world).
 
     Shoulder, elbow and wrist take theirs directly; the one finger actuator drives every proximal
-    finger joint with its full torque and every distal joint with :data:`DISTAL_TORQUE_RATIO` of it.
+    finger joint with its full torque and every distal joint with :data:`DISTAL_TORQUE_RATIO` of it
+    (:data:`JOINT_TRANSMISSION`).
     """
-    finger = scaled[..., 3:]
-    one_finger = np.concatenate([finger, finger * DISTAL_TORQUE_RATIO], axis=-1)
-    return np.concatenate([scaled[..., :3], np.tile(one_finger, len(FINGER_NAMES))], axis=-1)
+    actuator, gain = zip(*JOINT_TRANSMISSION)
+    return scaled[..., list(actuator)] * np.asarray(gain)
 
 
 def step_reward(ball: Sequence[float], palm: Sequence[float], grounded: bool) -> tuple[float, float]:

@@ -21,16 +21,16 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, InitTracker, ParallelEnv, TransformedEnv
 
 from sde_torchrl.envs.ballcatch import (
-    DISTAL_TORQUE_RATIO,
     DISTANCE_CAP,
     EPISODE_STEPS,
-    FINGER_NAMES,
     GROUND_REWARD,
     GROUND_Z,
+    JOINT_TRANSMISSION,
     MIN_DISTANCE,
     BallCatchConfig,
     BallCatchWorld,
     joint_torques,
+    step_reward,
 )
 from sde_torchrl.rng import RunStreams
 
@@ -310,22 +310,20 @@ def _linear_episode(
     ball, palm = world.ball_position(), world.palm_position()
     observations, samples, rewards = [ball], [], []
     grounded = False
-    (m0, m1, m2, m3), (s0, s1, s2, s3) = matrix, torque_scale
-    tanh, clip = math.tanh, (lambda v: min(max(v, -1.0), 1.0))
+    (m0, m1, m2, m3) = matrix
+    # tanh's values lie in [-1, 1] already: the clip of any action is needed without it.
+    action = math.tanh if squash else (lambda v: min(max(v, -1.0), 1.0))
     for _ in range(steps):
         x0, x1, x2 = ball
         u = (m0[0] * x0 + m0[1] * x1 + m0[2] * x2, m1[0] * x0 + m1[1] * x1 + m1[2] * x2,
              m2[0] * x0 + m2[1] * x1 + m2[2] * x2, m3[0] * x0 + m3[1] * x1 + m3[2] * x2)
         samples.append(u)
         if not grounded:
-            # tanh's values lie in [-1, 1] already: the clip of any action is needed without it.
-            a0, a1, a2, a3 = (tanh(u[0]), tanh(u[1]), tanh(u[2]), tanh(u[3])) if squash else map(clip, u)
-            finger = a3 * s3
-            forces = [a0 * s0, a1 * s1, a2 * s2] + [finger, finger * DISTAL_TORQUE_RATIO] * len(FINGER_NAMES)
-            ball, palm = world.step_and_observe(forces)
+            scaled = [action(v) * s for v, s in zip(u, torque_scale)]
+            ball, palm = world.step_and_observe([scaled[a] * g for a, g in JOINT_TRANSMISSION])
             grounded = ball[2] < GROUND_Z
         observations.append(ball)
-        rewards.append(GROUND_REWARD if grounded else -min(max(math.dist(ball, palm), MIN_DISTANCE), DISTANCE_CAP))
+        rewards.append(step_reward(ball, palm, grounded)[0])
     return observations, samples, rewards, palm, grounded
 
 
