@@ -20,7 +20,8 @@ from sde_torchrl.envs.minimize import midway_threshold
 #: Key of extra exploration features an env may write (``sde_torchrl.envs.gym.FEATURES_KEY``).
 FEATURES_KEY = "sde_features"
 from sde_torchrl.rng import RunStreams
-from sde_torchrl.trainer import Trainer, TrainingSettings
+from sde_torchrl.settings import TrainingSettings
+from sde_torchrl.trainer import Trainer
 
 #: Config groups whose chosen option labels a run's summary.
 LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator")

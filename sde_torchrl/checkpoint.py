@@ -6,12 +6,13 @@ updates done, every random generator it draws from (the explorer's and the envs'
 bookkeeping the summary is computed from. Restoring all of it and continuing produces exactly
 the numbers an uninterrupted job produces (on CPU).
 
-Files are replaced atomically: written to ``<name>.tmp``, flushed to disk, then renamed over
-the old one, so a reader (or a resumed job) sees the previous complete file or the new one.
+:func:`save_job` and :func:`restore_job` write and read that whole state; the checkpoint file is
+replaced atomically, so a reader (or a resumed job) sees the previous complete file or the new one.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import random
 from collections.abc import Iterator
@@ -21,7 +22,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from sde_torchrl.files import write_atomically
 from sde_torchrl.rng import RunStreams
+
+log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.pt"
 #: Bumped when the checkpoint layout changes; older checkpoints are refused.
@@ -34,33 +38,9 @@ class CheckpointMismatchError(ValueError):
     """The run directory holds a checkpoint of a different job."""
 
 
-def tmp_path(path: Path) -> Path:
-    """The temporary name ``path`` is written under before being renamed."""
-    return path.with_name(path.name + ".tmp")
-
-
-def replace_atomically(tmp: Path, path: Path) -> None:
-    """Renames the fully written ``tmp`` over ``path`` and makes the rename durable."""
-    os.replace(tmp, path)
-    try:
-        fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:  # directories cannot be opened everywhere; the rename is still atomic
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
-    """``torch.save`` to a temporary file, fsync, rename over ``path``."""
-    path = Path(path)
-    tmp = tmp_path(path)
-    with open(tmp, "wb") as f:
-        torch.save(state, f)
-        f.flush()
-        os.fsync(f.fileno())
-    replace_atomically(tmp, path)
+    """``torch.save`` of ``state``, atomically (:func:`~sde_torchrl.files.write_atomically`)."""
+    write_atomically(path, lambda f: torch.save(state, f))
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
@@ -128,3 +108,69 @@ def _env_layers(env: Any) -> Iterator[Any]:
 def module_streams(module: torch.nn.Module) -> list[RunStreams]:
     """The per-run streams held by ``module``'s submodules (the explorer's), in module order."""
     return [m.streams for m in module.modules() if isinstance(getattr(m, "streams", None), RunStreams)]
+
+
+def job_streams(policy: torch.nn.Module, env: Any, eval_env: Any) -> dict[str, RunStreams | None]:
+    """The per-run random streams of a job: the explorer's and both envs'."""
+    explorer = module_streams(policy)
+    return {"explorer": explorer[0] if explorer else None,
+            "env": env_streams(env), "eval_env": env_streams(eval_env)}
+
+
+def save_job(
+    path: Path, *, config: dict[str, Any] | None, loop: dict[str, Any], policy: torch.nn.Module,
+    optimizer: torch.optim.Optimizer, streams: dict[str, RunStreams | None],
+) -> None:
+    """Saves everything :func:`restore_job` needs to continue a job bit for bit.
+
+    Args:
+        path: the checkpoint file.
+        config: the job's result config (see :func:`result_config`), checked on resume.
+        loop: the training loop's bookkeeping (its ``state_dict``), with ``update`` in it.
+        policy: the policy whose state dict is saved.
+        optimizer: the optimiser whose state dict is saved.
+        streams: the job's per-run streams (:func:`job_streams`).
+    """
+    save_checkpoint(path, {
+        "format": FORMAT,
+        "config": config,
+        "updates": loop["update"],
+        "policy": policy.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "streams": {k: None if v is None else v.state_dict() for k, v in streams.items()},
+        "random": global_random_state(),
+        "loop": loop,
+    })
+
+
+def restore_job(
+    path: Path, *, config: dict[str, Any] | None, policy: torch.nn.Module,
+    optimizer: torch.optim.Optimizer, streams: dict[str, RunStreams | None],
+) -> dict[str, Any]:
+    """Restores a job saved by :func:`save_job` and returns the loop's bookkeeping.
+
+    Policy, optimiser, the per-run streams and the global generators are restored in place.
+
+    Raises:
+        CheckpointMismatchError: the checkpoint was written under another config, or holds
+            streams this job does not have.
+    """
+    saved = load_checkpoint(path)
+    if config is not None and saved.get("config") is not None:
+        diff = config_differences(saved["config"], config)
+        if diff:
+            raise CheckpointMismatchError(
+                f"{path} was written by another config ({'; '.join(diff[:5])}); resume with the "
+                "same overrides, or choose a new hydra.run.dir (or delete the checkpoint)"
+            )
+    policy.load_state_dict(saved["policy"])
+    optimizer.load_state_dict(saved["optimizer"])
+    for name, own in streams.items():
+        if saved["streams"].get(name) is not None:
+            if own is None:
+                raise CheckpointMismatchError(f"{path} holds {name} streams this job does not have")
+            own.load_state_dict(saved["streams"][name])
+        elif own is not None:
+            log.warning("checkpoint has no %s streams: the resumed job is not bitwise reproducible", name)
+    set_global_random_state(saved["random"])
+    return saved["loop"]

@@ -14,7 +14,7 @@ import torch
 from _helpers import REPO, build, own_stderr_lines, read_rows, run_cli, summary_without_wall, train_command
 
 from sde_torchrl.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
-from sde_torchrl.trainer import write_json_atomic
+from sde_torchrl.files import write_json_atomic
 
 
 # ------------------------------------------------------------------------------ in process

@@ -11,7 +11,7 @@ from _helpers import build, compose_config, own_stderr_lines, read_rows, run_cli
 
 from sde_torchrl.build import run_job
 from sde_torchrl.progress import Progress, progress_wanted
-from sde_torchrl.trainer import NonFiniteError
+from sde_torchrl.guard import NonFiniteError
 
 # ------------------------------------------------------------------------ non-finite guard
 

@@ -1,0 +1,68 @@
+"""Atomic file replacement: a reader (or a resumed job) sees the old complete file or the new one.
+
+Every file a job rewrites (``checkpoint.pt``, ``summary.json``, a ``metrics.csv`` cut back on
+resume, the TorchRL logger's CSV files) goes through :func:`write_atomically`: written to
+``<name>.tmp``, flushed and fsynced, then renamed over the old file, and the rename made durable.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+
+def tmp_path(path: Path) -> Path:
+    """The temporary name ``path`` is written under before being renamed."""
+    return path.with_name(path.name + ".tmp")
+
+
+def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
+    """Calls ``write`` on a temporary binary file, makes it durable and renames it over ``path``.
+
+    Args:
+        path: the file to (re)place.
+        write: writes the whole content to the open file it is given.
+
+    Examples:
+        >>> import tempfile
+        >>> target = Path(tempfile.mkdtemp()) / "a.txt"
+        >>> write_atomically(target, lambda f: f.write(b"done\\n"))
+        >>> target.read_bytes()
+        b'done\\n'
+    """
+    path = Path(path)
+    tmp = tmp_path(path)
+    with open(tmp, "wb") as f:
+        write(f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _sync_directory(path.parent)
+
+
+def write_json_atomic(path: str | os.PathLike, data: dict) -> None:
+    """Writes ``data`` as indented JSON, atomically."""
+
+    def write(f: IO[bytes]) -> None:
+        text = io.TextIOWrapper(f, encoding="utf-8")
+        json.dump(data, text, indent=2)
+        text.flush()
+        text.detach()  # leave the binary file open for write_atomically to sync
+
+    write_atomically(path, write)
+
+
+def _sync_directory(directory: Path) -> None:
+    """Makes a rename in ``directory`` durable, where directories can be opened."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # not everywhere; the rename itself is still atomic
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

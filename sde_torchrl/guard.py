@@ -1,0 +1,117 @@
+"""The non-finite guard: stops a job at the first NaN or infinity, naming where it came from.
+
+A diverging run is the most common SDE failure (DESIGN.md section 5). The guard checks each
+update's episode returns, the estimator's scores and gradient, and the parameters after the
+step, and raises :class:`NonFiniteError` naming the update, the runs (global indices) and the
+parameter as it is named in the policy's state dict.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+from sde_torchrl.estimators import EpisodicEstimator, episode_scores
+
+
+class NonFiniteError(RuntimeError):
+    """A return, score, gradient or parameter became NaN or infinite.
+
+    Attributes:
+        update: index of the update (0-based) where it happened.
+        what: ``"return"``, ``"score"``, ``"gradient"`` or ``"parameter"``.
+        parameter: the parameter's name in the policy's state dict, or ``None``.
+        runs: global indices of the runs concerned.
+
+    Examples:
+        >>> str(NonFiniteError(3, "return", [1]))[:36]
+        'non-finite return at update 3 in ru'
+    """
+
+    def __init__(self, update: int, what: str, runs: list[int], parameter: str | None = None,
+                 values: torch.Tensor | None = None, detail: str = "") -> None:
+        self.update, self.what, self.runs, self.parameter = update, what, runs, parameter
+        subject = what if parameter is None else (
+            f"parameter {parameter}" if what == "parameter" else f"{what} of parameter {parameter}")
+        shown = "" if values is None else f" {values.detach().flatten()[:6].tolist()}"
+        super().__init__(
+            f"non-finite {subject} at update {update} in run{'s' if len(runs) != 1 else ''} "
+            f"{', '.join(map(str, runs))}:{shown}{detail}; metrics.csv keeps the updates before it "
+            "(lower lr or set estimator.max_grad_norm)"
+        )
+
+
+def _finite(value: torch.Tensor) -> bool:
+    return bool(torch.isfinite(value).all())
+
+
+class FiniteGuard:
+    """Checks one job's returns, estimates and parameters at every update.
+
+    Args:
+        policy: the policy being trained (its state-dict names label the parameters).
+        estimator: the estimator over ``policy``.
+        runs: number of runs of the job (the leading dimension of every checked tensor).
+        first_run: global index of the job's first run.
+
+    Examples:
+        See :meth:`sde_torchrl.trainer.Trainer.update`.
+    """
+
+    def __init__(self, policy: nn.Module, estimator: EpisodicEstimator, runs: int, first_run: int = 0) -> None:
+        self.policy, self.estimator, self.runs, self.first_run = policy, estimator, runs, first_run
+        by_id = {id(p): n for n, p in policy.named_parameters()}
+        self._policy_names = {n: by_id.get(id(p), n) for n, p in estimator.learnable_parameters().items()}
+
+    def check_returns(self, update: int, returns: torch.Tensor) -> None:
+        """Episode returns ``[runs, N]``; names the largest parameter entry (the usual cause)."""
+        if not _finite(returns):
+            name, largest = self._largest_parameter()
+            raise NonFiniteError(update, "return", self._bad_runs(returns), values=returns,
+                                 detail=f"; largest parameter entry: {name} = {largest:.3g}")
+
+    def check_estimate(self, update: int, out: TensorDictBase, episodes: TensorDictBase) -> None:
+        """The estimator's output: per-run score norms and the gradient ``[runs, K]``."""
+        if not _finite(out["score_norm"]):
+            self._raise_named(update, "score", episode_scores(self.estimator.log_likelihood, episodes),
+                              out["score_norm"])
+        if not _finite(out["gradient"]):
+            self._raise_named(update, "gradient", self._split(out["gradient"]))
+
+    def check_parameters(self, update: int) -> None:
+        """The learnable parameters after the optimiser step."""
+        params = self.estimator.learnable_parameters()
+        if not all(_finite(p) for p in params.values()):
+            self._raise_named(update, "parameter", {n: p.detach() for n, p in params.items()})
+
+    def _split(self, flat: torch.Tensor) -> dict[str, torch.Tensor]:
+        """A flat per-run vector ``[runs, K]`` cut into the learnable parameters' pieces."""
+        params = self.estimator.learnable_parameters()
+        sizes = [p[0].numel() if p.dim() and p.shape[0] == self.runs else p.numel() for p in params.values()]
+        return dict(zip(params, flat.split(sizes, dim=-1), strict=True))
+
+    def _bad_runs(self, value: torch.Tensor) -> list[int]:
+        """Global indices of the runs whose slice of ``value`` (runs first) is not finite."""
+        if value.dim() == 0 or value.shape[0] != self.runs:
+            return [self.first_run + r for r in range(self.runs)]
+        bad = ~torch.isfinite(value.reshape(self.runs, -1)).all(-1)
+        return [self.first_run + int(r) for r in bad.nonzero().flatten()]
+
+    def _largest_parameter(self) -> tuple[str, float]:
+        """The policy parameter entry of largest magnitude (what usually made returns blow up)."""
+        name, param = max(self.policy.named_parameters(), key=lambda kv: float(kv[1].detach().abs().max()))
+        flat = param.detach().flatten()
+        return name, float(flat[flat.abs().argmax()])
+
+    def _raise_named(
+        self, update: int, what: str, values: dict[str, torch.Tensor], norm: torch.Tensor | None = None,
+    ) -> None:
+        """Raises for the first non-finite entry of ``values`` (estimator names → tensors). If
+        every entry is finite, their per-run ``norm`` overflowed: its non-finite runs are named."""
+        for name, value in values.items():
+            if not _finite(value):
+                raise NonFiniteError(update, what, self._bad_runs(value), self._policy_names.get(name, name), value)
+        overflow = torch.full((self.runs,), float("nan")) if norm is None else norm
+        raise NonFiniteError(update, f"{what} norm", self._bad_runs(overflow), values=overflow,
+                             detail=" (finite entries too large to square in float32)")

@@ -1,0 +1,61 @@
+"""Reporting an update as it finishes: the log line, the TorchRL logger's curves, the progress bar."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import torch
+
+from sde_torchrl.progress import Progress, RateMeter
+
+log = logging.getLogger("sde_torchrl.trainer")
+
+
+class Reporter:
+    """Reports each update of a job.
+
+    Args:
+        logger: optional TorchRL logger (``log_scalar``) for run-averaged curves.
+        updates: the job's number of updates.
+        done: updates already done (a resumed job).
+        steps_per_update: env steps of one update (all runs), for the speed figure.
+        progress: show a progress bar (:mod:`sde_torchrl.progress`).
+
+    Examples:
+        >>> import torch
+        >>> reporter = Reporter(None, updates=2, done=0, steps_per_update=100)
+        >>> reporter.update(0, episodes=10, return_mean=torch.tensor([-1.0]), eval_return=None)
+        >>> reporter.close()
+    """
+
+    def __init__(self, logger: Any, updates: int, done: int, steps_per_update: int, progress: bool = False) -> None:
+        self.logger, self.updates, self.steps_per_update = logger, updates, steps_per_update
+        self.bar = Progress(updates, done, enabled=progress)
+        self.rate = RateMeter()
+
+    def update(self, k: int, episodes: int, return_mean: torch.Tensor, eval_return: torch.Tensor | None) -> None:
+        """Update ``k`` (0-based) is done; ``episodes`` per run so far is the curves' x axis."""
+        speed = self.rate.add(self.steps_per_update)
+        mean = float(return_mean.mean())
+        if self.logger is not None:
+            self.logger.log_scalar("return_mean", mean, step=episodes)
+            if eval_return is not None:
+                self.logger.log_scalar("eval_return", float(eval_return.mean()), step=episodes)
+        if eval_return is not None:
+            log.info("update %d/%d  return %.3f  eval %.3f  %.0f env steps/s", k + 1, self.updates, mean,
+                     float(eval_return.mean()), speed)
+        self.bar.step(mean, speed)
+
+    def close(self) -> None:
+        """Ends the progress bar."""
+        self.bar.close()
+
+
+def close_logger(logger: Any) -> None:
+    """Flushes and closes a TorchRL logger's backend (ends a wandb run, closes event files)."""
+    experiment = getattr(logger, "experiment", None)
+    for method in ("finish", "close"):  # wandb runs finish; tensorboard writers close
+        if callable(getattr(experiment, method, None)):
+            getattr(experiment, method)()
+            return

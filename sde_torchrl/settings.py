@@ -1,0 +1,62 @@
+"""What one training job does: the settings the training loop reads."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sde_torchrl.checks import ArgumentError, non_negative_int, positive_int
+
+
+@dataclass
+class TrainingSettings:
+    """What one training job does.
+
+    Attributes:
+        updates: number of policy updates.
+        episodes_per_update: ``N``, fresh episodes per run feeding one update.
+        episode_length: ``T``, steps per episode.
+        eval_period: evaluate every this many updates (and after the last); 0 disables
+            intermediate evaluation.
+        eval_episodes: deterministic episodes per evaluation and run.
+        r_lim: convergence threshold: a run has converged at the first update whose mean
+            exploratory return exceeds it (``None``: not tracked).
+        first_run: global index of the first run (for labelling shards of a sweep).
+        stop_at_threshold: end the job once every run has exceeded ``r_lim`` (convergence
+            sweeps need nothing after that).
+        tensor_rollout: collect by tensor stepping where the env supports it
+            (:mod:`sde_torchrl.rollout`); ``False`` forces TorchRL's ``env.rollout``.
+        episode_queue: 0 for fresh episodes at every update; ``Q > 0`` for the paper's
+            ball-catching schedule: each update uses the last ``Q`` episodes of each run,
+            filled at the start by ``Q / N`` collections, then renewed by ``N`` new
+            episodes after every update (``Q`` must be a multiple of ``N``).
+
+    Examples:
+        >>> TrainingSettings(updates=300, episodes_per_update=10, episode_length=15).eval_period
+        20
+        >>> TrainingSettings(updates=0, episodes_per_update=10, episode_length=15)
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.checks.ArgumentError: updates=0: a positive integer
+    """
+
+    updates: int
+    episodes_per_update: int
+    episode_length: int
+    eval_period: int = 20
+    eval_episodes: int = 5
+    r_lim: float | None = None
+    first_run: int = 0
+    stop_at_threshold: bool = False
+    tensor_rollout: bool = True
+    episode_queue: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("updates", "episodes_per_update", "episode_length", "eval_episodes"):
+            positive_int(name, getattr(self, name))
+        for name in ("eval_period", "episode_queue", "first_run"):
+            non_negative_int(name, getattr(self, name))
+        if self.episode_queue % self.episodes_per_update:
+            raise ArgumentError("episode_queue", self.episode_queue,
+                                f"0 or a multiple of episodes_per_update ({self.episodes_per_update})")
+        if self.stop_at_threshold and self.r_lim is None:
+            raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")

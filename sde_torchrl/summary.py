@@ -1,0 +1,82 @@
+"""What a job records while it trains, and the summary computed from it (``summary.json``)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import torch
+from torch import nn
+
+
+@dataclass
+class LoopState:
+    """What the summary is computed from, and where the loop stands (checkpointed).
+
+    Attributes:
+        update: updates done.
+        reached: per run, whether an update's mean return exceeded ``r_lim``.
+        returns: per update, the mean exploratory return of each run ``[runs]``.
+        evals: update index → mean deterministic return of each run ``[runs]``.
+        wall_s: training time of earlier sessions of this job (resumed jobs).
+        finished: the job ran to its end.
+        queue: with an episode queue, its episodes ``[runs, Q, T]`` as a nested dict of tensors.
+
+    Examples:
+        >>> state = LoopState(update=0, reached=torch.zeros(2, dtype=torch.bool))
+        >>> LoopState.from_state_dict(state.state_dict()).update
+        0
+    """
+
+    update: int
+    reached: torch.Tensor
+    returns: list[torch.Tensor] = field(default_factory=list)
+    evals: dict[int, torch.Tensor] = field(default_factory=dict)
+    wall_s: float = 0.0
+    finished: bool = False
+    queue: dict[str, Any] | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"update": self.update, "reached": self.reached.clone(),
+                "returns": [r.clone() for r in self.returns],
+                "evals": {k: v.clone() for k, v in self.evals.items()},
+                "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue}
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, Any]) -> LoopState:
+        return cls(**state)
+
+
+def summarize(
+    state: LoopState, settings: Any, policy: nn.Module, episodes_after: Callable[[int], int],
+) -> dict[str, Any]:
+    """The job's summary: per-run initial and final returns, the final deterministic
+    evaluation, episodes to the threshold, final parameters, env steps, wall time.
+
+    Args:
+        state: the finished loop's record.
+        settings: the job's :class:`~sde_torchrl.trainer.TrainingSettings` (a dataclass).
+        policy: the trained policy (its parameters carry a leading ``[runs]`` dimension).
+        episodes_after: episodes each run has collected by the end of a (0-based) update.
+    """
+    returns = torch.stack(state.returns)  # [updates, runs]
+    runs = returns.shape[1]
+    above = returns > settings.r_lim if settings.r_lim is not None else torch.zeros_like(returns, dtype=torch.bool)
+    first = [int(above[:, r].nonzero()[0]) if bool(above[:, r].any()) else None for r in range(runs)]
+    updates_done = len(state.returns)
+    return {
+        "runs": runs,
+        "first_run": settings.first_run,
+        "settings": asdict(settings),
+        "updates_done": updates_done,
+        "initial_return": returns[0].tolist(),
+        "final_return": returns[-1].tolist(),
+        "final_eval_return": state.evals[updates_done - 1].tolist(),
+        "episodes_to_threshold": [None if i is None else episodes_after(i) for i in first],
+        "final_parameters": {  # named as in checkpoint.pt's policy state dict
+            name: p.detach().reshape(runs, -1).tolist() for name, p in policy.named_parameters()
+        },
+        "env_steps": episodes_after(updates_done - 1) * settings.episode_length * runs,
+        "wall_s": state.wall_s,
+    }
