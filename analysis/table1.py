@@ -24,8 +24,6 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = ROOT / "conf"
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 SWEEP_NAMES = {"noise_sweep": "noise", "episode_length_sweep": "episode_length"}
 #: Table 1 of the paper: (sweep, σ_noise, EL) → (R_lim, REX episodes, SDE episodes).
@@ -45,13 +43,9 @@ log = logging.getLogger("table1")
 
 def sweep_jobs(experiment: str) -> list[list[str]]:
     """The override lists of every job in ``experiment``'s Hydra sweeper params."""
-    from hydra import compose, initialize_config_dir
+    from sde_torchrl.compose import compose
 
-    from sde_torchrl.build import register_resolvers
-
-    register_resolvers()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=[f"+experiment={experiment}"], return_hydra_config=True)
+    cfg = compose([f"+experiment={experiment}"], return_hydra_config=True)
     params = {key: str(values).split(",") for key, values in cfg.hydra.sweeper.params.items()}
     return [[f"{key}={value}" for key, value in zip(params, combo)]
             for combo in itertools.product(*params.values())]
@@ -60,16 +54,13 @@ def sweep_jobs(experiment: str) -> list[list[str]]:
 def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
     """Trains one job (in a worker process) into ``out_dir``; returns ``out_dir``."""
     import torch
-    from hydra import compose, initialize_config_dir
     from omegaconf import open_dict
 
-    from sde_torchrl.build import register_resolvers, run_job
+    from sde_torchrl.build import run_job
+    from sde_torchrl.compose import compose
 
     torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
-    register_resolvers()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=[f"+experiment={experiment}", *overrides],
-                      return_hydra_config=True)
+    cfg = compose([f"+experiment={experiment}", *overrides], return_hydra_config=True)
     choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
     with open_dict(cfg):
         del cfg["hydra"]

@@ -9,20 +9,15 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-CONF = REPO / "conf"
 #: Lines some native extensions print on import (pybullet's build banner), not ours.
 FOREIGN_STDERR = ("pybullet build time",)
 
 
 def compose_config(*overrides: str):
     """The composed config for ``overrides``, as ``train.py`` would see it."""
-    from hydra import compose, initialize_config_dir
+    from sde_torchrl.compose import compose
 
-    from sde_torchrl.build import register_resolvers
-
-    register_resolvers()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+    return compose(overrides)
 
 
 def build(*overrides: str):

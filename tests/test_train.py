@@ -20,10 +20,9 @@ from pathlib import Path
 
 import pytest
 import torch
+from _helpers import REPO, build
 from omegaconf import OmegaConf
 
-REPO = Path(__file__).resolve().parents[1]
-CONF = REPO / "conf"
 METRIC_FIELDS = ["run", "update", "episodes", "return_mean", "eval_return", "grad_norm"]
 SUMMARY_KEYS = {
     "explorer", "estimator", "env", "actor", "seed", "runs", "first_run", "settings",
@@ -168,28 +167,6 @@ def sweep_summaries(result: JobResult) -> list[dict]:
 
 def eval_updates(updates: int, period: int) -> set[int]:
     return {k for k in range(updates) if (k + 1) % period == 0} | {updates - 1}
-
-
-# --------------------------------------------------------------------------------------------
-# Python API
-# --------------------------------------------------------------------------------------------
-
-def compose_config(*overrides: str):
-    from hydra import compose, initialize_config_dir
-
-    from sde_torchrl import build as build_module
-
-    # train.py registers the config resolvers at import; do the same where they exist.
-    getattr(build_module, "register_resolvers", lambda: None)()
-
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
-
-
-def build(*overrides: str):
-    from sde_torchrl.build import build_trainer
-
-    return build_trainer(compose_config("+experiment=minimize", "logger=none", *overrides))
 
 
 # --------------------------------------------------------------------------------------------
