@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 REPO = Path(__file__).resolve().parents[1]
 #: Lines some native extensions print on import (pybullet's build banner), not ours.
@@ -25,6 +27,14 @@ def build(*overrides: str):
     from sde_torchrl.build import build_trainer
 
     return build_trainer(compose_config("+experiment=minimize", "logger=none", *overrides))
+
+
+def load_script(name: str) -> ModuleType:
+    """``analysis/<name>.py`` as a module: the analysis scripts are run as files, not installed."""
+    spec = importlib.util.spec_from_file_location(name, REPO / "analysis" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def train_command(*overrides: str, run_dir: Path, multirun: bool = False) -> list[str]:
