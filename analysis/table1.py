@@ -47,7 +47,7 @@ def sweep_jobs(experiment: str) -> list[list[str]]:
 
     cfg = compose([f"+experiment={experiment}"], return_hydra_config=True)
     params = {key: str(values).split(",") for key, values in cfg.hydra.sweeper.params.items()}
-    return [[f"{key}={value}" for key, value in zip(params, combo)]
+    return [[f"{key}={value}" for key, value in zip(params, combo, strict=True)]
             for combo in itertools.product(*params.values())]
 
 
@@ -79,7 +79,7 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
     jobs.sort(key=_expected_cost, reverse=True)
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for done in pool.map(run_one, *zip(*jobs)):
+        for done in pool.map(run_one, *zip(*jobs, strict=True)):
             log.info("finished %s after %.0f s", Path(done).name, time.perf_counter() - start)
     return runs_dir
 
@@ -155,7 +155,7 @@ def _mean_curve(curves: list[list[float]], smooth: int = 1) -> tuple[list[float]
     def smoothed(curve):
         return [statistics.mean(curve[max(0, i - smooth + 1): i + 1]) for i in range(len(curve))]
 
-    columns = list(zip(*[smoothed(c) for c in curves]))
+    columns = list(zip(*[smoothed(c) for c in curves], strict=False))
     return [statistics.mean(c) for c in columns], [statistics.pstdev(c) for c in columns]
 
 
@@ -233,7 +233,7 @@ def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
                     key=lambda s: _setting(s))
     settings = sorted({_setting(s) for s in chosen})
     fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
-    for ax, setting in zip(axes[0], settings):
+    for ax, setting in zip(axes[0], settings, strict=True):
         for summary in (s for s in chosen if _setting(s) == setting):
             _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX")
             ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
@@ -259,8 +259,8 @@ def _plot_band(ax, summary: dict, label: str, smooth: int = 1) -> None:
     episodes = [(i + 1) * per_update for i in range(len(mean))]
     style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"}}[label]
     ax.plot(episodes, mean, label=label, **style)
-    ax.fill_between(episodes, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
-                    color=style["color"], alpha=0.2)
+    ax.fill_between(episodes, [m - s for m, s in zip(mean, std, strict=True)],
+                    [m + s for m, s in zip(mean, std, strict=True)], color=style["color"], alpha=0.2)
 
 
 def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:

@@ -273,7 +273,7 @@ def test_default_experiment_learns_within_a_minute(jobs):
     assert summary["env_steps"] == 300 * EPISODES * EPISODE_LENGTH * 4
     _, rows = read_metrics(result.out_dir)
     assert len(rows) == 4 * 300
-    for run, (first, final) in enumerate(zip(summary["initial_return"], summary["final_return"])):
+    for run, (first, final) in enumerate(zip(summary["initial_return"], summary["final_return"], strict=True)):
         assert final > first, f"run {run}: return {first} -> {final}"
     weights = [v for k, v in summary["final_parameters"].items() if k.endswith("weight")]
     assert len(weights) == 1
@@ -324,7 +324,7 @@ def test_batched_run_equals_single_run_with_first_run(tmp_path):
     run1 = [row for row in batched_rows if row["run"] == "1"]
     assert len(run1) == len(single_rows) == 10
     assert [row["run"] for row in single_rows] == ["1"] * 10  # labelled with the global index
-    for mine, theirs in zip(single_rows, run1):
+    for mine, theirs in zip(single_rows, run1, strict=True):
         assert mine["update"] == theirs["update"]
         for key in ("return_mean", "grad_norm"):
             assert float(mine[key]) == pytest.approx(float(theirs[key]), rel=1e-5, abs=1e-5), (
