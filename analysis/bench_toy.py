@@ -16,20 +16,16 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_dir
 
-from sde_torchrl.build import build_trainer, register_resolvers
-
-CONF = Path(__file__).resolve().parents[1] / "conf"
+from sde_torchrl.build import build_trainer
+from sde_torchrl.compose import compose
 
 
 def steps_per_second(overrides: list[str], seconds: float) -> float:
     """Env steps per second of whole training updates for the composed config."""
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=["+experiment=minimize", "logger=none", *overrides])
+    cfg = compose(["+experiment=minimize", "logger=none", *overrides])
     trainer = build_trainer(cfg)
     trainer.update(trainer.collect(), 0)  # warm-up
     steps_per_update = cfg.runs * cfg.episodes_per_update * cfg.env.episode_length
@@ -48,7 +44,6 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=5.0)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    register_resolvers()
     length = f"env.episode_length={args.length}"
     plain = steps_per_second(["runs=1", "episodes_per_update=1", length, "tensor_rollout=false"],
                              args.seconds)

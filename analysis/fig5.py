@@ -113,7 +113,8 @@ def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str)
         std = [statistics.pstdev([v for v in row if v is not None]) for row in table]
         x = [u + 1 for u in updates]
         left.plot(x, mean, label=explorer.upper(), **styles.get(explorer, {}))
-        left.fill_between(x, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
+        left.fill_between(x, [m - s for m, s in zip(mean, std, strict=True)],
+                          [m + s for m, s in zip(mean, std, strict=True)],
                           color=styles.get(explorer, {}).get("color"), alpha=0.2)
         best = result["explorers"][explorer]["best"]
         right.plot([str(level) for level in LEVELS], [best[f"{level}"] for level in LEVELS], marker="o",

@@ -6,12 +6,10 @@ Usage:
 
 from __future__ import annotations
 
+import runpy
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from fig5 import main  # noqa: E402 - the analysis scripts are run as files, not installed
-
 if __name__ == "__main__":
-    sys.exit(main(estimator="enac"))
+    fig5 = runpy.run_path(str(Path(__file__).with_name("fig5.py")))  # a sibling script, not a module
+    sys.exit(fig5["main"](estimator="enac"))

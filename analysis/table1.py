@@ -24,8 +24,6 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = ROOT / "conf"
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 SWEEP_NAMES = {"noise_sweep": "noise", "episode_length_sweep": "episode_length"}
 #: Table 1 of the paper: (sweep, σ_noise, EL) → (R_lim, REX episodes, SDE episodes).
@@ -45,31 +43,24 @@ log = logging.getLogger("table1")
 
 def sweep_jobs(experiment: str) -> list[list[str]]:
     """The override lists of every job in ``experiment``'s Hydra sweeper params."""
-    from hydra import compose, initialize_config_dir
+    from sde_torchrl.compose import compose
 
-    from sde_torchrl.build import register_resolvers
-
-    register_resolvers()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=[f"+experiment={experiment}"], return_hydra_config=True)
+    cfg = compose([f"+experiment={experiment}"], return_hydra_config=True)
     params = {key: str(values).split(",") for key, values in cfg.hydra.sweeper.params.items()}
-    return [[f"{key}={value}" for key, value in zip(params, combo)]
+    return [[f"{key}={value}" for key, value in zip(params, combo, strict=True)]
             for combo in itertools.product(*params.values())]
 
 
 def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
     """Trains one job (in a worker process) into ``out_dir``; returns ``out_dir``."""
     import torch
-    from hydra import compose, initialize_config_dir
     from omegaconf import open_dict
 
-    from sde_torchrl.build import register_resolvers, run_job
+    from sde_torchrl.build import run_job
+    from sde_torchrl.compose import compose
 
     torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
-    register_resolvers()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=[f"+experiment={experiment}", *overrides],
-                      return_hydra_config=True)
+    cfg = compose([f"+experiment={experiment}", *overrides], return_hydra_config=True)
     choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
     with open_dict(cfg):
         del cfg["hydra"]
@@ -88,7 +79,7 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
     jobs.sort(key=_expected_cost, reverse=True)
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for done in pool.map(run_one, *zip(*jobs)):
+        for done in pool.map(run_one, *zip(*jobs, strict=True)):
             log.info("finished %s after %.0f s", Path(done).name, time.perf_counter() - start)
     return runs_dir
 
@@ -164,7 +155,7 @@ def _mean_curve(curves: list[list[float]], smooth: int = 1) -> tuple[list[float]
     def smoothed(curve):
         return [statistics.mean(curve[max(0, i - smooth + 1): i + 1]) for i in range(len(curve))]
 
-    columns = list(zip(*[smoothed(c) for c in curves]))
+    columns = list(zip(*[smoothed(c) for c in curves], strict=False))
     return [statistics.mean(c) for c in columns], [statistics.pstdev(c) for c in columns]
 
 
@@ -242,7 +233,7 @@ def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
                     key=lambda s: _setting(s))
     settings = sorted({_setting(s) for s in chosen})
     fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
-    for ax, setting in zip(axes[0], settings):
+    for ax, setting in zip(axes[0], settings, strict=True):
         for summary in (s for s in chosen if _setting(s) == setting):
             _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX")
             ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
@@ -268,8 +259,8 @@ def _plot_band(ax, summary: dict, label: str, smooth: int = 1) -> None:
     episodes = [(i + 1) * per_update for i in range(len(mean))]
     style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"}}[label]
     ax.plot(episodes, mean, label=label, **style)
-    ax.fill_between(episodes, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
-                    color=style["color"], alpha=0.2)
+    ax.fill_between(episodes, [m - s for m, s in zip(mean, std, strict=True)],
+                    [m + s for m, s in zip(mean, std, strict=True)], color=style["color"], alpha=0.2)
 
 
 def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:

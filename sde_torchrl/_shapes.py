@@ -33,7 +33,7 @@ def stacked_matvec(matrix: torch.Tensor, x: torch.Tensor, run_dims: int) -> torc
 
     One matrix product per run over all of that run's data rows: a broadcast ``matrix @
     x.unsqueeze(-1)`` would expand the matrix to every row and multiply millions of tiny
-    matrices (the episode queue's log-likelihood is 5-10x slower that way).
+    matrices.
 
     Args:
         matrix: ``[*runs, A, S]`` with ``len(runs) == run_dims``.

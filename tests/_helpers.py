@@ -3,26 +3,23 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 REPO = Path(__file__).resolve().parents[1]
-CONF = REPO / "conf"
 #: Lines some native extensions print on import (pybullet's build banner), not ours.
 FOREIGN_STDERR = ("pybullet build time",)
 
 
 def compose_config(*overrides: str):
     """The composed config for ``overrides``, as ``train.py`` would see it."""
-    from hydra import compose, initialize_config_dir
+    from sde_torchrl.compose import compose
 
-    from sde_torchrl.build import register_resolvers
-
-    register_resolvers()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+    return compose(overrides)
 
 
 def build(*overrides: str):
@@ -30,6 +27,14 @@ def build(*overrides: str):
     from sde_torchrl.build import build_trainer
 
     return build_trainer(compose_config("+experiment=minimize", "logger=none", *overrides))
+
+
+def load_script(name: str) -> ModuleType:
+    """``analysis/<name>.py`` as a module: the analysis scripts are run as files, not installed."""
+    spec = importlib.util.spec_from_file_location(name, REPO / "analysis" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def train_command(*overrides: str, run_dir: Path, multirun: bool = False) -> list[str]:

@@ -9,10 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from _helpers import REPO, load_script, run_cli
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
-import fig5  # noqa: E402
-from _helpers import REPO, run_cli  # noqa: E402
+fig5 = load_script("fig5")
 
 
 def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]]) -> None:

@@ -20,10 +20,9 @@ from pathlib import Path
 
 import pytest
 import torch
+from _helpers import REPO, build
 from omegaconf import OmegaConf
 
-REPO = Path(__file__).resolve().parents[1]
-CONF = REPO / "conf"
 METRIC_FIELDS = ["run", "update", "episodes", "return_mean", "eval_return", "grad_norm"]
 SUMMARY_KEYS = {
     "explorer", "estimator", "env", "actor", "seed", "runs", "first_run", "settings",
@@ -171,28 +170,6 @@ def eval_updates(updates: int, period: int) -> set[int]:
 
 
 # --------------------------------------------------------------------------------------------
-# Python API
-# --------------------------------------------------------------------------------------------
-
-def compose_config(*overrides: str):
-    from hydra import compose, initialize_config_dir
-
-    from sde_torchrl import build as build_module
-
-    # train.py registers the config resolvers at import; do the same where they exist.
-    getattr(build_module, "register_resolvers", lambda: None)()
-
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
-
-
-def build(*overrides: str):
-    from sde_torchrl.build import build_trainer
-
-    return build_trainer(compose_config("+experiment=minimize", "logger=none", *overrides))
-
-
-# --------------------------------------------------------------------------------------------
 # 1. A short job end to end: the documented outputs
 # --------------------------------------------------------------------------------------------
 
@@ -296,7 +273,7 @@ def test_default_experiment_learns_within_a_minute(jobs):
     assert summary["env_steps"] == 300 * EPISODES * EPISODE_LENGTH * 4
     _, rows = read_metrics(result.out_dir)
     assert len(rows) == 4 * 300
-    for run, (first, final) in enumerate(zip(summary["initial_return"], summary["final_return"])):
+    for run, (first, final) in enumerate(zip(summary["initial_return"], summary["final_return"], strict=True)):
         assert final > first, f"run {run}: return {first} -> {final}"
     weights = [v for k, v in summary["final_parameters"].items() if k.endswith("weight")]
     assert len(weights) == 1
@@ -347,7 +324,7 @@ def test_batched_run_equals_single_run_with_first_run(tmp_path):
     run1 = [row for row in batched_rows if row["run"] == "1"]
     assert len(run1) == len(single_rows) == 10
     assert [row["run"] for row in single_rows] == ["1"] * 10  # labelled with the global index
-    for mine, theirs in zip(single_rows, run1):
+    for mine, theirs in zip(single_rows, run1, strict=True):
         assert mine["update"] == theirs["update"]
         for key in ("return_mean", "grad_norm"):
             assert float(mine[key]) == pytest.approx(float(theirs[key]), rel=1e-5, abs=1e-5), (

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from sde_torchrl.envs.minimize import (
-    MinimizeEnv, expected_linear_return, make_minimize_env, midway_threshold,
-)
+from sde_torchrl.envs.minimize import MinimizeEnv, expected_linear_return, make_minimize_env, midway_threshold
 
 __all__ = ["MinimizeEnv", "expected_linear_return", "make_minimize_env", "midway_threshold"]

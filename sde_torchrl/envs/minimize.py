@@ -126,7 +126,6 @@ def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:
     if not isinstance(episode_length, int) or episode_length < 1:
         raise ValueError(f"episode_length must be a positive integer, got {episode_length!r}")
     env = TransformedEnv(MinimizeEnv(**kwargs), Compose(StepCounter(episode_length), InitTracker()))
-    env.episode_length = episode_length
     return env
 
 

@@ -1,0 +1,57 @@
+"""The repository's Hydra config composed in Python, as ``train.py`` composes it.
+
+For tests and the ``analysis/`` scripts, which build trainers or read sweep parameters without
+going through ``train.py``'s command line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from hydra import compose as hydra_compose
+from hydra import initialize_config_dir
+from omegaconf import DictConfig
+
+from sde_torchrl.build import register_resolvers
+
+#: ``conf/`` beside the package: where a clone installed in editable mode keeps its config tree.
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+
+def compose(
+    overrides: Sequence[str] = (),
+    config_dir: str | Path | None = None,
+    *,
+    return_hydra_config: bool = False,
+) -> DictConfig:
+    """The config ``train.py overrides...`` would run, with the config resolvers registered.
+
+    Args:
+        overrides: Hydra overrides, as on the command line (``"+experiment=minimize"``, ``"runs=2"``).
+        config_dir: the config tree holding ``config.yaml``; default: the repository's ``conf/``
+            (:data:`CONF_DIR`).
+        return_hydra_config: also return the ``hydra`` node (sweeper params, runtime choices).
+
+    Returns:
+        The composed config.
+
+    Raises:
+        FileNotFoundError: if ``config_dir`` (or, by default, :data:`CONF_DIR`) holds no
+            ``config.yaml``.
+
+    Examples:
+        >>> cfg = compose(["+experiment=minimize", "runs=2"])
+        >>> cfg.runs
+        2
+    """
+    directory = Path(CONF_DIR if config_dir is None else config_dir).resolve()
+    if not (directory / "config.yaml").is_file():
+        raise FileNotFoundError(
+            f"config_dir={directory}: no config.yaml there; pass config_dir= the repository's conf/ "
+            "(found by default only when sde_torchrl is installed from a clone in editable mode)"
+        )
+    register_resolvers()
+    with initialize_config_dir(config_dir=str(directory), version_base="1.3"):
+        return hydra_compose(config_name="config", overrides=list(overrides),
+                             return_hydra_config=return_hydra_config)
