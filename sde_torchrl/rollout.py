@@ -74,6 +74,9 @@ _REPRODUCED_TRANSFORMS = (Compose, StepCounter, InitTracker, TensorDictPrimer)
 
 
 # ------------------------------------------------------------------------ what the paths need
+# From Python 3.12 on, isinstance against a protocol sees only class and plain instance
+# attributes, not an nn.Module's parameters or submodules: the protocols below list only the
+# former, and the actor (a module whose network is a submodule) is checked by its class.
 @runtime_checkable
 class TensorStepEnv(Protocol):
     """An env stepped by tensor functions of the observation and the action (tensor stepping).
@@ -104,12 +107,7 @@ class LinearEpisodeEnv(TensorStepEnv, Protocol):
 @runtime_checkable
 class TensorExplorer(Protocol):
     """The exploration step on tensors and the keys of its outputs
-    (:class:`~sde_torchrl.exploration.StateDependentExplorer`).
-
-    The protocols are checked with ``isinstance``, which from Python 3.12 on sees only class
-    attributes and plain instance attributes, not an ``nn.Module``'s parameters and submodules:
-    members here are of the first kind, and the actor's network is checked by its class.
-    """
+    (:class:`~sde_torchrl.exploration.StateDependentExplorer`)."""
 
     loc_key: str
     feature_key: str
@@ -170,7 +168,7 @@ def collect_episodes(
         ArgumentError: if ``steps`` is not a positive integer.
 
     Examples:
-        >>> from tensordict.nn import TensorDictModule, TensorDictSequential
+        >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
         >>> explorer = StateDependentExplorer(1, 1)
         >>> env = make_minimize_env(15, episodes=4).append_transform(explorer.make_tensordict_primer())
