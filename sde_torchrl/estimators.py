@@ -28,9 +28,22 @@ class EpisodeLogLikelihood(nn.Module):
     Wraps a policy ``TensorDictSequential(actor, explorer)`` whose last module is a
     :class:`~sde_torchrl.exploration.StateDependentExplorer`; the actor's output ``loc`` and
     the explorer's likelihood are recomputed from the stored observations and pre-squash actions.
+    The keys it reads are the explorer's until :meth:`set_keys` renames them.
 
     Args:
         policy: the policy that collected the episodes.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer
+        >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
+        >>> log_likelihood.in_keys
+        ['observation', 'action_sample']
+        >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action_sample": torch.randn(4, 10, 2)}, [4, 10])
+        >>> log_likelihood(steps).shape
+        torch.Size([4])
     """
 
     def __init__(self, policy: TensorDictSequential) -> None:
@@ -45,9 +58,13 @@ class EpisodeLogLikelihood(nn.Module):
         # which torch.func.functional_call does not restore correctly.
         self.actor = TensorDictSequential(*policy.module[:-1])
         self.explorer = explorer
-        self.in_keys = list(dict.fromkeys(
-            [*self.actor.in_keys, explorer.feature_key, explorer.sample_key]
-        ))
+        self.set_keys(loc=explorer.loc_key, features=explorer.feature_key, action_sample=explorer.sample_key)
+
+    def set_keys(self, *, loc: NestedKey, features: NestedKey, action_sample: NestedKey) -> None:
+        """Sets where the actor writes its mean and where the episodes hold the exploration
+        features and the pre-squash actions; ``in_keys`` follows."""
+        self.loc_key, self.feature_key, self.sample_key = loc, features, action_sample
+        self.in_keys = list(dict.fromkeys([*self.actor.in_keys, features, action_sample]))
 
     def forward(self, steps: TensorDictBase) -> torch.Tensor:
         """Log-likelihood summed over the last batch dimension (time).
@@ -59,9 +76,9 @@ class EpisodeLogLikelihood(nn.Module):
         Returns:
             Tensor of shape ``[*batch]``.
         """
-        loc = self.actor(steps.select(*self.actor.in_keys).copy()).get(self.explorer.loc_key)
-        features = steps.get(self.explorer.feature_key).to(loc.dtype)
-        return self.explorer.log_prob(loc, features, steps.get(self.explorer.sample_key)).sum(-1)
+        loc = self.actor(steps.select(*self.actor.in_keys).copy()).get(self.loc_key)
+        features = steps.get(self.feature_key).to(loc.dtype)
+        return self.explorer.log_prob(loc, features, steps.get(self.sample_key)).sum(-1)
 
 
 def episode_scores(
@@ -138,7 +155,9 @@ def reinforce_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[tor
     return gradient, baseline
 
 
-def enac_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def enac_gradient(
+    scores: torch.Tensor, returns: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Episodic Natural Actor-Critic: least squares ``[ψ_n, 1] · [w; J] = R_n``; ``w`` is the
     natural gradient (Peters & Schaal).
 
@@ -188,15 +207,23 @@ class EpisodicEstimator(LossModule):
 
     @dataclass
     class _AcceptedKeys:
-        """Configurable keys (``set_keys``).
+        """Configurable keys (``set_keys``): every key the estimator reads.
 
         Attributes:
             reward: per-step reward. Defaults to ``("next", "reward")``.
+            action_sample: the pre-squash action taken, which the likelihood scores (eq. 13).
+                Defaults to the explorer's ``sample_key``.
+            features: the exploration features ``x`` of eq. 20. Defaults to the explorer's
+                ``feature_key``.
+            loc: where the actor writes the controller's mean ``μ``. Defaults to the
+                explorer's ``loc_key``.
         """
 
         reward: NestedKey = ("next", "reward")
+        action_sample: NestedKey = StateDependentExplorer.sample_key
+        features: NestedKey = StateDependentExplorer.feature_key
+        loc: NestedKey = StateDependentExplorer.loc_key
 
-    default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
 
     def __init__(self, policy: TensorDictSequential, max_grad_norm: float | None = None) -> None:
@@ -204,14 +231,24 @@ class EpisodicEstimator(LossModule):
         if max_grad_norm is not None and not max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be > 0 or None, got {max_grad_norm!r}")
         self.max_grad_norm = max_grad_norm
-        self._set_in_keys()
         self.log_likelihood = EpisodeLogLikelihood(policy)
+        self._tensor_keys = self.default_keys()
+        self._set_in_keys()
+
+    def default_keys(self) -> _AcceptedKeys:
+        """The default keys: the policy's explorer's for the likelihood, ``("next", "reward")``."""
+        explorer = self.log_likelihood.explorer
+        return self._AcceptedKeys(action_sample=explorer.sample_key, features=explorer.feature_key,
+                                  loc=explorer.loc_key)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
+        """Called by ``set_keys``: hands the likelihood its keys and refreshes ``in_keys``."""
+        keys = self.tensor_keys
+        self.log_likelihood.set_keys(loc=keys.loc, features=keys.features, action_sample=keys.action_sample)
+        self._set_in_keys()
 
     def _set_in_keys(self) -> None:
-        self.in_keys = [self.tensor_keys.reward]
+        self.in_keys = list(dict.fromkeys([*self.log_likelihood.in_keys, self.tensor_keys.reward]))
         self.out_keys = ["loss_objective", "return_mean", "gradient"]
 
     def learnable_parameters(self) -> dict[str, nn.Parameter]:

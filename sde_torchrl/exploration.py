@@ -20,6 +20,7 @@ from torchrl.envs import Compose, TensorDictPrimer
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from sde_torchrl._shapes import align, stacked_matvec
+from sde_torchrl.checks import ArgumentError, one_of, positive_int
 from sde_torchrl.rng import RunStreams, draw_normal
 
 SCHEDULES = ("episode", "step", "every_n")
@@ -63,6 +64,12 @@ def expln_inverse(sigma: torch.Tensor | float) -> torch.Tensor:
     if not bool(torch.isfinite(sigma).all()) or bool((sigma <= 0).any()):
         raise ValueError(f"expln_inverse needs finite sigma > 0, got {sigma}")
     return torch.where(sigma <= 1, torch.log(sigma), torch.expm1(sigma.clamp(min=1) - 1))
+
+
+def deterministic_exploration() -> bool:
+    """Whether TorchRL's exploration type asks for the mean action (``DETERMINISTIC``, ``MODE``
+    or ``MEAN``): then the explorer adds no noise and draws nothing."""
+    return exploration_type() in _DETERMINISTIC
 
 
 def gaussian_log_prob(sample: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
@@ -119,6 +126,10 @@ class StateDependentExplorer(TensorDictModuleBase):
         torch.Size([5, 2])
     """
 
+    #: The tensordict keys it reads and writes (``feature_key`` is set per instance).
+    loc_key, feature_key, noise_key, age_key, is_init_key = "loc", "observation", "sde_noise", "sde_age", "is_init"
+    sample_key, scale_key, action_key, log_prob_key = "action_sample", "scale", "action", "action_log_prob"
+
     def __init__(
         self,
         action_dim: int,
@@ -135,18 +146,16 @@ class StateDependentExplorer(TensorDictModuleBase):
         feature_key: str = "observation",
     ) -> None:
         super().__init__()
-        _check_positive_int("action_dim", action_dim)
-        _check_positive_int("feature_dim", feature_dim)
-        if schedule not in SCHEDULES:
-            raise ValueError(f"unknown schedule {schedule!r}; expected one of {SCHEDULES}")
+        positive_int("action_dim", action_dim)
+        positive_int("feature_dim", feature_dim)
+        one_of("schedule", schedule, SCHEDULES)
         if schedule == "every_n":
-            _check_positive_int("every_n", every_n)
+            positive_int("every_n", every_n)
         elif every_n is not None:
-            raise ValueError(f"every_n={every_n} is only meaningful with schedule='every_n'")
-        if sharing not in SHARINGS:
-            raise ValueError(f"unknown sigma sharing {sharing!r}; expected one of {SHARINGS}")
+            raise ArgumentError("every_n", every_n, "null unless schedule=every_n")
+        one_of("sharing", sharing, SHARINGS)
         if runs is not None:
-            _check_positive_int("runs", runs)
+            positive_int("runs", runs)
         self.action_dim, self.feature_dim = action_dim, feature_dim
         self.schedule, self.every_n, self.sharing = schedule, every_n, sharing
         self.squash, self.runs = squash, runs
@@ -164,10 +173,7 @@ class StateDependentExplorer(TensorDictModuleBase):
                 run_shape + (action_dim,), float(gaussian_init_param)
             ), learn_sigma)
 
-        self.loc_key, self.feature_key = "loc", feature_key
-        self.noise_key, self.age_key, self.is_init_key = "sde_noise", "sde_age", "is_init"
-        self.sample_key, self.scale_key = "action_sample", "scale"
-        self.action_key, self.log_prob_key = "action", "action_log_prob"
+        self.feature_key = feature_key
         self.in_keys = [self.loc_key, self.feature_key, self.noise_key, self.is_init_key]
         self.out_keys = [self.action_key, self.sample_key, self.scale_key, self.log_prob_key,
                          self.noise_key]
@@ -273,7 +279,7 @@ class StateDependentExplorer(TensorDictModuleBase):
             deterministic exploration the sample is ``loc`` and nothing is drawn.
         """
         self._check_shapes(loc, features)
-        if exploration_type() in _DETERMINISTIC:
+        if deterministic_exploration():
             # No draw at all: evaluating a policy must not shift the exploration stream.
             return loc, noise, age
         noise, age = self._next_noise(noise, is_init, age, loc.shape[:-1])
@@ -287,37 +293,6 @@ class StateDependentExplorer(TensorDictModuleBase):
             gauss = align(expln(self.gaussian_param), self.run_dims, batch_dims)
             sample = sample + gauss * draw_normal(loc.shape, self.streams)
         return sample
-
-    def episode_matrix(self, weight: torch.Tensor, batch: torch.Size, steps: int) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """The linear map an episode of a linear controller ``Θ x`` follows: ``Θ + σ̂ ⊙ ξ``
-        (eqs. 17-19), or ``Θ`` under deterministic exploration.
-
-        Only for the ``episode`` schedule without Gaussian noise, where one ``ξ`` holds for the
-        whole episode. The random streams advance exactly as ``steps`` calls of :meth:`act`
-        from an episode start (one fresh draw per step, the first one kept), so both ways of
-        collecting produce the same episodes.
-
-        Args:
-            weight: ``Θ``, ``[*runs, A, S]``.
-            batch: batch shape of the episodes, runs first.
-            steps: episode length.
-
-        Returns:
-            ``(M [*batch, A, S], ξ [*batch, A, S] or None)``.
-
-        Raises:
-            ValueError: for another schedule or with Gaussian noise.
-        """
-        if self.schedule != "episode" or self.has_gaussian:
-            raise ValueError("a fixed linear map per episode needs schedule='episode' and no Gaussian noise")
-        theta = align(weight, self.run_dims, len(batch)).expand(*batch, self.action_dim, self.feature_dim)
-        if exploration_type() in _DETERMINISTIC:
-            return theta, None
-        shape = (*batch, self.action_dim, self.feature_dim)
-        noise = draw_normal(shape, self.streams)
-        for _ in range(steps - 1):
-            draw_normal(shape, self.streams)
-        return theta + self.noise_matrix(noise), noise
 
     def noise_matrix(self, noise: torch.Tensor) -> torch.Tensor:
         """``Θ̂ = σ̂ ⊙ ξ`` (eq. 18) for noise ``ξ`` shaped ``[*batch, A, S]`` (runs first)."""
@@ -358,6 +333,3 @@ class StateDependentExplorer(TensorDictModuleBase):
             )
 
 
-def _check_positive_int(name: str, value: object) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")

@@ -1,12 +1,53 @@
-"""Whole-episode collection without per-step TensorDict traffic, for tensor-stepping envs.
+"""Whole-episode collection: :func:`collect_episodes`, the one entry point, and the paths it picks.
 
-``EnvBase.rollout`` builds, transforms and stacks a TensorDict at every step. For an env whose
-dynamics are plain tensor functions (``initial_state`` and ``transition``, as
-:class:`~sde_torchrl.envs.MinimizeEnv` offers) the same episodes can be produced with a handful
-of tensor operations per step: the actor's network and the explorer's :meth:`act` are called on
-tensors, and one TensorDict ``[*batch, T]`` with the keys the estimators read is built at the end.
-The random streams are consumed in the same order as ``env.rollout`` does, so both paths produce
-the same first batch of episodes (tests check it).
+Every update needs ``N`` fresh whole episodes of ``T`` steps. ``env.rollout(T, policy,
+break_when_any_done=False)`` gives them for any env and policy, but builds, transforms and stacks
+a TensorDict at every step. Where the env and the policy allow it, the same episodes come from a
+faster path. :func:`collect_episodes` tries the paths in this order and takes the first whose
+eligibility function accepts the env and the policy:
+
+1. **Linear episodes** (:func:`linear_episode_env`, :func:`linear_episode_rollout`): the policy
+   is a bias-free linear controller ``Θ x`` with SDE redrawn once per episode and no Gaussian
+   noise (the paper's ball-catching controller), so each episode follows one fixed linear map
+   ``Θ + σ̂ ⊙ ξ`` (eqs. 17-19, :func:`episode_matrix`); an env that is a
+   :class:`LinearEpisodeEnv` runs every world's whole episode under its map, and ``loc``,
+   ``scale`` and the likelihoods are computed for all steps at once.
+2. **Tensor stepping** (:func:`tensor_step_env`, :func:`tensor_rollout`): the env is a
+   :class:`TensorStepEnv` (dynamics as tensor functions) and the policy a ``TensorDictModule``
+   followed by a :class:`TensorExplorer`; both are called on tensors at every step and one
+   TensorDict is built at the end.
+3. **TorchRL** ``env.rollout``: the reference, for everything else (other transforms, other
+   policies, gymnasium envs).
+
+What every path guarantees, for the same env, policy and random-stream states:
+
+* **The same episodes as** ``env.rollout``: the fast paths draw from the explorer's streams (and
+  the env's) in ``env.rollout``'s order, one ``ξ`` per step from the episode start. Tensor
+  stepping agrees with ``env.rollout`` to float32 rounding (``torch.testing.assert_close``'s
+  float32 tolerances; the random draws, hence ``sde_noise``, are identical), on the minimisation
+  task for every schedule, MLP actors, squashing and Gaussian noise, and on the ball-catching
+  worlds: ``tests/test_rollout.py::test_tensor_rollout_equals_env_rollout`` and
+  ``::test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds``. Linear episodes draw
+  the same ``ξ`` bit for bit and leave the streams where tensor stepping leaves them
+  (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act``); the env evaluates
+  the map in float64 where tensor stepping rounds to float32, so before the ball reaches the
+  hand ``observation``, ``is_init``, ``done`` and ``truncated`` are identical and ``loc``,
+  ``action_sample``, ``action``, ``scale``, the next observation and the reward agree to 1e-4,
+  and mean episode rewards to 0.02 over 120 steps
+  (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, random and deterministic
+  exploration).
+* **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the explorer's
+  ``feature_key`` (the observation), ``loc_key``, ``scale_key``, ``log_prob_key``,
+  ``sample_key``, ``action_key``, ``is_init_key`` and, unless exploration is deterministic,
+  ``noise_key``; under ``next``: ``observation``, ``reward``, ``done`` and ``truncated``. The
+  fast paths write nothing else (``env.rollout`` adds, e.g., ``terminated``, ``step_count`` and
+  the env's extra observations).
+* **A fallback that is never wrong**: an env wrapped in a transform the fast paths do not
+  reproduce, or a policy they do not know, goes to ``env.rollout``
+  (``::test_envs_or_policies_it_cannot_reproduce_fall_back``,
+  ``::test_linear_episode_path_needs_a_bias_free_linear_map_fixed_per_episode``,
+  ``::test_linear_episode_path_needs_an_env_that_runs_linear_episodes``,
+  ``tests/test_gym.py::test_collection_falls_back_to_env_rollout``), and ``fast=False`` forces it.
 """
 
 from __future__ import annotations
@@ -14,17 +55,31 @@ from __future__ import annotations
 from typing import Protocol, runtime_checkable
 
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
+from sde_torchrl._shapes import align
 from sde_torchrl.actors import BatchedLinear
-from sde_torchrl.exploration import StateDependentExplorer, gaussian_log_prob
+from sde_torchrl.checks import positive_int
+from sde_torchrl.exploration import deterministic_exploration, gaussian_log_prob
+from sde_torchrl.rng import RunStreams, draw_normal
+
+#: Keys under which a :class:`TensorStepEnv`'s steps are written, TorchRL's defaults.
+OBSERVATION_KEY, REWARD_KEY, DONE_KEY, TRUNCATED_KEY = "observation", "reward", "done", "truncated"
+
+#: Transforms whose effect the fast paths reproduce (episode length, ``is_init``, the
+#: explorer's primer). Any other transform must run, so it rules the fast paths out.
+_REPRODUCED_TRANSFORMS = (Compose, StepCounter, InitTracker, TensorDictPrimer)
 
 
+# ------------------------------------------------------------------------ what the paths need
+# From Python 3.12 on, isinstance against a protocol sees only class and plain instance
+# attributes, not an nn.Module's parameters or submodules: the protocols below list only the
+# former, and the actor (a module whose network is a submodule) is checked by its class.
 @runtime_checkable
 class TensorStepEnv(Protocol):
-    """An env stepped by tensor functions of the observation and the action.
+    """An env stepped by tensor functions of the observation and the action (tensor stepping).
 
     The observation may be the whole state (:class:`~sde_torchrl.envs.MinimizeEnv`) or a view
     of a state kept inside the env (the ball-catching worlds): ``transition`` then reads its own.
@@ -33,49 +88,126 @@ class TensorStepEnv(Protocol):
     batch_size: torch.Size
 
     def initial_state(self) -> torch.Tensor:
-        """Start states ``[*batch, S]``."""
+        """Resets every batch element; start observations ``[*batch, S]``."""
 
     def transition(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Next states ``[*batch, S]`` and rewards ``[*batch, 1]``."""
+        """Next observations ``[*batch, S]`` and rewards ``[*batch, 1]``."""
 
 
-#: Transforms whose effect :func:`tensor_rollout` reproduces (episode length, ``is_init``,
-#: the explorer's primer). Any other transform must run, so it disables the tensor path.
-_REPRODUCED_TRANSFORMS = (Compose, StepCounter, InitTracker, TensorDictPrimer)
+@runtime_checkable
+class LinearEpisodeEnv(TensorStepEnv, Protocol):
+    """A :class:`TensorStepEnv` that also runs whole episodes of fixed linear controllers
+    (:class:`~sde_torchrl.envs.BatchedBallCatchEnv`)."""
+
+    def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
+        """Fresh episodes under ``u = M x``: ``(observations [*batch, steps + 1, S], pre-squash
+        actions [*batch, steps, A], rewards [*batch, steps, 1])``."""
 
 
+@runtime_checkable
+class TensorExplorer(Protocol):
+    """The exploration step on tensors and the keys of its outputs
+    (:class:`~sde_torchrl.exploration.StateDependentExplorer`)."""
+
+    loc_key: str
+    feature_key: str
+    noise_key: str
+    is_init_key: str
+    sample_key: str
+    scale_key: str
+    action_key: str
+    log_prob_key: str
+    squash: bool
+
+    def act(
+        self, loc: torch.Tensor, features: torch.Tensor, noise: torch.Tensor | None = None,
+        is_init: torch.Tensor | None = None, age: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """``(pre-squash action, noise, age)`` for one step."""
+
+    def scale(self, features: torch.Tensor) -> torch.Tensor:
+        """Per-action standard deviation (eq. 20)."""
+
+
+@runtime_checkable
+class EpisodeExplorer(TensorExplorer, Protocol):
+    """A :class:`TensorExplorer` whose noise matrix ``ξ`` can be drawn for a whole episode."""
+
+    schedule: str
+    has_gaussian: bool
+    streams: RunStreams | None
+    run_dims: int
+    action_dim: int
+    feature_dim: int
+
+    def noise_matrix(self, noise: torch.Tensor) -> torch.Tensor:
+        """``Θ̂ = σ̂ ⊙ ξ`` (eq. 18)."""
+
+
+# ------------------------------------------------------------------------------ the entry point
+def collect_episodes(
+    env: EnvBase, policy: TensorDictSequential, steps: int, *, fast: bool = True
+) -> TensorDictBase:
+    """Fresh whole episodes of ``steps`` steps, one per batch element of ``env``.
+
+    Takes the fastest path that gives ``env.rollout``'s episodes (see the module docstring for
+    what each path guarantees), else ``env.rollout(steps, policy, break_when_any_done=False)``.
+    Runs under ``torch.no_grad()``; the exploration type in force (e.g.
+    ``set_exploration_type(ExplorationType.DETERMINISTIC)``) applies.
+
+    Args:
+        env: the (batched) env, reset by the collection.
+        policy: the policy, usually ``TensorDictSequential(actor, explorer)``.
+        steps: episode length ``T``.
+        fast: allow the fast paths; ``False`` forces ``env.rollout``.
+
+    Returns:
+        TensorDict shaped ``[*env.batch_size, steps]``.
+
+    Raises:
+        ArgumentError: if ``steps`` is not a positive integer.
+
+    Examples:
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
+        >>> explorer = StateDependentExplorer(1, 1)
+        >>> env = make_minimize_env(15, episodes=4).append_transform(explorer.make_tensordict_primer())
+        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> collect_episodes(env, policy, 15).batch_size
+        torch.Size([4, 15])
+    """
+    positive_int("steps", steps)
+    with torch.no_grad():
+        if fast:
+            if (base := linear_episode_env(env, policy)) is not None:
+                return linear_episode_rollout(base, policy, steps)
+            if (base := tensor_step_env(env, policy)) is not None:
+                return tensor_rollout(base, policy, steps)
+        return env.rollout(steps, policy, break_when_any_done=False)
+
+
+# -------------------------------------------------------------------------- tensor stepping
 def tensor_step_env(env: EnvBase, policy: TensorDictSequential) -> TensorStepEnv | None:
     """The env to hand to :func:`tensor_rollout` for ``env`` and ``policy``, or ``None``.
 
     That needs an env that is a :class:`TensorStepEnv`, possibly wrapped only in transforms the
-    tensor path reproduces, and a policy made of one actor reading the observation followed by a
-    :class:`StateDependentExplorer` whose features are the observation.
+    fast paths reproduce, and a policy of two modules: a ``TensorDictModule`` whose ``module``
+    maps the explorer's features to its ``loc``, then a :class:`TensorExplorer` whose features
+    are the observation.
     """
-    base = env
-    while isinstance(base, TransformedEnv):
-        transforms = list(base.transform) if isinstance(base.transform, Compose) else [base.transform]
-        if not all(isinstance(t, _REPRODUCED_TRANSFORMS) for t in _flatten(transforms)):
-            return None
-        base = base.base_env
+    base = _untransformed(env)
     modules = list(policy.module)
     if not isinstance(base, TensorStepEnv) or len(modules) != 2:
         return None
     actor, explorer = modules
-    supported = (isinstance(actor, TensorDictModule) and actor.in_keys == ["observation"]
-                 and isinstance(explorer, StateDependentExplorer)
-                 and explorer.feature_key == "observation")
+    supported = (isinstance(actor, TensorDictModule) and isinstance(explorer, TensorExplorer)
+                 and explorer.feature_key == OBSERVATION_KEY
+                 and actor.in_keys == [explorer.feature_key] and actor.out_keys == [explorer.loc_key])
     return base if supported else None
 
 
-def _flatten(transforms: list) -> list:
-    flat = []
-    for t in transforms:
-        flat.extend(_flatten(list(t)) if isinstance(t, Compose) else [t])
-    return flat
-
-
 def tensor_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
-    """Collects one fresh episode of ``steps`` steps per batch element.
+    """Collects one fresh episode of ``steps`` steps per batch element by tensor stepping.
 
     Args:
         env: a :class:`TensorStepEnv` (see :func:`tensor_step_env`).
@@ -83,54 +215,57 @@ def tensor_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int)
         steps: episode length ``T``.
 
     Returns:
-        TensorDict ``[*batch, T]`` with the policy's keys (``observation``, ``loc``, ``scale``,
-        ``action``, ``action_sample``, ``action_log_prob``, ``sde_noise``), ``is_init`` and
-        ``next`` (``observation``, ``reward``, ``done``, ``truncated``), as ``env.rollout``
-        writes them.
+        TensorDict ``[*batch, T]`` with the keys listed in the module docstring.
     """
     actor, explorer = policy.module
     x = env.initial_state()
     noise = age = None
     is_init = torch.ones(*env.batch_size, 1, dtype=torch.bool)
-    columns = {key: [] for key in ("observation", "loc", "action_sample", "sde_noise", "next_observation", "reward")}
+    observations, locs, samples, noises, next_observations, rewards = [], [], [], [], [], []
     for t in range(steps):
         loc = actor.module(x)
         sample, noise, age = explorer.act(loc, x, noise, is_init if t == 0 else ~is_init, age)
-        action = torch.tanh(sample) if explorer.squash else sample
-        x_next, reward = env.transition(x, action)
-        for key, value in (("observation", x), ("loc", loc), ("action_sample", sample), ("sde_noise", noise),
-                           ("next_observation", x_next), ("reward", reward)):
-            columns[key].append(value)
+        x_next, reward = env.transition(x, torch.tanh(sample) if explorer.squash else sample)
+        for column, value in ((observations, x), (locs, loc), (samples, sample), (noises, noise),
+                              (next_observations, x_next), (rewards, reward)):
+            column.append(value)
         x = x_next
-    stacked = {key: torch.stack(values, dim=len(env.batch_size)) for key, values in columns.items()
-               if values[0] is not None}
-    return _episodes(explorer, stacked.pop("observation"), stacked.pop("next_observation"), stacked.pop("loc"),
-                     stacked.pop("action_sample"), stacked.pop("reward"), stacked.get("sde_noise"))
+    time_dim = len(env.batch_size)
+    observation, loc, sample, next_observation, reward = (
+        torch.stack(column, dim=time_dim) for column in (observations, locs, samples, next_observations, rewards)
+    )
+    noise = None if noises[0] is None else torch.stack(noises, dim=time_dim)
+    return _episodes(explorer, observation, next_observation, loc, sample, reward, noise)
 
 
-def linear_episode_env(env: EnvBase, policy: TensorDictSequential) -> TensorStepEnv | None:
+# -------------------------------------------------------------------------- linear episodes
+def linear_episode_env(env: EnvBase, policy: TensorDictSequential) -> LinearEpisodeEnv | None:
     """The env to hand to :func:`linear_episode_rollout`, or ``None``.
 
-    That needs what :func:`tensor_step_env` needs, an env that runs whole episodes of fixed
-    linear controllers (``linear_episodes``, as :class:`~sde_torchrl.envs.BatchedBallCatchEnv`
-    does), a bias-free :class:`~sde_torchrl.actors.LinearActor` and an explorer with the
-    ``episode`` schedule and no Gaussian noise (the paper's ball-catching controller).
+    That needs what :func:`tensor_step_env` needs, an env that is a :class:`LinearEpisodeEnv`,
+    an actor whose network is a bias-free :class:`~sde_torchrl.actors.BatchedLinear` stacked like
+    the explorer, and an
+    :class:`EpisodeExplorer` with the ``episode`` schedule and no Gaussian noise (the paper's
+    ball-catching controller).
     """
     base = tensor_step_env(env, policy)
-    if base is None or not hasattr(base, "linear_episodes"):
+    if not isinstance(base, LinearEpisodeEnv):
         return None
     actor, explorer = policy.module
     linear = isinstance(actor.module, BatchedLinear) and actor.module.bias is None
-    return base if linear and explorer.schedule == "episode" and not explorer.has_gaussian else None
+    fixed_per_episode = (isinstance(explorer, EpisodeExplorer) and explorer.schedule == "episode"
+                         and not explorer.has_gaussian)
+    return base if linear and fixed_per_episode and actor.module.run_dims == explorer.run_dims else None
 
 
-def linear_episode_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
+def linear_episode_rollout(env: LinearEpisodeEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
     """Fresh episodes as :func:`tensor_rollout` collects them, for a linear controller whose
-    exploration is fixed per episode: the env runs each world's whole episode under its map
-    ``Θ + σ̂ ⊙ ξ`` (:meth:`~sde_torchrl.exploration.StateDependentExplorer.episode_matrix`),
-    then the actor and explorer compute ``loc``, ``scale`` and log-likelihoods for all steps
-    at once. Same random streams and keys as :func:`tensor_rollout`; the actions agree to
-    float32 rounding (the env evaluates the map in float64).
+    exploration is fixed per episode.
+
+    The env runs each world's whole episode under its map ``Θ + σ̂ ⊙ ξ`` (:func:`episode_matrix`),
+    then the actor and explorer compute ``loc``, ``scale`` and log-likelihoods for all steps at
+    once. Same random streams and keys as :func:`tensor_rollout`; the actions agree to float32
+    rounding (the env evaluates the map in float64).
 
     Args:
         env: an env accepted by :func:`linear_episode_env`.
@@ -142,7 +277,7 @@ def linear_episode_rollout(env: TensorStepEnv, policy: TensorDictSequential, ste
     """
     actor, explorer = policy.module
     batch = env.batch_size
-    matrices, noise = explorer.episode_matrix(actor.module.weight, batch, steps)
+    matrices, noise = episode_matrix(explorer, actor.module.weight, batch, steps)
     observations, sample, reward = env.linear_episodes(matrices, steps, explorer.squash)
     observation = observations[..., :-1, :]
     if noise is not None:
@@ -151,8 +286,67 @@ def linear_episode_rollout(env: TensorStepEnv, policy: TensorDictSequential, ste
                      noise)
 
 
+def episode_matrix(
+    explorer: EpisodeExplorer, weight: torch.Tensor, batch: torch.Size, steps: int
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The linear map an episode of a linear controller ``Θ x`` follows: ``Θ + σ̂ ⊙ ξ``
+    (eqs. 17-19), or ``Θ`` under deterministic exploration.
+
+    Only for the ``episode`` schedule without Gaussian noise, where one ``ξ`` holds for the
+    whole episode. The explorer's random streams advance exactly as ``steps`` calls of its
+    ``act`` from an episode start (one fresh draw per step, the first one kept), so both ways of
+    collecting produce the same episodes.
+
+    Args:
+        explorer: the explorer, with the ``episode`` schedule and no Gaussian noise.
+        weight: ``Θ``, ``[*runs, A, S]``.
+        batch: batch shape of the episodes, runs first.
+        steps: episode length.
+
+    Returns:
+        ``(M [*batch, A, S], ξ [*batch, A, S] or None)``.
+
+    Raises:
+        ValueError: for another schedule or with Gaussian noise.
+
+    Examples:
+        >>> from sde_torchrl import StateDependentExplorer
+        >>> explorer = StateDependentExplorer(4, 3)
+        >>> matrix, noise = episode_matrix(explorer, torch.zeros(4, 3), torch.Size([5]), steps=10)
+        >>> matrix.shape, noise.shape
+        (torch.Size([5, 4, 3]), torch.Size([5, 4, 3]))
+    """
+    if explorer.schedule != "episode" or explorer.has_gaussian:
+        raise ValueError("a fixed linear map per episode needs schedule='episode' and no Gaussian noise")
+    shape = (*batch, explorer.action_dim, explorer.feature_dim)
+    theta = align(weight, explorer.run_dims, len(batch)).expand(shape)
+    if deterministic_exploration():
+        return theta, None
+    noise = draw_normal(shape, explorer.streams)
+    for _ in range(steps - 1):
+        draw_normal(shape, explorer.streams)
+    return theta + explorer.noise_matrix(noise), noise
+
+
+# ------------------------------------------------------------------------------------ helpers
+def _untransformed(env: EnvBase) -> EnvBase | None:
+    """The base env under ``env``'s transforms, or ``None`` if one of them must run."""
+    while isinstance(env, TransformedEnv):
+        if not all(isinstance(t, _REPRODUCED_TRANSFORMS) for t in _flatten([env.transform])):
+            return None
+        env = env.base_env
+    return env
+
+
+def _flatten(transforms: list) -> list:
+    flat = []
+    for t in transforms:
+        flat.extend(_flatten(list(t)) if isinstance(t, Compose) else [t])
+    return flat
+
+
 def _episodes(
-    explorer: StateDependentExplorer, observation: torch.Tensor, next_observation: torch.Tensor,
+    explorer: TensorExplorer, observation: torch.Tensor, next_observation: torch.Tensor,
     loc: torch.Tensor, sample: torch.Tensor, reward: torch.Tensor, noise: torch.Tensor | None,
 ) -> TensorDict:
     """The episode TensorDict ``[*batch, T]`` that ``env.rollout`` writes, from its step tensors."""
@@ -163,15 +357,15 @@ def _episodes(
     first[..., 0, :] = True
     scale = explorer.scale(observation)  # eq. 20, once for all steps
     episodes = TensorDict({
-        "observation": observation,
-        "loc": loc,
-        "scale": scale,
-        "action_log_prob": gaussian_log_prob(sample, loc, scale),
-        "action_sample": sample,
-        "action": torch.tanh(sample) if explorer.squash else sample,
-        "is_init": first,
-        "next": {"observation": next_observation, "reward": reward, "done": done, "truncated": done.clone()},
+        explorer.feature_key: observation,
+        explorer.loc_key: loc,
+        explorer.scale_key: scale,
+        explorer.log_prob_key: gaussian_log_prob(sample, loc, scale),
+        explorer.sample_key: sample,
+        explorer.action_key: torch.tanh(sample) if explorer.squash else sample,
+        explorer.is_init_key: first,
+        "next": {OBSERVATION_KEY: next_observation, REWARD_KEY: reward, DONE_KEY: done, TRUNCATED_KEY: done.clone()},
     }, batch_size=batch)
     if noise is not None:
-        episodes.set("sde_noise", noise)
+        episodes.set(explorer.noise_key, noise)
     return episodes

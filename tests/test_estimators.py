@@ -10,8 +10,14 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 
 from sde_torchrl import (
-    ENACEstimator, LinearActor, MLPActor, ReinforceEstimator, StateDependentExplorer,
-    episode_returns, episode_scores, make_minimize_env,
+    ENACEstimator,
+    LinearActor,
+    MLPActor,
+    ReinforceEstimator,
+    StateDependentExplorer,
+    episode_returns,
+    episode_scores,
+    make_minimize_env,
 )
 from sde_torchrl.estimators import EpisodeLogLikelihood, enac_gradient, flatten_scores, reinforce_gradient
 
@@ -47,7 +53,7 @@ def test_torch_func_scores_equal_a_per_episode_autograd_loop(actor_kind, runs, g
         for r in range(1 if runs is None else runs):
             target = loglik if runs is None else loglik[r]
             grads = torch.autograd.grad(target, list(params.values()), retain_graph=True)
-            for name, g in zip(params, grads):
+            for name, g in zip(params, grads, strict=True):
                 if runs is None:
                     torch.testing.assert_close(scores[name][n], g, rtol=1e-5, atol=1e-6)
                 else:  # run r's score lives in slice r of the stacked parameter, nowhere else
@@ -173,6 +179,33 @@ def test_loss_output_keys_and_set_keys():
     assert {"loss_objective", "return_mean", "gradient", "baseline", "score_norm"} <= set(out.keys())
     estimator.set_keys(reward=("next", "cost"))
     torch.testing.assert_close(estimator(episodes)["return_mean"], -out["return_mean"])
+
+
+@pytest.mark.parametrize("estimator_cls", [ReinforceEstimator, ENACEstimator])
+def test_set_keys_renames_the_keys_the_estimator_reads(estimator_cls):
+    policy = _policy(runs=2)
+    episodes = _episodes(policy, runs=2, episodes=6)
+    expected = estimator_cls(policy)(episodes)["gradient"]
+    estimator = estimator_cls(policy)
+    assert estimator.in_keys == ["observation", "action_sample", ("next", "reward")]
+
+    renamed = episodes.clone()
+    renamed.rename_key_(("next", "reward"), "my_reward")
+    estimator.set_keys(reward="my_reward")
+    assert estimator.in_keys == ["observation", "action_sample", "my_reward"]
+    torch.testing.assert_close(estimator(renamed)["gradient"], expected, rtol=0, atol=0)
+
+    renamed.rename_key_("action_sample", "my_sample")
+    renamed["my_features"] = renamed["observation"]
+    estimator.set_keys(action_sample="my_sample", features="my_features")
+    assert estimator.in_keys == ["observation", "my_features", "my_sample", "my_reward"]
+    torch.testing.assert_close(estimator(renamed)["gradient"], expected, rtol=0, atol=0)
+    with pytest.raises(KeyError, match="my_features"):
+        estimator(renamed.exclude("my_features"))
+
+    estimator.set_keys(reward=None, action_sample=None, features=None)  # back to the defaults
+    assert estimator.in_keys == ["observation", "action_sample", ("next", "reward")]
+    torch.testing.assert_close(estimator(episodes)["gradient"], expected, rtol=0, atol=0)
 
 
 def test_policy_without_explorer_is_rejected():

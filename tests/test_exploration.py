@@ -215,7 +215,7 @@ def test_autograd_matches_finite_differences(sharing, gaussian):
     params = [p for p in (*actor.parameters(), *explorer.parameters())]
     grads = torch.autograd.grad(_log_prob(actor, explorer, x, u).sum(), params)
     h = 1e-6
-    for param, g in zip(params, grads):
+    for param, g in zip(params, grads, strict=True):
         numeric = torch.zeros_like(param)
         for idx in range(param.numel()):
             with torch.no_grad():

@@ -5,15 +5,21 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict.nn import TensorDictSequential
+from torchrl.envs import RewardScaling
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
 from sde_torchrl.envs.ballcatch import GROUND_Z, SCRIPTED_WEIGHTS
 from sde_torchrl.envs.ballcatch_torchrl import make_ballcatch_env
 from sde_torchrl.rng import RunStreams
-from torchrl.envs import RewardScaling
-
-from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
+from sde_torchrl.rollout import (
+    collect_episodes,
+    episode_matrix,
+    linear_episode_env,
+    linear_episode_rollout,
+    tensor_rollout,
+    tensor_step_env,
+)
 
 
 def _setup(schedule, every_n=None, actor="linear", squash=False, gaussian=None):
@@ -47,7 +53,7 @@ def test_tensor_rollout_equals_env_rollout(schedule, every_n, actor, squash, gau
     assert fast.batch_size == reference.batch_size == (2, 3, 6)
     for key in ["observation", "loc", "scale", "action_log_prob", "action", "action_sample", "sde_noise", "is_init",
                 ("next", "observation"), ("next", "reward"), ("next", "truncated")]:
-        torch.testing.assert_close(fast[key], reference[key], msg=lambda m: f"{key}: {m}")
+        torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
 
 
 def test_tensor_rollout_is_deterministic_under_deterministic_exploration():
@@ -65,7 +71,8 @@ def test_envs_or_policies_it_cannot_reproduce_fall_back():
 
 
 def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
-    from torchrl.envs import Compose as _Compose, InitTracker, TransformedEnv
+    from torchrl.envs import Compose as _Compose
+    from torchrl.envs import InitTracker, TransformedEnv
 
     from sde_torchrl import BatchedBallCatchEnv
 
@@ -86,7 +93,7 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
     with torch.no_grad():
         fast = tensor_rollout(base, policy2, 40)
     for key in ["observation", "action", "sde_noise", ("next", "observation"), ("next", "reward")]:
-        torch.testing.assert_close(fast[key], reference[key], msg=lambda m: f"{key}: {m}")
+        torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
     env.close()
     env2.close()
 
@@ -125,10 +132,10 @@ def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode):
     for key in ["is_init", ("next", "done"), ("next", "truncated"), "sde_noise", "observation"]:
         if key in reference.keys(True, True):
             torch.testing.assert_close(fast[key][..., :before_contact, :], reference[key][..., :before_contact, :],
-                                       rtol=0, atol=0, msg=lambda m: f"{key}: {m}")
+                                       rtol=0, atol=0, msg=lambda m, key=key: f"{key}: {m}")
     for key in ["loc", "action_sample", "action", "scale", ("next", "observation"), ("next", "reward")]:
         torch.testing.assert_close(fast[key][..., :before_contact, :], reference[key][..., :before_contact, :],
-                                   rtol=1e-4, atol=1e-4, msg=lambda m: f"{key}: {m}")
+                                   rtol=1e-4, atol=1e-4, msg=lambda m, key=key: f"{key}: {m}")
     torch.testing.assert_close(fast["next", "reward"].mean((-1, -2)), reference["next", "reward"].mean((-1, -2)),
                                rtol=0, atol=0.02)
     env.close()
@@ -192,7 +199,7 @@ def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act():
     env, policy = _catching_setup(runs=runs)
     actor, explorer = policy.module
     weight = actor.module.weight.detach()
-    matrix, noise = explorer.episode_matrix(weight, torch.Size([runs, 3]), steps)
+    matrix, noise = episode_matrix(explorer, weight, torch.Size([runs, 3]), steps)
     after_matrix = explorer.streams.normal((runs, 7))
 
     explorer.streams = RunStreams(0, runs, "explore")
@@ -205,6 +212,57 @@ def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act():
     sigma = explorer.sde_sigma.detach()[:, None]
     torch.testing.assert_close(matrix, weight[:, None] + sigma * noise)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        deterministic, none = explorer.episode_matrix(weight, torch.Size([runs, 3]), steps)
+        deterministic, none = episode_matrix(explorer, weight, torch.Size([runs, 3]), steps)
     assert none is None and torch.equal(deterministic, weight[:, None].expand(runs, 3, 4, 3))
     env.close()
+
+
+# ------------------------------------------------------------------------------ the entry point
+def _assert_same_episodes(got, expected):
+    assert got.batch_size == expected.batch_size
+    assert set(got.keys(True, True)) == set(expected.keys(True, True))
+    for key in expected.keys(True, True):
+        assert torch.equal(got[key], expected[key]), key
+
+
+@pytest.mark.parametrize("schedule", ["episode", "step"])
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_collect_episodes_steps_tensors_where_it_can(schedule, mode):
+    env, policy = _setup(schedule)
+    env2, policy2 = _setup(schedule)
+    with set_exploration_type(mode):
+        with torch.no_grad():
+            reference = tensor_rollout(env.base_env, policy, 6)
+        episodes = collect_episodes(env2, policy2, 6)
+    _assert_same_episodes(episodes, reference)
+    assert not episodes["loc"].requires_grad  # collected without a graph
+
+
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_collect_episodes_runs_linear_episodes_where_it_can(mode):
+    env, policy = _catching_setup(steps=30)
+    env2, policy2 = _catching_setup(steps=30)
+    with set_exploration_type(mode):
+        with torch.no_grad():
+            reference = linear_episode_rollout(env.base_env, policy, 30)
+        _assert_same_episodes(collect_episodes(env2, policy2, 30), reference)
+    env.close()
+    env2.close()
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_collect_episodes_falls_back_to_env_rollout(fast):
+    env, policy = _setup("episode")
+    env2, policy2 = _setup("episode")
+    if fast:  # a transform that must run rules the fast paths out
+        env.append_transform(RewardScaling(loc=0.0, scale=2.0))
+        env2.append_transform(RewardScaling(loc=0.0, scale=2.0))
+    with torch.no_grad():
+        reference = env.rollout(6, policy, break_when_any_done=False)
+    _assert_same_episodes(collect_episodes(env2, policy2, 6, fast=fast), reference)
+
+
+def test_collect_episodes_needs_a_positive_length():
+    env, policy = _setup("episode")
+    with pytest.raises(ValueError, match="steps=0: a positive integer"):
+        collect_episodes(env, policy, 0)
