@@ -29,7 +29,7 @@ from sde_torchrl.estimators import EpisodicEstimator, episode_returns
 from sde_torchrl.guard import FiniteGuard
 from sde_torchrl.interrupt import DeferredInterrupt, TrainingInterrupted
 from sde_torchrl.report import Reporter, close_logger
-from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
+from sde_torchrl.rollout import collect_episodes
 from sde_torchrl.run_dir import RunDirectory
 from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.summary import LoopState, summarize
@@ -62,23 +62,13 @@ class Trainer:
         self.estimator, self.optimizer, self.settings, self.logger = estimator, optimizer, settings, logger
         self.runs = env.batch_size[0]
         self.guard = FiniteGuard(policy, estimator, self.runs, settings.first_run)
-        queued = [*estimator.log_likelihood.in_keys, estimator.tensor_keys.reward]  # what the estimator reads
-        self.queue = EpisodeQueue(settings.episode_queue, settings.episodes_per_update, queued) \
+        self.queue = EpisodeQueue(settings.episode_queue, settings.episodes_per_update, estimator.in_keys) \
             if settings.episode_queue else None
 
     def _rollout(self, env: EnvBase) -> TensorDictBase:
-        """Fresh whole episodes on ``env``: where the env and policy allow, a world at a time
-        under its episode's linear map (:func:`linear_episode_rollout`) or by tensor stepping
-        (:func:`tensor_rollout`); both give ``env.rollout``'s episodes at a fraction of its
-        overhead. Else by ``env.rollout``."""
-        steps = self.settings.episode_length
-        with torch.no_grad():
-            if self.settings.tensor_rollout:
-                if (base := linear_episode_env(env, self.policy)) is not None:
-                    return linear_episode_rollout(base, self.policy, steps)
-                if (base := tensor_step_env(env, self.policy)) is not None:
-                    return tensor_rollout(base, self.policy, steps)
-            return env.rollout(steps, self.policy, break_when_any_done=False)
+        """Whole episodes on ``env`` by the fastest path that gives ``env.rollout``'s episodes
+        (:func:`~sde_torchrl.rollout.collect_episodes`; ``tensor_rollout=False`` forces ``env.rollout``)."""
+        return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
 
     def collect(self) -> TensorDictBase:
         """``N`` fresh exploratory episodes per run, ``[runs, N, T]``."""
