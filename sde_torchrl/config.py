@@ -29,49 +29,32 @@ from sde_torchrl.checks import ArgumentError, finite, is_finite_number, is_int, 
 class Choice(str, Enum):
     """A named choice: equal to its string (the modules receive it as one) and shown as it.
 
+    OmegaConf reads a choice by its member name, so every member's value is its name.
+
     Examples:
         >>> Schedule.step == "step", str(Schedule.step), f"{Schedule.step}"
         (True, 'step', 'step')
     """
 
+    @staticmethod
+    def _generate_next_value_(name: str, start: int, count: int, last_values: list[Any]) -> str:
+        return name
+
     def __str__(self) -> str:
         return self.value
 
 
-# The choices below are kept in sync with the modules they describe (importing those would cost
-# the import of torch at config time; the tests check the two agree). OmegaConf reads a choice by
-# its member name, so names and values are the same.
+# Kept in sync with the modules they describe (importing those would cost the import of torch
+# at config time; the tests check the two agree).
 
-
-class Schedule(Choice):
-    """When the explorer redraws ``Θ̂`` (besides every reset)."""
-
-    episode = "episode"
-    step = "step"
-    every_n = "every_n"
-
-
-class Sharing(Choice):
-    """How many ``σ̂`` the explorer learns: per matrix element, per action, or one."""
-
-    element = "element"
-    action = "action"
-    single = "single"
-
-
-class Activation(Choice):
-    """The MLP's hidden activation."""
-
-    sigmoid = "sigmoid"
-    tanh = "tanh"
-    relu = "relu"
-
-
-class Normalization(Choice):
-    """How a gymnasium env's observations are normalised."""
-
-    bounds = "bounds"
-    stats = "stats"
+#: When the explorer redraws ``Θ̂`` (besides at every reset).
+Schedule = Choice("Schedule", "episode step every_n")
+#: How many ``σ̂`` the explorer learns: per matrix element, per action, or one.
+Sharing = Choice("Sharing", "element action single")
+#: The MLP's hidden activation.
+Activation = Choice("Activation", "sigmoid tanh relu")
+#: How a gymnasium env's observations are normalised.
+Normalization = Choice("Normalization", "bounds stats")
 
 
 # ------------------------------------------------------------------------------ schemas
