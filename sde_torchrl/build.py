@@ -113,7 +113,7 @@ def run_job(
     """
     conf = validate(cfg)
     torch.set_num_threads(conf.threads)
-    config = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+    config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
     labels.update(seed=conf.seed, config=config)
     trainer = build_trainer(conf, out_dir)

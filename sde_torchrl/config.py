@@ -3,9 +3,9 @@
 Every config group option is backed by a dataclass registered in Hydra's ``ConfigStore``
 under ``schema/<group>/<option>`` (the YAML files list it first in their defaults and hold only
 what differs from it), and the top-level config by ``schema/config``. Hydra then rejects unknown
-keys, wrong types and unknown choices (the ``Enum`` fields) while composing; :func:`validate`
+keys and wrong types while composing; :func:`validate`
 converts the composed config once into these dataclasses, whose ``__post_init__`` checks the
-values (positive counts, options that only make sense together) with :mod:`sde_torchrl.checks`.
+values (positive counts, allowed strings, options that only make sense together) with :mod:`sde_torchrl.checks`.
 Every failure is turned into one line by :func:`describe_error`: ``<key>=<value>: <what is
 allowed>``.
 """
@@ -13,48 +13,34 @@ allowed>``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.nodes import EnumNode
 
-from sde_torchrl.checks import ArgumentError, finite, is_finite_number, is_int, non_negative_int, positive_int, show
+from sde_torchrl.checks import (
+    ArgumentError,
+    finite,
+    is_finite_number,
+    is_int,
+    non_negative_int,
+    one_of,
+    positive_int,
+    show,
+)
 
 # ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP006, UP007, UP035, UP045
 
 
-class Choice(str, Enum):
-    """A named choice: equal to its string (the modules receive it as one) and shown as it.
-
-    OmegaConf reads a choice by its member name, so every member's value is its name.
-
-    Examples:
-        >>> Schedule.step == "step", str(Schedule.step), f"{Schedule.step}"
-        (True, 'step', 'step')
-    """
-
-    @staticmethod
-    def _generate_next_value_(name: str, start: int, count: int, last_values: list[Any]) -> str:
-        return name
-
-    def __str__(self) -> str:
-        return self.value
-
-
 # Kept in sync with the modules they describe (importing those would cost the import of torch
-# at config time; the tests check the two agree).
-
-#: When the explorer redraws ``Θ̂`` (besides at every reset).
-Schedule = Choice("Schedule", "episode step every_n")
-#: How many ``σ̂`` the explorer learns: per matrix element, per action, or one.
-Sharing = Choice("Sharing", "element action single")
-#: The MLP's hidden activation.
-Activation = Choice("Activation", "sigmoid tanh relu")
-#: How a gymnasium env's observations are normalised.
-Normalization = Choice("Normalization", "bounds stats")
+# at config time; the tests check the two agree). Strings checked by the schemas, not Enums: Hydra
+# would reject an unknown Enum value while composing, which in a multirun stops the whole sweep
+# instead of failing that one job (with its error.txt).
+SCHEDULES = ("episode", "step", "every_n")
+SHARINGS = ("element", "action", "single")
+ACTIVATIONS = ("sigmoid", "tanh", "relu")
+NORMALIZATIONS = ("bounds", "stats")
 
 
 # ------------------------------------------------------------------------------ schemas
@@ -136,14 +122,14 @@ class GymEnvConf:
         reset_options: passed to every ``reset(options=...)``, e.g. ``{x_init: 0.3, y_init: 0.3}``.
 
     Examples:
-        >>> GymEnvConf(normalize_obs=Normalization.stats).normalize_obs
-        <Normalization.stats: 'stats'>
+        >>> GymEnvConf(normalize_obs="stats").norm_init_steps
+        1000
     """
 
     _target_: str = "sde_torchrl.envs.gym.make_gym_env"
     id: str = "Pendulum-v1"
     episode_length: int = 200
-    normalize_obs: Optional[Normalization] = None
+    normalize_obs: Optional[str] = None
     norm_init_steps: int = 1000
     constant_feature: bool = False
     gym_kwargs: Any = field(default_factory=dict)
@@ -152,6 +138,8 @@ class GymEnvConf:
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
         _check_gym_id(self.id)
+        if self.normalize_obs is not None and self.normalize_obs not in NORMALIZATIONS:
+            raise ArgumentError("env.normalize_obs", self.normalize_obs, f"null or one of {', '.join(NORMALIZATIONS)}")
         positive_int("env.norm_init_steps", self.norm_init_steps)
 
 
@@ -208,7 +196,7 @@ class MLPActorConf:
 
     _target_: str = "sde_torchrl.actors.MLPActor"
     hidden: List[int] = field(default_factory=lambda: [3])
-    activation: Activation = Activation.sigmoid
+    activation: str = "sigmoid"
     bias: bool = True
     init: Any = field(default_factory=lambda: [-1.0, 0.0])
 
@@ -216,6 +204,7 @@ class MLPActorConf:
         _check_init(self.init)
         if not all(is_int(size) and size >= 1 for size in self.hidden):
             raise ArgumentError("actor.hidden", self.hidden, "a list of positive integers")
+        one_of("actor.activation", self.activation, ACTIVATIONS)
 
 
 def _check_init(init: Any) -> None:
@@ -243,21 +232,23 @@ class ExplorerConf:
         squash: tanh on the action; the likelihood scores the pre-squash sample.
 
     Examples:
-        >>> ExplorerConf(schedule=Schedule.every_n, every_n=5).every_n
+        >>> ExplorerConf(schedule="every_n", every_n=5).every_n
         5
     """
 
     _target_: str = "sde_torchrl.exploration.StateDependentExplorer"
-    schedule: Schedule = Schedule.episode
+    schedule: str = "episode"
     every_n: Optional[int] = None
-    sharing: Sharing = Sharing.element
+    sharing: str = "element"
     init_param: float = -2.0
     gaussian_init_param: Optional[float] = None
     learn_sigma: bool = True
     squash: bool = False
 
     def __post_init__(self) -> None:
-        if self.schedule == Schedule.every_n:
+        one_of("explorer.schedule", self.schedule, SCHEDULES)
+        one_of("explorer.sharing", self.sharing, SHARINGS)
+        if self.schedule == "every_n":
             positive_int("explorer.every_n", self.every_n)
         elif self.every_n is not None:
             raise ArgumentError("explorer.every_n", self.every_n, "null unless explorer.schedule=every_n")
@@ -448,7 +439,7 @@ def describe_error(error: BaseException) -> str | None:
 
     Understands :class:`~sde_torchrl.checks.ArgumentError` (the schemas' checks), Hydra's unknown
     group options and override errors and OmegaConf's validation errors (wrong type, unknown
-    choice, unknown key), also when wrapped by Hydra.
+    key), also when wrapped by Hydra.
     """
     from hydra.errors import ConfigCompositionException, MissingConfigException, OverrideParseException
     from omegaconf.errors import OmegaConfBaseException
@@ -498,10 +489,7 @@ def _omegaconf_line(err: Any) -> str:
     if value is None and "Value '" in msg:
         value = msg.split("Value '", 1)[1].split("'", 1)[0]
     allowed = msg
-    node = getattr(err, "child_node", None)
-    if isinstance(node, EnumNode) and msg.startswith("Invalid value"):
-        allowed = ("null or " if node._is_optional() else "") + f"one of {', '.join(map(str, node.enum_type))}"
-    elif "could not be converted to" in msg:
+    if "could not be converted to" in msg:
         type_name = msg.rsplit("could not be converted to", 1)[1].strip().rstrip(".")
         allowed = _TYPE_WORDS.get(type_name, f"a value of type {type_name}")
     elif expected:

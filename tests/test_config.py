@@ -9,10 +9,7 @@ from _helpers import compose_config, own_stderr_lines, run_cli
 
 from sde_torchrl import actors, exploration
 from sde_torchrl.checks import ArgumentError
-from sde_torchrl.config import Activation, Schedule, Sharing, describe_error, validate
-
-# The schemas' choices, as the modules spell them.
-SCHEDULES, SHARINGS, ACTIVATIONS = (tuple(choice) for choice in (Schedule, Sharing, Activation))
+from sde_torchrl.config import ACTIVATIONS, SCHEDULES, SHARINGS, describe_error, validate
 
 
 def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
