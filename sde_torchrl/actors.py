@@ -15,6 +15,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 
 from sde_torchrl._shapes import align, stacked_matvec
+from sde_torchrl.checks import one_of, positive_int
 from sde_torchrl.rng import RunStreams, draw_uniform
 
 ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "relu": torch.relu}
@@ -45,9 +46,8 @@ class BatchedLinear(nn.Module):
         runs: int | None = None, init: Init = None,
     ) -> None:
         super().__init__()
-        for name, value in (("in_features", in_features), ("out_features", out_features)):
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        positive_int("in_features", in_features)
+        positive_int("out_features", out_features)
         self.in_features, self.out_features, self.runs = in_features, out_features, runs
         self.run_dims = 0 if runs is None else 1
         self.init = init
@@ -104,9 +104,7 @@ class MLP(nn.Module):
         activation: str = "sigmoid", bias: bool = True, runs: int | None = None, init: Init = None,
     ) -> None:
         super().__init__()
-        if activation not in ACTIVATIONS:
-            raise ValueError(f"unknown activation {activation!r}; expected one of {list(ACTIVATIONS)}")
-        self.activation = ACTIVATIONS[activation]
+        self.activation = ACTIVATIONS[one_of("activation", activation, ACTIVATIONS)]
         sizes = [in_features, *hidden, out_features]
         self.layers = nn.ModuleList(
             BatchedLinear(n_in, n_out, bias=bias, runs=runs, init=init)

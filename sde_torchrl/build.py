@@ -1,12 +1,14 @@
 """From a composed Hydra config to a ready :class:`~sde_torchrl.trainer.Trainer`.
 
-The config groups ``env``, ``actor``, ``explorer``, ``estimator`` and ``logger`` each hold a
-``_target_`` and its options; this module supplies what only the job knows (batch sizes, the
-number of runs, dimensions read off the env, per-run random streams) and wires the pieces.
+The config is checked and typed once (:func:`~sde_torchrl.config.validate`); its groups ``env``,
+``actor``, ``explorer``, ``estimator`` and ``logger`` each hold a ``_target_`` and its options.
+This module supplies what only the job knows (batch sizes, the number of runs, dimensions read
+off the env, per-run random streams) and wires the pieces.
 """
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import Any
 
 import torch
@@ -14,11 +16,9 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 
-from sde_torchrl.config import register_configs, validate
+from sde_torchrl.config import TrainConf, register_configs, validate
+from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.envs.minimize import midway_threshold
-
-#: Key of extra exploration features an env may write (``sde_torchrl.envs.gym.FEATURES_KEY``).
-FEATURES_KEY = "sde_features"
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.trainer import Trainer
@@ -38,28 +38,38 @@ def register_resolvers() -> None:
     )
 
 
-def build_env(cfg: DictConfig, episodes: int, stream: str) -> Any:
-    """Instantiates ``cfg.env`` with a ``[runs, episodes]`` batch and the run streams."""
-    env = instantiate(cfg.env, episodes=episodes, runs=cfg.runs, first_run=cfg.first_run,
-                      stream=stream)
-    env.set_seed(cfg.seed)
+def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
+    """Instantiates ``conf.env`` with a ``[runs, episodes]`` batch and the run streams."""
+    env = instantiate(conf.env, episodes=episodes, runs=conf.runs, first_run=conf.first_run, stream=stream)
+    env.set_seed(conf.seed)
     return env
 
 
-def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
+def training_settings(conf: TrainConf) -> TrainingSettings:
+    """The trainer's settings: each field read from the config's top level, except
+    ``episode_length``, which is the env's."""
+    values = {**vars(conf), "episode_length": conf.env.episode_length}
+    return TrainingSettings(**{f.name: values[f.name] for f in fields(TrainingSettings)})
+
+
+def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Trainer:
     """Builds env, policy, estimator, optimiser and logger for one job.
 
     Args:
-        cfg: the composed config (see ``conf/config.yaml``).
+        cfg: the composed config (see ``conf/config.yaml``), or the :class:`TrainConf` that
+            :func:`~sde_torchrl.config.validate` made of it.
         out_dir: where the TorchRL logger writes (the run directory).
 
     Returns:
         The trainer; call ``train(out_dir)``.
+
+    Raises:
+        ArgumentError: for a config value that is not allowed (before anything is built).
     """
-    validate(cfg)
-    torch.manual_seed(cfg.seed)
-    env = build_env(cfg, cfg.episodes_per_update, "env")
-    eval_env = build_env(cfg, cfg.eval_episodes, "eval_env")
+    conf = cfg if isinstance(cfg, TrainConf) else validate(cfg)
+    torch.manual_seed(conf.seed)
+    env = build_env(conf, conf.episodes_per_update, "env")
+    eval_env = build_env(conf, conf.eval_episodes, "eval_env")
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     # The explorer's features: the observation, or what the env writes for it (a constant
@@ -67,28 +77,21 @@ def build_trainer(cfg: DictConfig, out_dir: str | None = None) -> Trainer:
     feature_key = FEATURES_KEY if FEATURES_KEY in env.observation_spec.keys() else "observation"
     feature_dim = env.observation_spec[feature_key].shape[-1]
 
-    actor = instantiate(cfg.actor, in_features=obs_dim, out_features=act_dim, runs=cfg.runs)
-    actor.module.reset_parameters(RunStreams(cfg.seed, cfg.runs, "init", cfg.first_run))
-    explorer = instantiate(cfg.explorer, action_dim=act_dim, feature_dim=feature_dim, runs=cfg.runs,
+    actor = instantiate(conf.actor, in_features=obs_dim, out_features=act_dim, runs=conf.runs)
+    actor.module.reset_parameters(RunStreams(conf.seed, conf.runs, "init", conf.first_run))
+    explorer = instantiate(conf.explorer, action_dim=act_dim, feature_dim=feature_dim, runs=conf.runs,
                            feature_key=feature_key)
-    explorer.streams = RunStreams(cfg.seed, cfg.runs, "explore", cfg.first_run)
+    explorer.streams = RunStreams(conf.seed, conf.runs, "explore", conf.first_run)
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())
     policy = TensorDictSequential(actor, explorer)
 
-    estimator = instantiate(cfg.estimator, policy=policy)
-    optimizer = torch.optim.SGD(policy.parameters(), lr=cfg.lr)
+    estimator = instantiate(conf.estimator, policy=policy)
+    optimizer = torch.optim.SGD(policy.parameters(), lr=conf.lr)
     logger = None
-    if cfg.get("logger") and out_dir is not None:
-        logger = instantiate(cfg.logger, log_dir=out_dir)
-    settings = TrainingSettings(
-        updates=cfg.updates, episodes_per_update=cfg.episodes_per_update,
-        episode_length=cfg.env.episode_length, eval_period=cfg.eval_period,
-        eval_episodes=cfg.eval_episodes, r_lim=cfg.r_lim, first_run=cfg.first_run,
-        stop_at_threshold=cfg.stop_at_threshold, tensor_rollout=cfg.tensor_rollout,
-        episode_queue=cfg.episode_queue,
-    )
-    return Trainer(env, eval_env, policy, estimator, optimizer, settings, logger)
+    if conf.logger and out_dir is not None:
+        logger = instantiate(conf.logger, log_dir=out_dir)
+    return Trainer(env, eval_env, policy, estimator, optimizer, training_settings(conf), logger)
 
 
 def run_job(
@@ -107,16 +110,16 @@ def run_job(
         The summary written to ``summary.json``.
 
     Raises:
-        ConfigError: for a config value that is not allowed (before anything is built).
+        ArgumentError: for a config value that is not allowed (before anything is built).
     """
-    validate(cfg)
-    torch.set_num_threads(cfg.threads)
+    conf = validate(cfg)
+    torch.set_num_threads(conf.threads)
     config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
-    labels.update(seed=cfg.seed, config=config)
-    trainer = build_trainer(cfg, out_dir)
+    labels.update(seed=conf.seed, config=config)
+    trainer = build_trainer(conf, out_dir)
     try:
-        return trainer.train(out_dir, labels, config=config,
-                             checkpoint_period=cfg.get("checkpoint_period", 0), progress=progress)
+        return trainer.train(out_dir, labels, config=config, checkpoint_period=conf.checkpoint_period,
+                             progress=progress)
     finally:
         trainer.close()  # a launcher's worker process may run further jobs

@@ -1,59 +1,46 @@
-"""Config schemas and validation: a typo fails before any work, with one clear line.
+"""Config schemas: the single source of truth for what a config may hold.
 
 Every config group option is backed by a dataclass registered in Hydra's ``ConfigStore``
-under ``schema/<group>/<option>`` (the YAML files list it first in their defaults), and the
-top-level config by ``schema/config``. Hydra then rejects unknown keys and wrong types while
-composing; :func:`validate` checks the values (positive counts, allowed strings, options that
-only make sense together) before anything is built. Every failure is turned into one line by
-:func:`describe_error`: ``<key>=<value>: <what is allowed>``.
+under ``schema/<group>/<option>`` (the YAML files list it first in their defaults and hold only
+what differs from it), and the top-level config by ``schema/config``. Hydra then rejects unknown
+keys and wrong types while composing; :func:`validate`
+converts the composed config once into these dataclasses, whose ``__post_init__`` checks the
+values (positive counts, allowed strings, options that only make sense together) with :mod:`sde_torchrl.checks`.
+Every failure is turned into one line by :func:`describe_error`: ``<key>=<value>: <what is
+allowed>``.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
-# Kept in sync with the modules they describe (imported lazily there would cost the import
-# of torch at config time; the tests check the two agree).
+from sde_torchrl.checks import (
+    ArgumentError,
+    finite,
+    is_finite_number,
+    is_int,
+    non_negative_int,
+    one_of,
+    positive_int,
+    show,
+)
+
+# ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
+# ruff: noqa: UP006, UP007, UP035, UP045
+
+
+# Kept in sync with the modules they describe (importing those would cost the import of torch
+# at config time; the tests check the two agree). Strings checked by the schemas, not Enums: Hydra
+# would reject an unknown Enum value while composing, which in a multirun stops the whole sweep
+# instead of failing that one job (with its error.txt).
 SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
 ACTIVATIONS = ("sigmoid", "tanh", "relu")
 NORMALIZATIONS = ("bounds", "stats")
-
-# ``typing`` generics, not ``list[int]``: OmegaConf reads these annotations at runtime.
-# ruff: noqa: UP006, UP007
-
-
-class ConfigError(ValueError):
-    """A config value that is not allowed.
-
-    Args:
-        key: dotted config key (``explorer.sharing``).
-        value: the value given.
-        allowed: what would be accepted, in words.
-
-    Examples:
-        >>> str(ConfigError("runs", -1, "a positive integer"))
-        'runs=-1: a positive integer'
-    """
-
-    def __init__(self, key: str, value: Any, allowed: str) -> None:
-        self.key, self.value, self.allowed = key, value, allowed
-        super().__init__(f"{key}={_show(value)}: {allowed}")
-
-
-def _show(value: Any) -> str:
-    if isinstance(value, (DictConfig, ListConfig)):
-        value = OmegaConf.to_container(value)
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return str(value).lower()
-    return str(value)
 
 
 # ------------------------------------------------------------------------------ schemas
@@ -61,52 +48,151 @@ def _show(value: Any) -> str:
 
 @dataclass
 class MinimizeEnvConf:
-    """``env=minimize``: the function-minimisation task (paper section 4.1)."""
+    """``env=minimize``: the function-minimisation task (paper section 4.1),
+    ``x_{t+1} = x_t + s u_t + N(0, σ_noise²)``, ``r_t = -‖x_{t+1}‖²``.
+
+    Attributes:
+        episode_length: ``EL``, steps per episode.
+        dim: dimension of the state and action.
+        x0: start state, a scalar or a ``dim``-vector (not given by the paper; README,
+            "Calibration").
+        x0_spread: half-width of a uniform jitter around ``x0``.
+        step_size: ``s``.
+        noise_std: ``σ_noise``.
+
+    Examples:
+        >>> MinimizeEnvConf(episode_length=30).dim
+        1
+    """
 
     _target_: str = "sde_torchrl.envs.make_minimize_env"
     episode_length: int = 15
     dim: int = 1
-    x0: Any = 5.0  # a scalar or a dim-vector
+    x0: Any = 5.0
     x0_spread: float = 0.0
     step_size: float = 0.1
     noise_std: float = 0.5
 
+    def __post_init__(self) -> None:
+        positive_int("env.episode_length", self.episode_length)
+        positive_int("env.dim", self.dim)
+        finite("env.x0_spread", self.x0_spread, minimum=0)
+        finite("env.noise_std", self.noise_std, minimum=0)
+        finite("env.step_size", self.step_size)
+
 
 @dataclass
 class BallCatchEnvConf:
-    """``env=ballcatch``: the pybullet ball-catching task (paper section 4.2)."""
+    """``env=ballcatch``: an arm with a hand catches a ball released above the palm (pybullet,
+    paper section 4.2).
+
+    Attributes:
+        episode_length: steps of 0.01 s per episode.
+        jitter: half-width of the uniform horizontal release offset, in ``[0, 0.4]``.
+
+    Examples:
+        >>> BallCatchEnvConf().episode_length
+        500
+    """
 
     _target_: str = "sde_torchrl.envs.ballcatch_torchrl.make_ballcatch_env"
     episode_length: int = 500
     jitter: float = 0.05
 
+    def __post_init__(self) -> None:
+        positive_int("env.episode_length", self.episode_length)
+        if not is_finite_number(self.jitter) or not 0 <= self.jitter <= 0.4:
+            raise ArgumentError("env.jitter", self.jitter, "a number in [0, 0.4]")
+
 
 @dataclass
 class GymEnvConf:
-    """``env=gym``: any gymnasium continuous-control env, through TorchRL's ``GymEnv``."""
+    """``env=gym``: any gymnasium continuous-control env, through TorchRL's ``GymEnv``
+    (``env=gym env.id=Pendulum-v1``; README, "Any gymnasium env").
+
+    Attributes:
+        id: a registered gymnasium id (``"module:Env-v0"`` imports ``module`` first).
+        episode_length: ``T``, at most the env's time limit; episodes that end earlier are held
+            absorbing until ``T``.
+        normalize_obs: ``null``, ``bounds`` (a bounded space mapped to ``[-1, 1]``) or ``stats``
+            (mean and standard deviation of random steps).
+        norm_init_steps: random steps for ``normalize_obs=stats``.
+        constant_feature: append 1 to the explorer's features (noise where the observation is ~0).
+        gym_kwargs: passed to ``gymnasium.make``, e.g. ``{max_episode_steps: 500}``.
+        reset_options: passed to every ``reset(options=...)``, e.g. ``{x_init: 0.3, y_init: 0.3}``.
+
+    Examples:
+        >>> GymEnvConf(normalize_obs="stats").norm_init_steps
+        1000
+    """
 
     _target_: str = "sde_torchrl.envs.gym.make_gym_env"
     id: str = "Pendulum-v1"
     episode_length: int = 200
-    normalize_obs: Optional[str] = None  # null | bounds | stats
+    normalize_obs: Optional[str] = None
     norm_init_steps: int = 1000
     constant_feature: bool = False
     gym_kwargs: Any = field(default_factory=dict)
-    reset_options: Any = None  # passed to every reset, e.g. {x_init: 0.3, y_init: 0.3}
+    reset_options: Any = None
+
+    def __post_init__(self) -> None:
+        positive_int("env.episode_length", self.episode_length)
+        _check_gym_id(self.id)
+        if self.normalize_obs is not None and self.normalize_obs not in NORMALIZATIONS:
+            raise ArgumentError("env.normalize_obs", self.normalize_obs, f"null or one of {', '.join(NORMALIZATIONS)}")
+        positive_int("env.norm_init_steps", self.norm_init_steps)
+
+
+def _check_gym_id(env_id: Any) -> None:
+    allowed = "a registered gymnasium env id such as Pendulum-v1"
+    if not isinstance(env_id, str) or not env_id:
+        raise ArgumentError("env.id", env_id, allowed)
+    if ":" in env_id:  # "module:Env-v0" registers on import: checked when built
+        return
+    import gymnasium
+
+    if env_id not in gymnasium.envs.registry:
+        close = sorted(k for k in gymnasium.envs.registry if k.lower().startswith(env_id.lower()[:4]))
+        hint = f" (close: {', '.join(close[:5])})" if close else ""
+        raise ArgumentError("env.id", env_id, allowed + hint)
 
 
 @dataclass
 class LinearActorConf:
-    """``actor=linear``: ``u = Θ x (+ b)``."""
+    """``actor=linear``: ``u = Θ x (+ b)``; the paper's controllers have no bias.
+
+    Attributes:
+        bias: learn ``b``.
+        init: every parameter's start value, or ``[low, high]`` for uniform draws.
+
+    Examples:
+        >>> LinearActorConf(init=[-0.1, 0.1]).init
+        [-0.1, 0.1]
+    """
 
     _target_: str = "sde_torchrl.actors.LinearActor"
     bias: bool = False
-    init: Any = -2.0  # a constant or [low, high)
+    init: Any = -2.0
+
+    def __post_init__(self) -> None:
+        _check_init(self.init)
 
 
 @dataclass
 class MLPActorConf:
-    """``actor=mlp``: a small multi-layer perceptron."""
+    """``actor=mlp``: a small multi-layer perceptron; by default the paper's (section 4.1,
+    "Parameter dimensionality"): 3 sigmoid hidden units, bias units, ``θ_i ~ U[-1, 0)``.
+
+    Attributes:
+        hidden: hidden layer sizes.
+        activation: of the hidden layers.
+        bias: bias units into the hidden and output layers.
+        init: every parameter's start value, or ``[low, high]`` for uniform draws.
+
+    Examples:
+        >>> MLPActorConf().hidden
+        [3]
+    """
 
     _target_: str = "sde_torchrl.actors.MLPActor"
     hidden: List[int] = field(default_factory=lambda: [3])
@@ -114,10 +200,41 @@ class MLPActorConf:
     bias: bool = True
     init: Any = field(default_factory=lambda: [-1.0, 0.0])
 
+    def __post_init__(self) -> None:
+        _check_init(self.init)
+        if not all(is_int(size) and size >= 1 for size in self.hidden):
+            raise ArgumentError("actor.hidden", self.hidden, "a list of positive integers")
+        one_of("actor.activation", self.activation, ACTIVATIONS)
+
+
+def _check_init(init: Any) -> None:
+    allowed = "a number, or [low, high] with low < high"
+    if isinstance(init, (list, tuple)):
+        if len(init) != 2 or not all(is_finite_number(v) for v in init) or not init[0] < init[1]:
+            raise ArgumentError("actor.init", init, allowed)
+    elif init is not None and not is_finite_number(init):
+        raise ArgumentError("actor.init", init, allowed)
+
 
 @dataclass
 class ExplorerConf:
-    """``explorer=sde|rex|every_n|sde_gauss``: the state-dependent explorer."""
+    """``explorer=sde|rex|every_n|sde_gauss``: the state-dependent explorer (paper section 3).
+
+    Attributes:
+        schedule: when ``Θ̂`` is redrawn: every ``episode`` (SDE), every ``step`` (REX, emulated
+            as in the paper) or ``every_n`` steps; always at a reset.
+        every_n: the period for ``schedule=every_n``, else ``null``.
+        sharing: one ``σ̂`` per matrix ``element`` (``A×S``), per ``action`` (``A``), or a
+            ``single`` one.
+        init_param: ``σ̂ = expln(init_param)`` at the start (``-2``: ``σ̂ ≈ 0.135``).
+        gaussian_init_param: set for eq. 22's extra i.i.d. Gaussian noise, ``σ = expln(q)``.
+        learn_sigma: learn ``σ̂`` (else it stays at its start value).
+        squash: tanh on the action; the likelihood scores the pre-squash sample.
+
+    Examples:
+        >>> ExplorerConf(schedule="every_n", every_n=5).every_n
+        5
+    """
 
     _target_: str = "sde_torchrl.exploration.StateDependentExplorer"
     schedule: str = "episode"
@@ -128,18 +245,48 @@ class ExplorerConf:
     learn_sigma: bool = True
     squash: bool = False
 
+    def __post_init__(self) -> None:
+        one_of("explorer.schedule", self.schedule, SCHEDULES)
+        one_of("explorer.sharing", self.sharing, SHARINGS)
+        if self.schedule == "every_n":
+            positive_int("explorer.every_n", self.every_n)
+        elif self.every_n is not None:
+            raise ArgumentError("explorer.every_n", self.every_n, "null unless explorer.schedule=every_n")
+        finite("explorer.init_param", self.init_param)
+        if self.gaussian_init_param is not None:
+            finite("explorer.gaussian_init_param", self.gaussian_init_param)
+
 
 @dataclass
 class EstimatorConf:
-    """``estimator=reinforce|enac``."""
+    """``estimator=reinforce|enac``: episodic REINFORCE with the optimal per-parameter baseline,
+    or the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``).
+
+    Attributes:
+        max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
+
+    Examples:
+        >>> EstimatorConf(max_grad_norm=100.0).max_grad_norm
+        100.0
+    """
 
     _target_: str = "sde_torchrl.estimators.ReinforceEstimator"
     max_grad_norm: Optional[float] = None
 
+    def __post_init__(self) -> None:
+        bound = self.max_grad_norm
+        if bound is not None and (not is_finite_number(bound) or bound <= 0):
+            raise ArgumentError("estimator.max_grad_norm", bound, "a number > 0, or null (no bound)")
+
 
 @dataclass
 class CSVLoggerConf:
-    """``logger=csv``: TorchRL's ``CSVLogger``."""
+    """``logger=csv``: TorchRL's ``CSVLogger``, run-averaged curves under the run directory.
+
+    Examples:
+        >>> CSVLoggerConf().exp_name
+        'sde_torchrl'
+    """
 
     _target_: str = "torchrl.record.loggers.csv.CSVLogger"
     exp_name: str = "sde_torchrl"
@@ -147,7 +294,13 @@ class CSVLoggerConf:
 
 @dataclass
 class TensorboardLoggerConf:
-    """``logger=tensorboard``: TorchRL's ``TensorboardLogger``."""
+    """``logger=tensorboard``: TorchRL's ``TensorboardLogger``, event files under
+    ``<run dir>/<exp_name>`` (needs ``tensorboard``).
+
+    Examples:
+        >>> TensorboardLoggerConf().exp_name
+        'sde_torchrl'
+    """
 
     _target_: str = "torchrl.record.loggers.tensorboard.TensorboardLogger"
     exp_name: str = "sde_torchrl"
@@ -155,7 +308,13 @@ class TensorboardLoggerConf:
 
 @dataclass
 class WandbLoggerConf:
-    """``logger=wandb``: TorchRL's ``WandbLogger``, offline by default."""
+    """``logger=wandb``: TorchRL's ``WandbLogger``, offline by default (runs land in
+    ``<run dir>/wandb``; ``wandb sync`` uploads them later).
+
+    Examples:
+        >>> WandbLoggerConf().offline
+        True
+    """
 
     _target_: str = "torchrl.record.loggers.wandb.WandbLogger"
     exp_name: str = "sde_torchrl"
@@ -165,7 +324,37 @@ class WandbLoggerConf:
 
 @dataclass
 class TrainConf:
-    """The top-level config (``conf/config.yaml``); groups are typed by their own schemas."""
+    """The top-level config (``conf/config.yaml``); the groups are typed by their own schemas.
+
+    Attributes:
+        env: the ``env`` group's schema.
+        actor: the ``actor`` group's schema.
+        explorer: the ``explorer`` group's schema.
+        estimator: the ``estimator`` group's schema.
+        logger: the ``logger`` group's schema; empty or ``null`` for none.
+        seed: job seed; run ``r``'s streams derive from ``(seed, first_run + r)``.
+        runs: independent learners trained side by side in this process.
+        first_run: global index of the first run (shards of a sweep).
+        updates: policy updates.
+        episodes_per_update: ``N``, fresh episodes per run and update.
+        lr: ``α`` in ``θ ← θ + α g`` (eq. 1), plain gradient ascent.
+        eval_period: deterministic evaluation every this many updates (and after the last); 0:
+            only after the last.
+        eval_episodes: deterministic episodes per evaluation and run.
+        r_lim: convergence threshold on the mean exploratory return (``null``: not tracked).
+        stop_at_threshold: end the job once every run has exceeded ``r_lim``.
+        tensor_rollout: collect by tensor stepping where the env allows (``false``: ``env.rollout``).
+        episode_queue: ``Q > 0``: each update uses the last ``Q`` episodes per run (the
+            ball-catching schedule); a multiple of ``episodes_per_update``.
+        checkpoint_period: write ``checkpoint.pt`` every this many updates (0: only at the end).
+        progress: progress bar; ``null``: only on a terminal and outside a multirun.
+        threads: torch intra-op threads per job (a job is a sequence of small ops; the jobs of a
+            sweep share the cores).
+
+    Examples:
+        >>> TrainConf(runs=4, r_lim=-1.8).episodes_per_update
+        10
+    """
 
     env: Any = None
     actor: Any = None
@@ -183,10 +372,24 @@ class TrainConf:
     r_lim: Optional[float] = None
     stop_at_threshold: bool = False
     tensor_rollout: bool = True
-    episode_queue: int = 0  # > 0: each update uses the last Q episodes per run (ball catching)
+    episode_queue: int = 0
     checkpoint_period: int = 25
-    progress: Optional[bool] = None  # null: a bar only on a terminal and outside multirun
-    threads: int = 1  # torch intra-op threads per job (jobs of a sweep share the cores)
+    progress: Optional[bool] = None
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("runs", "updates", "episodes_per_update", "eval_episodes", "threads"):
+            positive_int(name, getattr(self, name))
+        for name in ("seed", "first_run", "eval_period", "checkpoint_period", "episode_queue"):
+            non_negative_int(name, getattr(self, name))
+        if self.episode_queue % self.episodes_per_update:
+            raise ArgumentError("episode_queue", self.episode_queue,
+                                f"0 or a multiple of episodes_per_update ({self.episodes_per_update})")
+        finite("lr", self.lr, minimum=0, strict=True)
+        if self.r_lim is not None and not is_finite_number(self.r_lim):
+            raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
+        if self.stop_at_threshold and self.r_lim is None:
+            raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
 
 
 #: ``schema/<name>`` → dataclass; YAML files name these first in their defaults list.
@@ -213,142 +416,19 @@ def register_configs() -> None:
         store.store(group=group, name=name, node=node)
 
 
-# ----------------------------------------------------------------------------- validation
-
-
-def validate(cfg: DictConfig) -> None:
-    """Checks the values of a composed config before anything is built.
+def validate(cfg: DictConfig) -> TrainConf:
+    """The composed config as schema objects, every value checked (once, before anything is built).
 
     Args:
         cfg: the composed config.
 
+    Returns:
+        The :class:`TrainConf`, its groups as their schemas' dataclasses, interpolations resolved.
+
     Raises:
-        ConfigError: for the first value that is not allowed.
+        ArgumentError: for the first value that is not allowed.
     """
-    _check_top_level(cfg)
-    for group, check in (("env", _check_env), ("actor", _check_actor),
-                         ("explorer", _check_explorer), ("estimator", _check_estimator)):
-        node = cfg.get(group)
-        if node is not None:
-            check(node, group)
-
-
-def _check_top_level(cfg: DictConfig) -> None:
-    for key in ("runs", "updates", "episodes_per_update", "eval_episodes", "threads"):
-        _positive_int(cfg, key, key)
-    for key in ("seed", "first_run", "eval_period", "checkpoint_period", "episode_queue"):
-        _non_negative_int(cfg, key, key)
-    queue, per_update = cfg.get("episode_queue", 0), cfg.get("episodes_per_update")
-    if queue and queue % per_update:
-        raise ConfigError("episode_queue", queue, f"0 or a multiple of episodes_per_update ({per_update})")
-    _positive_float(cfg, "lr", "lr")
-    r_lim = cfg.get("r_lim")
-    if r_lim is not None and not _is_finite_number(r_lim):
-        raise ConfigError("r_lim", r_lim, "a finite number, or null")
-    if cfg.get("stop_at_threshold") and r_lim is None:
-        raise ConfigError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
-
-
-def _check_env(env: DictConfig, prefix: str) -> None:
-    _positive_int(env, "episode_length", prefix)
-    target = str(env.get("_target_", ""))
-    if target.endswith("make_minimize_env"):
-        _positive_int(env, "dim", prefix)
-        for key in ("x0_spread", "noise_std"):
-            value = env.get(key)
-            if not _is_finite_number(value) or value < 0:
-                raise ConfigError(f"{prefix}.{key}", value, "a finite number >= 0")
-        if not _is_finite_number(env.get("step_size")):
-            raise ConfigError(f"{prefix}.step_size", env.get("step_size"), "a finite number")
-    elif target.endswith("make_ballcatch_env"):
-        jitter = env.get("jitter")
-        if not _is_finite_number(jitter) or not 0 <= jitter <= 0.4:
-            raise ConfigError(f"{prefix}.jitter", jitter, "a number in [0, 0.4]")
-    elif target.endswith("make_gym_env"):
-        _check_gym_id(env.get("id"), f"{prefix}.id")
-        norm = env.get("normalize_obs")
-        if norm is not None and norm not in NORMALIZATIONS:
-            raise ConfigError(f"{prefix}.normalize_obs", norm, f"null or one of {', '.join(NORMALIZATIONS)}")
-        _positive_int(env, "norm_init_steps", prefix)
-
-
-def _check_gym_id(env_id: Any, key: str) -> None:
-    if not isinstance(env_id, str) or not env_id:
-        raise ConfigError(key, env_id, "a registered gymnasium env id such as Pendulum-v1")
-    if ":" in env_id:  # "module:Env-v0" registers on import: checked when built
-        return
-    import gymnasium
-
-    if env_id not in gymnasium.envs.registry:
-        close = sorted(k for k in gymnasium.envs.registry if k.lower().startswith(env_id.lower()[:4]))
-        hint = f" (close: {', '.join(close[:5])})" if close else ""
-        raise ConfigError(key, env_id, f"a registered gymnasium env id such as Pendulum-v1{hint}")
-
-
-def _check_actor(actor: DictConfig, prefix: str) -> None:
-    init = actor.get("init")
-    if isinstance(init, ListConfig):
-        if len(init) != 2 or not all(_is_finite_number(v) for v in init) or not init[0] < init[1]:
-            raise ConfigError(f"{prefix}.init", init, "a number, or [low, high] with low < high")
-    elif init is not None and not _is_finite_number(init):
-        raise ConfigError(f"{prefix}.init", init, "a number, or [low, high] with low < high")
-    if str(actor.get("_target_", "")).endswith("MLPActor"):
-        hidden = actor.get("hidden")
-        if not all(isinstance(h, int) and h >= 1 for h in hidden):
-            raise ConfigError(f"{prefix}.hidden", hidden, "a list of positive integers")
-        _one_of(actor, "activation", ACTIVATIONS, prefix)
-
-
-def _check_explorer(explorer: DictConfig, prefix: str) -> None:
-    _one_of(explorer, "schedule", SCHEDULES, prefix)
-    _one_of(explorer, "sharing", SHARINGS, prefix)
-    every_n = explorer.get("every_n")
-    if explorer.get("schedule") == "every_n":
-        _positive_int(explorer, "every_n", prefix)
-    elif every_n is not None:
-        raise ConfigError(f"{prefix}.every_n", every_n, "null unless explorer.schedule=every_n")
-    for key in ("init_param", "gaussian_init_param"):
-        value = explorer.get(key)
-        if value is not None and not _is_finite_number(value):
-            raise ConfigError(f"{prefix}.{key}", value, "a finite number")
-
-
-def _check_estimator(estimator: DictConfig, prefix: str) -> None:
-    bound = estimator.get("max_grad_norm")
-    if bound is not None and (not _is_finite_number(bound) or bound <= 0):
-        raise ConfigError(f"{prefix}.max_grad_norm", bound, "a number > 0, or null (no bound)")
-
-
-def _is_finite_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _positive_int(node: DictConfig, key: str, prefix: str) -> None:
-    value = node.get(key)
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ConfigError(_join(prefix, key), value, "a positive integer")
-
-
-def _non_negative_int(node: DictConfig, key: str, prefix: str) -> None:
-    value = node.get(key)
-    if not isinstance(value, int) or isinstance(value, bool) or value < 0:
-        raise ConfigError(_join(prefix, key), value, "an integer >= 0")
-
-
-def _positive_float(node: DictConfig, key: str, prefix: str) -> None:
-    value = node.get(key)
-    if not _is_finite_number(value) or value <= 0:
-        raise ConfigError(_join(prefix, key), value, "a finite number > 0")
-
-
-def _one_of(node: DictConfig, key: str, allowed: tuple[str, ...], prefix: str) -> None:
-    value = node.get(key)
-    if value not in allowed:
-        raise ConfigError(_join(prefix, key), value, f"one of {', '.join(allowed)}")
-
-
-def _join(prefix: str, key: str) -> str:
-    return key if prefix == key else f"{prefix}.{key}"
+    return OmegaConf.to_object(cfg)
 
 
 # ------------------------------------------------------------------------ error reporting
@@ -357,14 +437,15 @@ def _join(prefix: str, key: str) -> str:
 def describe_error(error: BaseException) -> str | None:
     """One line ``<key>=<value>: <what is allowed>`` for a config error, else ``None``.
 
-    Understands :class:`ConfigError`, Hydra's unknown group options and override errors and
-    OmegaConf's validation errors (wrong type, unknown key), also when wrapped by Hydra.
+    Understands :class:`~sde_torchrl.checks.ArgumentError` (the schemas' checks), Hydra's unknown
+    group options and override errors and OmegaConf's validation errors (wrong type, unknown
+    key), also when wrapped by Hydra.
     """
     from hydra.errors import ConfigCompositionException, MissingConfigException, OverrideParseException
     from omegaconf.errors import OmegaConfBaseException
 
     for err in _chain(error):
-        if isinstance(err, ConfigError):
+        if isinstance(err, ArgumentError):
             return str(err)
         if isinstance(err, MissingConfigException):
             return _missing_option(err)
@@ -413,4 +494,4 @@ def _omegaconf_line(err: Any) -> str:
         allowed = _TYPE_WORDS.get(type_name, f"a value of type {type_name}")
     elif expected:
         allowed = f"{msg} (expected {expected})"
-    return f"{key}={_show(value)}: {allowed}" if value is not None else f"{key}: {allowed}"
+    return f"{key}={show(value)}: {allowed}" if value is not None else f"{key}: {allowed}"

@@ -8,12 +8,13 @@ explorer's noise apart from the environment's so that changing one never shifts 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
+
+from sde_torchrl.checks import positive_int
 
 #: Purposes that get their own stream in every run.
 STREAMS = ("init", "explore", "env", "eval_env")
@@ -64,9 +65,7 @@ class RunStreams:
     """
 
     def __init__(self, seed: int, runs: int, stream: str, first_run: int = 0, chunk: int = 4096) -> None:
-        if runs < 1:
-            raise ValueError(f"runs must be a positive integer, got {runs}")
-        self.runs, self.chunk = runs, chunk
+        self.runs, self.chunk = positive_int("runs", runs), chunk
         self.generators = [
             torch.Generator().manual_seed(run_seed(seed, first_run + r, stream)) for r in range(runs)
         ]

@@ -8,9 +8,8 @@ import pytest
 from _helpers import compose_config, own_stderr_lines, run_cli
 
 from sde_torchrl import actors, exploration
-from sde_torchrl.config import (
-    ACTIVATIONS, SCHEDULES, SHARINGS, ConfigError, describe_error, validate,
-)
+from sde_torchrl.checks import ArgumentError
+from sde_torchrl.config import ACTIVATIONS, SCHEDULES, SHARINGS, describe_error, validate
 
 
 def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
@@ -87,7 +86,7 @@ def test_allowed_values_match_the_modules():
 
 
 def test_config_error_message():
-    error = ConfigError("explorer.sharing", "both", "one of element, action, single")
+    error = ArgumentError("explorer.sharing", "both", "one of element, action, single")
     assert str(error) == "explorer.sharing=both: one of element, action, single"
     assert isinstance(error, ValueError) and error.key == "explorer.sharing"
 

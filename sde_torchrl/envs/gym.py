@@ -35,7 +35,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, ObservationNorm, StepCounter, Transform, TransformedEnv
 from torchrl.envs.libs.gym import GymEnv
 
-from sde_torchrl.config import ConfigError
+from sde_torchrl.checks import ArgumentError, positive_int
 from sde_torchrl.rng import RunStreams
 
 #: Key of the explorer's features when ``constant_feature`` is set.
@@ -69,9 +69,8 @@ class GymRunsEnv(EnvBase):
         stream: str = "env", seed: int | None = None, gym_kwargs: dict[str, Any] | None = None,
         reset_options: dict[str, Any] | None = None,
     ) -> None:
-        for name, value in (("episodes", episodes), ("runs", runs)):
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        positive_int("episodes", episodes)
+        positive_int("runs", runs)
         batch = torch.Size((runs, episodes))
         super().__init__(batch_size=batch)
         self.env_id, self.runs, self.first_run, self.stream = env_id, runs, first_run, stream
@@ -243,13 +242,12 @@ def make_gym_env(
         >>> env.rollout(50, break_when_any_done=False).batch_size
         torch.Size([2, 3, 50])
     """
-    if not isinstance(episode_length, int) or episode_length < 1:
-        raise ValueError(f"episode_length must be a positive integer, got {episode_length!r}")
+    positive_int("episode_length", episode_length)
     base = GymRunsEnv(id, episodes, runs, first_run=first_run, stream=stream, seed=seed,
                       gym_kwargs=dict(gym_kwargs or {}), reset_options=reset_options)
     if base.max_episode_steps is not None and episode_length > base.max_episode_steps:
-        raise ConfigError("env.episode_length", episode_length, f"at most {base.max_episode_steps} "
-                          f"({id}'s time limit; raise it with env.gym_kwargs.max_episode_steps)")
+        raise ArgumentError("env.episode_length", episode_length, f"at most {base.max_episode_steps} "
+                            f"({id}'s time limit; raise it with env.gym_kwargs.max_episode_steps)")
     transforms: list[Transform] = []
     if normalize_obs is not None:
         transforms.append(observation_norm(base, normalize_obs, norm_init_steps))

@@ -14,6 +14,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
+from sde_torchrl.checks import finite, positive_int
 from sde_torchrl.rng import RunStreams
 
 
@@ -51,12 +52,10 @@ class MinimizeEnv(EnvBase):
         x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5,
         runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
     ) -> None:
-        for name, value in (("episodes", episodes), ("dim", dim)):
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, value in (("x0_spread", x0_spread), ("noise_std", noise_std)):
-            if not value >= 0:
-                raise ValueError(f"{name} must be >= 0, got {value!r}")
+        positive_int("episodes", episodes)
+        positive_int("dim", dim)
+        finite("x0_spread", x0_spread, minimum=0)
+        finite("noise_std", noise_std, minimum=0)
         batch = (episodes,) if runs is None else (runs, episodes)
         super().__init__(batch_size=torch.Size(batch))
         self.dim, self.runs, self.first_run, self.stream = dim, runs, first_run, stream
@@ -123,8 +122,7 @@ def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:
     Returns:
         The env wrapped in ``StepCounter(max_steps=episode_length)`` and ``InitTracker``.
     """
-    if not isinstance(episode_length, int) or episode_length < 1:
-        raise ValueError(f"episode_length must be a positive integer, got {episode_length!r}")
+    positive_int("episode_length", episode_length)
     env = TransformedEnv(MinimizeEnv(**kwargs), Compose(StepCounter(episode_length), InitTracker()))
     return env
 
