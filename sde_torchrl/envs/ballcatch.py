@@ -40,8 +40,12 @@ each in :data:`ARM_MODELS`; the task rules above are shared):
 
 * ``"cup"`` (default): the model described above (``assets/ballcatch.urdf``).
 * ``"pybrain"``: the arm of the authors' library of the paper's time, after PyBrain's
-  ``arm.xode`` (``assets/arm_pybrain.urdf``, whose comment gives the geometry and the two choices
-  where the paper and ``arm.xode`` differ). Every joint has ODE's joint friction (a velocity motor
+  ``arm.xode`` (``assets/arm_pybrain.urdf``, whose comment gives the geometry): a fixed torso,
+  upper arm hanging from the shoulder, forearm pointing forward, palm facing up with its centre
+  0.5 above the ground at (3.5, 0, 0.5) (the origin is on the ground below the shoulder), a
+  thumb and three fingers. Where the paper and ``arm.xode`` differ, ``arm.xode`` is followed:
+  the palm is 0.2 thick (paper 0.1; with the 0.4 ball the paper's minimum distance 0.5 holds)
+  and each finger has three hinges (paper two). Every joint has ODE's joint friction (a velocity motor
   with target 0 and a small maximum force, :attr:`ArmModel.joint_friction`) and the action's
   torques act on top of it (pybullet adds ``TORQUE_CONTROL`` torques to the velocity motors: a
   0.4 torque does not move a hinge whose motor holds 0.5, a 1.0 torque moves it as a free 0.5
