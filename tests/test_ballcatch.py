@@ -416,16 +416,15 @@ def test_pybrain_masses_follow_the_densities():
         names = {pybullet.getJointInfo(robot, j, physicsClientId=cid)[12].decode(): j
                  for j in range(pybullet.getNumJoints(robot, physicsClientId=cid))}
         expected = {"upper_arm": capsule(5, 0.3, 3.0), "forearm": capsule(5, 0.25, 3.0),
-                    "index_link0": capsule(5, 0.1, 0.75), "thumb_link1": capsule(5, 0.1, 0.4),
-                    "ring_link2": capsule(5, 0.1, 0.29)}
+                    "index_link0": capsule(5, 0.1, 0.75), "thumb_link1": capsule(5, 0.1, 0.4)}
         for link, (mass, axial, across) in expected.items():
             info = pybullet.getDynamicsInfo(robot, names[link], physicsClientId=cid)
             assert info[0] == pytest.approx(mass, rel=1e-5)
             assert sorted(info[2]) == pytest.approx(sorted([axial, across, across]), rel=1e-5)
         palm = pybullet.getDynamicsInfo(robot, names["palm"], physicsClientId=cid)
         assert palm[0] == pytest.approx(30 * 1 * 1 * 0.2)
-        tip = pybullet.getDynamicsInfo(robot, names["middle_tip"], physicsClientId=cid)
-        assert tip[0] == pytest.approx(5 * 4 / 3 * np.pi * 0.1**3, rel=1e-5)
+        last = pybullet.getDynamicsInfo(robot, names["middle_link2"], physicsClientId=cid)  # with the tip sphere
+        assert last[0] == pytest.approx(capsule(5, 0.1, 0.29)[0] + 5 * 4 / 3 * np.pi * 0.1**3, rel=1e-5)
         ball = pybullet.getDynamicsInfo(world.ball, -1, physicsClientId=cid)
         assert ball[0] == pytest.approx(10 * 4 / 3 * np.pi * 0.4**3)
         assert ARM_MODELS["pybrain"].ground_z == pytest.approx(0.41)

@@ -268,9 +268,9 @@ PYBRAIN_SCRIPTED_WEIGHTS = np.array(
 The ball's x coordinate (about 3.5, the palm centre) acts as a bias again: the hand stays open
 while the ball is high and closes once its centre is below about z = 2, about 0.13 s before it lands on
 the palm; the closed fingers then hold it (return about -0.93 over seeds 0 to 4). Found by a
-small search over the closing height (1.2, 1.6, 2.0, 2.4) and gain (2, 4, 8): every height from
-1.2 to 2.4 catches (mean returns -0.93 to -0.99 over 4 seeds), 2.0 with gain 2 to 8 was the most
-even. Closing earlier (below z = 3) lets the closed fingers knock the ball away (about -2.7), as
+small search over the closing height (1.2, 1.6, 2.0, 2.4) and gain (2, 4, 8): every pair
+catches (mean returns -0.93 to -1.00 over 4 seeds), height 2.0 with gain 4 best (-0.93, every
+seed above -0.95). Closing earlier (below z = 3) lets the closed fingers knock the ball away (about -2.7), as
 does a hand closed from the start; an always-open hand gives the zero-torque regime (-2.3).
 """
 
