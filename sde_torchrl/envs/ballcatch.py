@@ -280,7 +280,8 @@ class BallCatchConfig:
     """Physical parameters of one ball-catching world.
 
     The fields left ``None`` take the arm model's value (:class:`ArmModel`) when the config is
-    made, so a config always holds the values its world uses.
+    made, so a config always holds the values its world uses (hence ``dataclasses.replace`` of
+    ``model`` alone would keep the old model's values: make a new config instead).
 
     Args:
         jitter: half-width of the uniform horizontal offset (x and y, units) of the ball's release
