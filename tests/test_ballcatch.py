@@ -17,18 +17,21 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from sde_torchrl.envs.ballcatch import (
-    GROUND_Z,
+    ARM_MODELS,
     BALLCATCH_ID,
     EPISODE_STEPS,
+    GROUND_Z,
+    PYBRAIN_SCRIPTED_WEIGHTS,
     SCRIPTED_WEIGHTS,
     BallCatchConfig,
     BallCatchEnv,
+    BallCatchWorld,
     episode_return,
     main,
     register_ballcatch,
     scripted_action,
 )
-from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_ballcatch_env, make_parallel_ballcatch
 
 SEEDS = range(5)
 
@@ -310,8 +313,9 @@ def test_stacked_runs_layout_and_per_run_streams():
 
 def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     """Launcher workers run job after job: each job must disconnect its pybullet clients."""
-    from sde_torchrl import build
     from _helpers import compose_config
+
+    from sde_torchrl import build
 
     built = []
     original = build.build_trainer
@@ -336,3 +340,163 @@ def test_benchmark_prints_one_json_line_with_its_figures():
                                              figures["raw_lockstep_steps_per_s"])
     assert figures["step_ratio"] == pytest.approx(
         figures["step_env_steps_per_s"] / figures["raw_lockstep_steps_per_s"], rel=1e-2)
+
+
+# ---------------------------------------------------------------------------- model "pybrain" (arm.xode)
+PYBRAIN_SEEDS = range(3)
+PULL_BACK_WEIGHTS = np.array([[-2.0, 0, 0], [2.0, 0, 0], [0, 0, 0], [0, 0, 0]])
+"""Shoulder back, elbow up (full torques, the ball's x ~ 3.5 acting as a bias): the hand leaves."""
+
+
+@pytest.fixture(scope="module")
+def pybrain_env():
+    e = BallCatchEnv(model="pybrain")
+    yield e
+    e.close()
+
+
+def linear_policy(weights):
+    return lambda obs: np.tanh(weights @ np.asarray(obs, dtype=np.float64))
+
+
+def test_pybrain_scripted_linear_controller_catches(pybrain_env):
+    """Hand open while the ball falls, closed once it is below z ~ 2: a good catch every time."""
+    returns = [episode_return(pybrain_env, "scripted", seed) for seed in PYBRAIN_SEEDS]
+    assert min(returns) >= -1.0
+
+
+def test_pybrain_zero_torques_give_the_open_hand_regime(pybrain_env):
+    """The arm sinks onto the ground, the ball lands on the open palm, rolls over the fingers and
+    drops: the paper's R ~ -2, neither a catch nor the worst case."""
+    for seed in PYBRAIN_SEEDS:
+        obs, _ = pybrain_env.reset(seed=seed)
+        rewards, held, grounded = [], [], []
+        for _ in range(EPISODE_STEPS):
+            obs, reward, _, _, info = pybrain_env.step(np.zeros(4))
+            rewards.append(reward)
+            held.append(info["held"])
+            grounded.append(info["grounded"])
+        assert -2.5 <= np.mean(rewards) <= -1.5
+        first_held, first_grounded = held.index(True), grounded.index(True)
+        assert first_held < first_grounded  # on the hand first, then on the ground
+        assert sum(held) >= 50  # for at least half a second
+
+
+def test_pybrain_pull_back_drops_the_ball(pybrain_env):
+    returns = [episode_return(pybrain_env, linear_policy(PULL_BACK_WEIGHTS), seed) for seed in PYBRAIN_SEEDS]
+    assert max(returns) <= -2.8
+
+
+def test_pybrain_same_seed_same_episode(pybrain_env):
+    def run(seed):
+        rng = np.random.default_rng(5)
+        obs = [pybrain_env.reset(seed=seed)[0]]
+        obs += [pybrain_env.step(rng.uniform(-1, 1, 4))[0] for _ in range(150)]
+        return np.array(obs)
+
+    a, b, c = run(4), run(4), run(9)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a[0], c[0])
+
+
+def test_pybrain_masses_follow_the_densities():
+    """Masses and inertias of arm.xode's solids (capsules = cylinder + two hemispheres), loaded
+    from the URDF's inertia tensors; ball of radius 0.4 and density 10; ground 0.5 below the palm."""
+
+    def capsule(density, r, length):
+        cylinder, hemisphere = density * np.pi * r**2 * length, density * 2 / 3 * np.pi * r**3
+        axial = cylinder * r**2 / 2 + 2 * 2 / 5 * hemisphere * r**2
+        across = cylinder * (r**2 / 4 + length**2 / 12) + 2 * hemisphere * (
+            2 / 5 * r**2 + length**2 / 4 + 3 * length * r / 8)
+        return cylinder + 2 * hemisphere, axial, across
+
+    world = BallCatchWorld(BallCatchConfig(model="pybrain"))
+    try:
+        cid, robot = world.client, world.robot
+        names = {pybullet.getJointInfo(robot, j, physicsClientId=cid)[12].decode(): j
+                 for j in range(pybullet.getNumJoints(robot, physicsClientId=cid))}
+        expected = {"upper_arm": capsule(5, 0.3, 3.0), "forearm": capsule(5, 0.25, 3.0),
+                    "index_link0": capsule(5, 0.1, 0.75), "thumb_link1": capsule(5, 0.1, 0.4)}
+        for link, (mass, axial, across) in expected.items():
+            info = pybullet.getDynamicsInfo(robot, names[link], physicsClientId=cid)
+            assert info[0] == pytest.approx(mass, rel=1e-5)
+            assert sorted(info[2]) == pytest.approx(sorted([axial, across, across]), rel=1e-5)
+        palm = pybullet.getDynamicsInfo(robot, names["palm"], physicsClientId=cid)
+        assert palm[0] == pytest.approx(30 * 1 * 1 * 0.2)
+        last = pybullet.getDynamicsInfo(robot, names["middle_link2"], physicsClientId=cid)  # with the tip sphere
+        assert last[0] == pytest.approx(capsule(5, 0.1, 0.29)[0] + 5 * 4 / 3 * np.pi * 0.1**3, rel=1e-5)
+        ball = pybullet.getDynamicsInfo(world.ball, -1, physicsClientId=cid)
+        assert ball[0] == pytest.approx(10 * 4 / 3 * np.pi * 0.4**3)
+        assert ARM_MODELS["pybrain"].ground_z == pytest.approx(0.41)
+        assert world.palm_home.tolist() == pytest.approx([3.5, 0.0, 0.5])
+        assert len(world.joints) == 15  # 3 arm hinges, 4 fingers of 3 hinges
+    finally:
+        world.close()
+
+
+def test_torques_act_on_top_of_the_friction_motors():
+    """pybullet adds TORQUE_CONTROL torques to a velocity motor (target 0, max force F), which is
+    how model "pybrain" has ODE's FMax joint friction: a torque below F leaves a weightless hinge
+    at rest, a torque T above it accelerates the hinge as a free T - F would."""
+
+    def spin(friction, torque):
+        cid = pybullet.connect(pybullet.DIRECT)
+        try:
+            pybullet.setTimeStep(0.01, physicsClientId=cid)
+            box = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=[0.5, 0.05, 0.05], physicsClientId=cid)
+            body = pybullet.createMultiBody(
+                0, -1, -1, linkMasses=[1], linkCollisionShapeIndices=[box], linkVisualShapeIndices=[-1],
+                linkPositions=[[0, 0, 0]], linkOrientations=[[0, 0, 0, 1]], linkInertialFramePositions=[[0.5, 0, 0]],
+                linkInertialFrameOrientations=[[0, 0, 0, 1]], linkParentIndices=[0],
+                linkJointTypes=[pybullet.JOINT_REVOLUTE], linkJointAxis=[[0, 1, 0]], physicsClientId=cid)
+            pybullet.changeDynamics(body, 0, linearDamping=0, angularDamping=0, physicsClientId=cid)
+            pybullet.setJointMotorControl2(body, 0, pybullet.VELOCITY_CONTROL, targetVelocity=0, force=friction,
+                                           physicsClientId=cid)
+            for _ in range(50):
+                pybullet.setJointMotorControl2(body, 0, pybullet.TORQUE_CONTROL, force=torque, physicsClientId=cid)
+                pybullet.stepSimulation(physicsClientId=cid)
+            return pybullet.getJointState(body, 0, physicsClientId=cid)[1]
+        finally:
+            pybullet.disconnect(cid)
+
+    assert spin(0.5, 0.4) == 0.0
+    assert spin(0.5, 1.5) == pytest.approx(spin(0.0, 1.0), rel=1e-6)
+
+
+def test_pybrain_batched_env_and_fast_path_match_the_gym_env():
+    """The model reaches the batched env and its whole-episode path (transmission, ground height).
+
+    Stepped with the same float32 actions, batched and gymnasium env agree exactly. The fast path
+    works in float64: a ball held by the fingers is a chaotic contact problem where a 1e-7 change
+    of the actions moves the return by up to about 0.02, so there it must give the same regime."""
+    config = BallCatchConfig(jitter=0.0, model="pybrain")
+    gym_env = BallCatchEnv(config=config)
+    benv = make_ballcatch_env(2, jitter=0.0, seed=0, model="pybrain").base_env
+    try:
+        expected = episode_return(gym_env, lambda o: scripted_action(o, "pybrain").astype(np.float32), 0)
+        with torch.no_grad():
+            td = benv.rollout(EPISODE_STEPS, lambda td: td.set("action", torch.from_numpy(np.stack(
+                [scripted_action(o, "pybrain").astype(np.float32) for o in td["observation"].numpy()]))))
+        torch.testing.assert_close(td["next", "reward"].mean(dim=(1, 2)), torch.full((2,), expected))
+        matrices = torch.as_tensor(np.stack([PYBRAIN_SCRIPTED_WEIGHTS, PULL_BACK_WEIGHTS]), dtype=torch.float32)
+        observations, _, rewards = benv.linear_episodes(matrices, EPISODE_STEPS)
+        catch, drop = rewards.mean(dim=(1, 2)).tolist()
+        assert expected >= -1.0 and catch >= -1.0
+        assert drop == pytest.approx(episode_return(gym_env, linear_policy(PULL_BACK_WEIGHTS), 0), abs=1e-6)
+        assert observations[1, -1, 2] < ARM_MODELS["pybrain"].ground_z < observations[0, -1, 2]
+    finally:
+        gym_env.close()
+        benv.close()
+
+
+def test_model_option_reaches_gymnasium_and_is_checked():
+    e = gym.make(BALLCATCH_ID, model="pybrain")
+    try:
+        assert e.unwrapped.config.model == "pybrain"
+        assert e.unwrapped.config.max_torques == ARM_MODELS["pybrain"].max_torques
+    finally:
+        e.close()
+    with pytest.raises(ValueError, match="model must be one of cup, pybrain"):
+        BallCatchConfig(model="ode")
+    with pytest.raises(ValueError, match="contradicts"):
+        BallCatchEnv(config=BallCatchConfig(), model="pybrain")

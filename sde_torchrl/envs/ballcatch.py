@@ -35,7 +35,28 @@ ball position at contact) and every remaining step of the 500 counts ``-3``. The
 exactly those of simulating on (they are ``-3`` whatever happens after contact); failed episodes
 just cost less to simulate.
 
-Run the demo with ``python -m sde_torchrl.envs.ballcatch --policy scripted --episodes 5``.
+Two arm models are available (:attr:`BallCatchConfig.model`, described by an :class:`ArmModel`
+each in :data:`ARM_MODELS`; the task rules above are shared):
+
+* ``"cup"`` (default): the model described above (``assets/ballcatch.urdf``).
+* ``"pybrain"``: the arm of the authors' library of the paper's time, after PyBrain's
+  ``arm.xode`` (``assets/arm_pybrain.urdf``, whose comment gives the geometry): a fixed torso,
+  upper arm hanging from the shoulder, forearm pointing forward, palm facing up with its centre
+  0.5 above the ground at (3.5, 0, 0.5) (the origin is on the ground below the shoulder), a
+  thumb and three fingers. Where the paper and ``arm.xode`` differ, ``arm.xode`` is followed:
+  the palm is 0.2 thick (paper 0.1; with the 0.4 ball the paper's minimum distance 0.5 holds)
+  and each finger has three hinges (paper two). Every joint has ODE's joint friction (a velocity motor
+  with target 0 and a small maximum force, :attr:`ArmModel.joint_friction`) and the action's
+  torques act on top of it (pybullet adds ``TORQUE_CONTROL`` torques to the velocity motors: a
+  0.4 torque does not move a hinge whose motor holds 0.5, a 1.0 torque moves it as a free 0.5
+  would). Contacts have ODE's friction 8 and bounce 0.2 (pybullet multiplies the two bodies'
+  coefficients, so each body gets their square roots), no body damping, a ball of radius 0.4 and
+  density 10. The hand rests 0.5 above the ground: with zero torque the arm sinks onto it, the
+  ball lands on the open palm, rolls over the fingers and drops (the paper's R ~ -2); closing
+  the hand holds it; pulling back drops it at once.
+
+Run the demo with ``python -m sde_torchrl.envs.ballcatch --policy scripted --episodes 5``
+(``--model pybrain`` for the second arm).
 """
 
 from __future__ import annotations
@@ -55,20 +76,24 @@ import pybullet
 from sde_torchrl.envs.registration import BALLCATCH_ID, EPISODE_STEPS, register_ballcatch
 
 __all__ = [
+    "ARM_MODELS",
     "BALLCATCH_ID",
     "EPISODE_STEPS",
     "GROUND_Z",
     "MAX_TORQUES",
+    "PYBRAIN_SCRIPTED_WEIGHTS",
     "SCRIPTED_WEIGHTS",
+    "ArmModel",
     "BallCatchConfig",
     "BallCatchEnv",
     "BallCatchWorld",
     "episode_return",
     "register_ballcatch",
     "scripted_action",
+    "scripted_weights",
 ]
 
-URDF_PATH = Path(__file__).with_name("assets") / "ballcatch.urdf"
+ASSETS = Path(__file__).with_name("assets")
 
 TIME_STEP = 0.01
 GRAVITY = -9.81
@@ -78,7 +103,8 @@ DROP_HEIGHT = 5.0
 DISTANCE_CAP = 3.0
 MIN_DISTANCE = 0.5
 GROUND_Z = BALL_RADIUS + 0.01
-"""The ball counts as having touched the ground once its centre is below this height."""
+"""The ball counts as having touched the ground once its centre is below this height (model "cup";
+each model's is :attr:`ArmModel.ground_z`)."""
 GROUND_REWARD = -3.0
 MAX_TORQUES = (150.0, 80.0, 30.0, 5.0)
 """Maximum torque (N m) of shoulder, elbow, wrist and the finger actuator (see :func:`joint_torques`)."""
@@ -97,6 +123,119 @@ INITIAL_FINGER_POSE = (0.0, 0.9)
 """Open hand (proximal, distal): the lower finger limits. The distal links stay bent up by at
 least 0.9 rad, a lip that keeps a ball on the open hand's outer finger."""
 
+PYBRAIN_FINGERS = ("thumb", "index", "middle", "ring")
+PYBRAIN_BALL_RADIUS = 0.4
+PYBRAIN_MAX_TORQUES = (600.0, 600.0, 90.0, 5.0)
+"""Maximum torques of model "pybrain" (shoulder, elbow, wrist, every finger joint): 1.5 times
+the static torques that hold the arm in its start pose with the ball resting on the palm
+(shoulder and elbow 307.8 + 92.0, wrist 46.6 + 13.2, from pybullet's inverse dynamics and the
+ball's weight) and, for the fingers, 1.5 times what lifts a straight finger off the palm (gravity
+2.42 plus joint friction 0.5 at the first hinge), rounded up: 600, 600, 90 and 5. A
+saturated controller can then lift the loaded arm and close the hand against gravity and friction."""
+
+
+@dataclass(frozen=True)
+class ArmModel:
+    """Everything that differs between the ball-catching arms (:data:`ARM_MODELS`).
+
+    Args:
+        urdf: robot description, a file in ``sde_torchrl/envs/assets``.
+        joints: names of the actuated joints, in the order of ``transmission``.
+        transmission: for each joint, the actuator (0 shoulder, 1 elbow, 2 wrist, 3 fingers)
+            driving it and the fraction of that actuator's torque it gets.
+        joint_friction: maximum force of each joint's velocity motor with target 0 (ODE's FMax
+            joint friction); 0 switches the motor off (pure torque control).
+        initial_pose: joint angles at the start of every episode.
+        ball_radius: radius of the ball.
+        ball_mass: default mass of the ball (:attr:`BallCatchConfig.ball_mass`).
+        drop_height: default release height above the palm centre.
+        max_torques: default maximum torques (shoulder, elbow, wrist, fingers).
+        friction: default lateral friction of every body (ball, robot, ground); pybullet
+            multiplies the two bodies' values in a contact.
+        restitution: restitution of the robot and the ground (the ball's is ``ball_restitution``);
+            pybullet multiplies the two bodies' values too.
+        ball_restitution: restitution of the ball.
+        joint_damping: default viscous damping of every joint.
+        body_damping: linear and angular damping of the ball and every link, or ``None`` for
+            pybullet's default (0.04, a drag of ``m v (0.04 + 0.04 |v|)`` that ODE does not have).
+        solver_iterations: default pybullet ``numSolverIterations``.
+        inertia_from_file: use the URDF's inertia tensors (pybullet otherwise derives them from
+            the collision shapes' bounding boxes).
+        camera_target: where the rendering camera looks.
+        camera_yaw: the camera's yaw in degrees (it looks from 8 units away, 12 degrees down).
+    """
+
+    urdf: str
+    joints: tuple[str, ...]
+    transmission: tuple[tuple[int, float], ...]
+    joint_friction: tuple[float, ...]
+    initial_pose: tuple[float, ...]
+    ball_radius: float
+    ball_mass: float
+    drop_height: float
+    max_torques: tuple[float, float, float, float]
+    friction: float
+    restitution: float
+    ball_restitution: float
+    joint_damping: float
+    body_damping: float | None
+    solver_iterations: int
+    inertia_from_file: bool
+    camera_target: tuple[float, float, float]
+    camera_yaw: float
+
+    @property
+    def ground_z(self) -> float:
+        """The ball counts as having touched the ground once its centre is below this height."""
+        return self.ball_radius + 0.01
+
+
+ARM_MODELS = {
+    "cup": ArmModel(
+        urdf="ballcatch.urdf",
+        joints=ARM_JOINTS + tuple(f"finger_{f}_{part}" for f in FINGER_NAMES for part in ("proximal", "distal")),
+        transmission=JOINT_TRANSMISSION,
+        joint_friction=(0.0,) * len(JOINT_TRANSMISSION),
+        initial_pose=INITIAL_ARM_POSE + INITIAL_FINGER_POSE * len(FINGER_NAMES),
+        ball_radius=BALL_RADIUS,
+        ball_mass=BALL_MASS,
+        drop_height=DROP_HEIGHT,
+        max_torques=MAX_TORQUES,
+        friction=1.0,
+        restitution=0.0,
+        ball_restitution=0.0,
+        joint_damping=0.05,
+        body_damping=None,
+        solver_iterations=30,
+        inertia_from_file=False,
+        camera_target=(2.2, 0.0, 5.4),
+        camera_yaw=25.0,
+    ),
+    "pybrain": ArmModel(
+        urdf="arm_pybrain.urdf",
+        joints=ARM_JOINTS + tuple(f"{f}_{k}" for f in PYBRAIN_FINGERS for k in range(3)),
+        transmission=((0, 1.0), (1, 1.0), (2, 1.0)) + ((3, 1.0),) * (3 * len(PYBRAIN_FINGERS)),
+        joint_friction=(0.5, 0.5, 0.5) + (0.5, 0.25, 0.1) * len(PYBRAIN_FINGERS),
+        initial_pose=(0.0,) * (3 + 3 * len(PYBRAIN_FINGERS)),
+        ball_radius=PYBRAIN_BALL_RADIUS,
+        ball_mass=10.0 * 4.0 / 3.0 * math.pi * PYBRAIN_BALL_RADIUS**3,  # density 10
+        drop_height=DROP_HEIGHT,
+        max_torques=PYBRAIN_MAX_TORQUES,
+        friction=math.sqrt(8.0),
+        restitution=math.sqrt(0.2),
+        ball_restitution=math.sqrt(0.2),
+        joint_damping=0.0,
+        body_damping=0.0,
+        solver_iterations=30,
+        inertia_from_file=True,
+        camera_target=(2.5, 0.0, 2.5),
+        camera_yaw=150.0,  # from the side away from the torso
+    ),
+}
+"""The arm models: ``"cup"`` (``assets/ballcatch.urdf``) and ``"pybrain"`` (after PyBrain's
+``arm.xode``, ``assets/arm_pybrain.urdf``). Every finger joint of model "pybrain" gets the whole
+finger torque, as PyBrain's one-value actuator for several joints applies its value to each."""
+
 SCRIPTED_WEIGHTS = np.array(
     [
         [2.0, 0.0, 0.0],  # shoulder: tanh(2 x) ~ +1, lift into the limit
@@ -106,7 +245,7 @@ SCRIPTED_WEIGHTS = np.array(
     ],
     dtype=np.float64,
 )
-"""Bias-free linear controller ``u = tanh(W @ ball_xyz)`` that catches the ball.
+"""Bias-free linear controller ``u = tanh(W @ ball_xyz)`` that catches the ball (model "cup").
 
 The ball's x coordinate (about 2.95, the palm centre) is nearly constant, so the x column acts as
 a bias: the arm joints are pushed into their upper limits and the fingers stay open while the
@@ -115,27 +254,54 @@ height on the palm (the palm centre is at z = 3.92). An always-closed hand catch
 (about -0.93); an always-open hand (ball rolls onto the outer finger) scores about -1.36.
 """
 
+PYBRAIN_SCRIPTED_WEIGHTS = np.array(
+    [
+        [0.0, 0.0, 0.0],  # shoulder, elbow, wrist: no torque, the arm rests on the ground
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0],
+        [4.0, 0.0, -7.0],  # fingers: close once the ball is below z = 4 x / 7 (about 2.0)
+    ],
+    dtype=np.float64,
+)
+"""Bias-free linear controller ``u = tanh(W @ ball_xyz)`` that catches the ball (model "pybrain").
+
+The ball's x coordinate (about 3.5, the palm centre) acts as a bias again: the hand stays open
+while the ball is high and closes once its centre is below about z = 2, about 0.13 s before it lands on
+the palm; the closed fingers then hold it (return about -0.93 over seeds 0 to 4). Found by a
+small search over the closing height (1.2, 1.6, 2.0, 2.4) and gain (2, 4, 8): every pair
+catches (mean returns -0.93 to -1.00 over 4 seeds), height 2.0 with gain 4 best (-0.93, every
+seed above -0.95). Closing earlier (below z = 3) lets the closed fingers knock the ball away (about -2.7), as
+does a hand closed from the start; an always-open hand gives the zero-torque regime (-2.3).
+"""
+
 
 @dataclass(frozen=True)
 class BallCatchConfig:
     """Physical parameters of one ball-catching world.
 
+    The fields left ``None`` take the arm model's value (:class:`ArmModel`) when the config is
+    made, so a config always holds the values its world uses (hence ``dataclasses.replace`` of
+    ``model`` alone would keep the old model's values: make a new config instead).
+
     Args:
         jitter: half-width of the uniform horizontal offset (x and y, units) of the ball's release
-            point around the spot 5 units above the palm centre. Default 0.05.
+            point around the spot above the palm centre. Default 0.05.
+        model: the arm, a key of :data:`ARM_MODELS` (``"cup"`` or ``"pybrain"``).
         ball_mass: ball mass in kg.
-        ball_friction: lateral friction of ball, palm and fingers.
+        ball_friction: lateral friction of every body (ball, robot, ground).
         drop_height: release height of the ball centre above the palm centre.
         max_torques: maximum torques (shoulder, elbow, wrist, fingers) that scale the action.
         joint_damping: viscous damping of every joint.
-        solver_iterations: pybullet ``numSolverIterations`` (pybullet's default is 50). With 25
-            to 50 the scripted catch, the open hand and the closed hand give the same returns
-            (about -0.95, -1.34, -0.94); with 20 the ball on an open hand slides further
-            (-1.65). 30 keeps a margin and steps 1.17x faster than 50.
+        solver_iterations: pybullet ``numSolverIterations`` (pybullet's default is 50). For
+            model "cup", with 25 to 50 the scripted catch, the open hand and the closed hand give
+            the same returns (about -0.95, -1.34, -0.94); with 20 the ball on an open hand slides
+            further (-1.65). 30 keeps a margin and steps 1.17x faster than 50.
 
     Examples:
         >>> BallCatchConfig(jitter=0.0).max_torques
         (150.0, 80.0, 30.0, 5.0)
+        >>> BallCatchConfig(model="pybrain").max_torques == ARM_MODELS["pybrain"].max_torques
+        True
         >>> BallCatchConfig(jitter=-1.0)
         Traceback (most recent call last):
         ...
@@ -143,20 +309,35 @@ class BallCatchConfig:
     """
 
     jitter: float = 0.05
-    ball_mass: float = BALL_MASS
-    ball_friction: float = 1.0
-    drop_height: float = DROP_HEIGHT
-    max_torques: tuple[float, float, float, float] = MAX_TORQUES
-    joint_damping: float = 0.05
-    solver_iterations: int = 30
+    model: str = "cup"
+    ball_mass: float | None = None
+    ball_friction: float | None = None
+    drop_height: float | None = None
+    max_torques: tuple[float, float, float, float] | None = None
+    joint_damping: float | None = None
+    solver_iterations: int | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.jitter <= 0.4:
             raise ValueError(f"jitter must lie in [0, 0.4], got {self.jitter}")
+        if self.model not in ARM_MODELS:
+            raise ValueError(f"model must be one of {', '.join(ARM_MODELS)}, got {self.model!r}")
+        arm = self.arm
+        defaults = {"ball_mass": arm.ball_mass, "ball_friction": arm.friction, "drop_height": arm.drop_height,
+                    "max_torques": arm.max_torques, "joint_damping": arm.joint_damping,
+                    "solver_iterations": arm.solver_iterations}
+        for name, value in defaults.items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         if len(self.max_torques) != 4 or min(self.max_torques) <= 0:
             raise ValueError(f"max_torques must be 4 positive numbers, got {self.max_torques}")
         if self.ball_mass <= 0 or self.drop_height <= 0:
             raise ValueError("ball_mass and drop_height must be positive")
+
+    @property
+    def arm(self) -> ArmModel:
+        """The arm model's description."""
+        return ARM_MODELS[self.model]
 
 
 class BallCatchWorld:
@@ -189,11 +370,13 @@ class BallCatchWorld:
             self.close()
             raise RuntimeError(f"BallCatch {name}: building the world failed: {err}") from err
         self._max_torques = np.asarray(self.config.max_torques, dtype=np.float64)
+        self._transmission = self.config.arm.transmission
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> None:
         cid = self.client
         cfg = self.config
+        arm = cfg.arm
         pybullet.setGravity(0.0, 0.0, GRAVITY, physicsClientId=cid)
         pybullet.setTimeStep(TIME_STEP, physicsClientId=cid)
         pybullet.setPhysicsEngineParameter(
@@ -201,40 +384,48 @@ class BallCatchWorld:
         )
         self.ground = self._make_ground()
         self.robot = pybullet.loadURDF(
-            str(URDF_PATH), basePosition=(0, 0, 0), useFixedBase=True, physicsClientId=cid
+            str(ASSETS / arm.urdf), basePosition=(0, 0, 0), useFixedBase=True,
+            flags=pybullet.URDF_USE_INERTIA_FROM_FILE if arm.inertia_from_file else 0, physicsClientId=cid,
         )
         names = {
             pybullet.getJointInfo(self.robot, j, physicsClientId=cid)[1].decode(): j
             for j in range(pybullet.getNumJoints(self.robot, physicsClientId=cid))
         }
-        fingers = [names[f"finger_{f}_{part}"] for f in FINGER_NAMES for part in ("proximal", "distal")]
-        self.arm_joints = [names[j] for j in ARM_JOINTS]
-        self.finger_joints = fingers
-        self.joints = self.arm_joints + fingers
-        self.palm_link = names["wrist"]  # link index == index of its parent joint
-        ball_shape = pybullet.createCollisionShape(pybullet.GEOM_SPHERE, radius=BALL_RADIUS, physicsClientId=cid)
+        self.joints = [names[j] for j in arm.joints]
+        self.palm_link = names["wrist"]  # link index == index of its parent joint; the fingers come after it
+        radius = arm.ball_radius
+        ball_shape = pybullet.createCollisionShape(pybullet.GEOM_SPHERE, radius=radius, physicsClientId=cid)
         ball_visual = pybullet.createVisualShape(
-            pybullet.GEOM_SPHERE, radius=BALL_RADIUS, rgbaColor=(0.9, 0.2, 0.15, 1), physicsClientId=cid
+            pybullet.GEOM_SPHERE, radius=radius, rgbaColor=(0.9, 0.2, 0.15, 1), physicsClientId=cid
         )
         self.ball = pybullet.createMultiBody(
             cfg.ball_mass, ball_shape, ball_visual, basePosition=(0, 0, 10), physicsClientId=cid
         )
-        for link in [-1, *self.joints]:
+        links = range(-1, pybullet.getNumJoints(self.robot, physicsClientId=cid))
+        for link in links:
             pybullet.changeDynamics(
                 self.robot, link, lateralFriction=cfg.ball_friction, jointDamping=cfg.joint_damping,
-                physicsClientId=cid,
+                restitution=arm.restitution, physicsClientId=cid,
             )
         pybullet.changeDynamics(
             self.ball, -1, lateralFriction=cfg.ball_friction, rollingFriction=0.0, spinningFriction=0.0,
-            restitution=0.0, physicsClientId=cid,
+            restitution=arm.ball_restitution, physicsClientId=cid,
         )
-        # Torque control: switch off the default velocity motors once and for all.
+        pybullet.changeDynamics(
+            self.ground, -1, lateralFriction=cfg.ball_friction, restitution=arm.restitution, physicsClientId=cid
+        )
+        if arm.body_damping is not None:
+            for body, link in [(self.ball, -1), *((self.robot, link) for link in links)]:
+                pybullet.changeDynamics(
+                    body, link, linearDamping=arm.body_damping, angularDamping=arm.body_damping, physicsClientId=cid
+                )
+        # Joint friction (ODE's FMax): velocity motors with target 0 whose force is limited to the
+        # friction (0 switches them off); the action's torques act on top of them.
         pybullet.setJointMotorControlArray(
-            self.robot, self.joints, pybullet.VELOCITY_CONTROL, forces=[0.0] * len(self.joints),
-            physicsClientId=cid,
+            self.robot, self.joints, pybullet.VELOCITY_CONTROL, targetVelocities=[0.0] * len(self.joints),
+            forces=list(arm.joint_friction), physicsClientId=cid,
         )
-        pose = list(INITIAL_ARM_POSE) + list(INITIAL_FINGER_POSE) * len(FINGER_NAMES)
-        for joint, angle in zip(self.joints, pose):
+        for joint, angle in zip(self.joints, arm.initial_pose, strict=True):
             pybullet.resetJointState(self.robot, joint, angle, 0.0, physicsClientId=cid)
         self.palm_home = np.asarray(
             pybullet.getLinkState(self.robot, self.palm_link, computeForwardKinematics=1, physicsClientId=cid)[0]
@@ -248,9 +439,7 @@ class BallCatchWorld:
             pybullet.GEOM_BOX, halfExtents=(6, 4, 0.005), rgbaColor=(0.55, 0.7, 0.5, 1),
             visualFramePosition=(1.5, 0, -0.005), physicsClientId=cid,
         )
-        ground = pybullet.createMultiBody(0, shape, visual, physicsClientId=cid)
-        pybullet.changeDynamics(ground, -1, lateralFriction=1.0, physicsClientId=cid)
-        return ground
+        return pybullet.createMultiBody(0, shape, visual, physicsClientId=cid)
 
     # ------------------------------------------------------------------ per-episode / per-step
     def reset(self, offset_xy: Sequence[float]) -> None:
@@ -273,10 +462,12 @@ class BallCatchWorld:
 
         ``action`` must already be validated (4 finite numbers in [-1, 1]).
         """
-        self.step_forces(joint_torques(np.asarray(action, dtype=np.float64) * self._max_torques).tolist())
+        scaled = np.asarray(action, dtype=np.float64) * self._max_torques
+        self.step_forces(joint_torques(scaled, self._transmission).tolist())
 
     def step_forces(self, forces: list[float]) -> None:
-        """Apply 11 joint torques (arm, then the 8 finger joints) and step the physics once."""
+        """Apply the joint torques (arm, then the finger joints, as :attr:`ArmModel.joints`) and
+        step the physics once."""
         try:
             pybullet.setJointMotorControlArray(
                 self.robot, self.joints, pybullet.TORQUE_CONTROL, forces=forces, physicsClientId=self.client
@@ -320,17 +511,12 @@ class BallCatchWorld:
         contacts = pybullet.getContactPoints(self.ball, self.robot, physicsClientId=self.client)
         return any(c[4] >= self.palm_link for c in contacts)
 
-    def joint_angles(self) -> np.ndarray:
-        """Current angles of the 11 joints (shoulder, elbow, wrist, then the fingers)."""
-        states = pybullet.getJointStates(self.robot, self.joints, physicsClientId=self.client)
-        return np.array([s[0] for s in states])
-
     def render(self, width: int = 160, height: int = 120) -> np.ndarray:
         """RGB frame ``(height, width, 3)`` uint8 from pybullet's software (tiny) renderer."""
         cid = self.client
         view = pybullet.computeViewMatrixFromYawPitchRoll(
-            cameraTargetPosition=(2.2, 0.0, 5.4), distance=8.0, yaw=25.0, pitch=-12.0, roll=0.0, upAxisIndex=2,
-            physicsClientId=cid,
+            cameraTargetPosition=self.config.arm.camera_target, distance=8.0, yaw=self.config.arm.camera_yaw,
+            pitch=-12.0, roll=0.0, upAxisIndex=2, physicsClientId=cid,
         )
         proj = pybullet.computeProjectionMatrixFOV(
             fov=60.0, aspect=width / height, nearVal=0.1, farVal=50.0, physicsClientId=cid
@@ -353,15 +539,18 @@ class BallCatchWorld:
             self.client = -1
 
 
-def joint_torques(scaled: np.ndarray) -> np.ndarray:
-    """The 11 joint torques ``[..., 11]`` from the 4 actuator torques ``action * max_torques``
+def joint_torques(
+    scaled: np.ndarray, transmission: Sequence[tuple[int, float]] = JOINT_TRANSMISSION
+) -> np.ndarray:
+    """The joint torques ``[..., joints]`` from the 4 actuator torques ``action * max_torques``
     ``[..., 4]`` (any leading dimensions: one row per world).
 
-    Shoulder, elbow and wrist take theirs directly; the one finger actuator drives every proximal
-    finger joint with its full torque and every distal joint with :data:`DISTAL_TORQUE_RATIO` of it
-    (:data:`JOINT_TRANSMISSION`).
+    Shoulder, elbow and wrist take theirs directly; the one finger actuator drives every finger
+    joint with the fraction of its torque that ``transmission`` (:attr:`ArmModel.transmission`)
+    gives: for model "cup" (the default, :data:`JOINT_TRANSMISSION`) every proximal joint its full
+    torque and every distal joint :data:`DISTAL_TORQUE_RATIO` of it.
     """
-    actuator, gain = zip(*JOINT_TRANSMISSION)
+    actuator, gain = zip(*transmission, strict=True)
     return scaled[..., list(actuator)] * np.asarray(gain)
 
 
@@ -396,7 +585,7 @@ class BallCatchEnv(gym.Env):
     """Gymnasium env of the paper's ball-catching task (registered as ``sde_torchrl/BallCatch-v0``).
 
     Observation: ball centre xyz, float32 ``(3,)``. Action: ``Box(-1, 1, (4,))`` scaled by
-    :data:`MAX_TORQUES` (shoulder, elbow, wrist, all fingers). Reward: ``-3`` once the ball has
+    the config's ``max_torques`` (shoulder, elbow, wrist, all fingers). Reward: ``-3`` once the ball has
     touched the ground, else ``-clip(ball-palm distance, 0.5, 3)`` (see :func:`step_reward`).
     Every episode is 500 steps long and ends by truncation (``terminated`` is always False);
     once the ball has touched the ground the world is frozen and each remaining step gives ``-3``.
@@ -407,6 +596,9 @@ class BallCatchEnv(gym.Env):
         render_mode: ``None`` or ``"rgb_array"`` (software renderer, no display needed).
         config: physical parameters; ``BallCatchConfig(jitter=0.0)`` makes every episode identical.
         render_size: ``(width, height)`` of rendered frames.
+        model: the arm (``"cup"`` or ``"pybrain"``, :data:`ARM_MODELS`) when no ``config`` is
+            given, e.g. ``gymnasium.make("sde_torchrl/BallCatch-v0", model="pybrain")``; with a
+            ``config`` it must be ``None`` or the config's model.
 
     Examples:
         >>> import numpy as np
@@ -428,12 +620,16 @@ class BallCatchEnv(gym.Env):
         render_mode: str | None = None,
         config: BallCatchConfig | None = None,
         render_size: tuple[int, int] = (160, 120),
+        model: str | None = None,
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if config is not None and model not in (None, config.model):
+            raise ValueError(f"model={model!r} contradicts config.model={config.model!r}")
         self.render_mode = render_mode
         self.render_size = render_size
-        self.config = config or BallCatchConfig()
+        self.config = config or (BallCatchConfig() if model is None else BallCatchConfig(model=model))
+        self._ground_z = self.config.arm.ground_z
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.world = BallCatchWorld(self.config, name="gym world")
@@ -456,7 +652,7 @@ class BallCatchEnv(gym.Env):
         return np.asarray(ball, dtype=np.float32), {"distance": distance, "held": False, "grounded": False}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Apply the torques ``action * MAX_TORQUES`` for one 0.01 s step.
+        """Apply the torques ``action * max_torques`` for one 0.01 s step.
 
         Raises:
             ValueError: if ``action`` does not have shape ``(4,)`` or is not finite.
@@ -469,7 +665,7 @@ class BallCatchEnv(gym.Env):
             self.world.step(action)
         self._t += 1
         ball = self.world.ball_position()
-        self._grounded = self._grounded or ball[2] < GROUND_Z
+        self._grounded = self._grounded or ball[2] < self._ground_z
         reward, distance = step_reward(ball, self.world.palm_position(), self._grounded)
         held = (not self._grounded) and self.world.ball_touches_hand()
         truncated = self._t >= EPISODE_STEPS
@@ -488,10 +684,17 @@ class BallCatchEnv(gym.Env):
         self.world.close()
 
 
-def scripted_action(observation: Sequence[float]) -> np.ndarray:
-    """The hand-written catching controller: ``tanh(SCRIPTED_WEIGHTS @ ball_xyz)``, a bias-free
-    linear map squashed by tanh, i.e. exactly the paper's controller class."""
-    return np.tanh(SCRIPTED_WEIGHTS @ np.asarray(observation, dtype=np.float64))
+def scripted_weights(model: str = "cup") -> np.ndarray:
+    """The hand-written catching controller's weights for an arm model: :data:`SCRIPTED_WEIGHTS`
+    (``"cup"``) or :data:`PYBRAIN_SCRIPTED_WEIGHTS` (``"pybrain"``)."""
+    return {"cup": SCRIPTED_WEIGHTS, "pybrain": PYBRAIN_SCRIPTED_WEIGHTS}[model]
+
+
+def scripted_action(observation: Sequence[float], model: str = "cup") -> np.ndarray:
+    """The hand-written catching controller: ``tanh(W @ ball_xyz)`` with ``W`` =
+    :func:`scripted_weights` of ``model``, a bias-free linear map squashed by tanh, i.e. exactly
+    the paper's controller class."""
+    return np.tanh(scripted_weights(model) @ np.asarray(observation, dtype=np.float64))
 
 
 def episode_return(
@@ -502,7 +705,8 @@ def episode_return(
 
     Args:
         env: the environment.
-        policy: ``"scripted"``, ``"zero"``, ``"random"``, or a function observation → action.
+        policy: ``"scripted"`` (:func:`scripted_action` of the env's model), ``"zero"``,
+            ``"random"``, or a function observation → action.
         seed: reset seed.
         rng: generator for the random policy (defaults to one seeded with ``seed``).
         frames: if given, every ``frame_every``-th rendered frame is appended to it.
@@ -517,7 +721,7 @@ def episode_return(
         if callable(policy):
             action = policy(obs)
         elif policy == "scripted":
-            action = scripted_action(obs)
+            action = scripted_action(obs, env.config.model)
         elif policy == "zero":
             action = np.zeros(4)
         else:
@@ -545,11 +749,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
     parser.add_argument("--jitter", type=float, default=BallCatchConfig.jitter)
+    parser.add_argument("--model", choices=tuple(ARM_MODELS), default=BallCatchConfig.model, help="the arm")
     parser.add_argument("--video", type=str, default=None, help="write the first episode to this GIF")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
-    env = BallCatchEnv(render_mode="rgb_array" if args.video else None, config=BallCatchConfig(jitter=args.jitter))
+    config = BallCatchConfig(jitter=args.jitter, model=args.model)
+    env = BallCatchEnv(render_mode="rgb_array" if args.video else None, config=config)
     rng = np.random.default_rng(args.seed)
     returns, frames = [], [] if args.video else None
     try:
@@ -560,6 +766,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.video:
         write_gif(frames, args.video)
     out = {
+        "model": args.model,
         "policy": args.policy,
         "episodes": args.episodes,
         "seed": args.seed,

@@ -24,8 +24,6 @@ from sde_torchrl.envs.ballcatch import (
     DISTANCE_CAP,
     EPISODE_STEPS,
     GROUND_REWARD,
-    GROUND_Z,
-    JOINT_TRANSMISSION,
     MIN_DISTANCE,
     BallCatchConfig,
     BallCatchWorld,
@@ -52,7 +50,8 @@ class BatchedBallCatchEnv(EnvBase):
 
     Args:
         num_worlds: number of worlds N (one pybullet DIRECT client each), per run if ``runs``.
-        config: physical parameters shared by all worlds (default :class:`BallCatchConfig`).
+        config: physical parameters shared by all worlds, the arm model among them (default
+            :class:`BallCatchConfig`: model "cup").
         max_steps: episode length (the paper's 500).
         seed: seed of the env's private generator for the ball's release jitter.
         device: torch device of the returned tensors (physics always runs on the CPU).
@@ -97,6 +96,8 @@ class BatchedBallCatchEnv(EnvBase):
         self.runs, self.first_run, self.stream = runs, first_run, stream
         self._set_seed(seed)
         self._torque_scale = np.asarray(self.config.max_torques, dtype=np.float64)
+        self._transmission = self.config.arm.transmission
+        self._ground_z = self.config.arm.ground_z
         self._t = np.zeros(num_worlds, dtype=np.int64)
         self._grounded = np.zeros(num_worlds, dtype=bool)
         self._ball = np.zeros((num_worlds, 3), dtype=np.float64)
@@ -176,13 +177,13 @@ class BatchedBallCatchEnv(EnvBase):
         live = np.flatnonzero(~self._grounded)
         if len(live):
             worlds = self.worlds
-            forces = joint_torques(scaled[live]).tolist()
-            observed = [worlds[i].step_and_observe(f) for i, f in zip(live.tolist(), forces)]
+            forces = joint_torques(scaled[live], self._transmission).tolist()
+            observed = [worlds[i].step_and_observe(f) for i, f in zip(live.tolist(), forces, strict=True)]
             self._ball[live] = [o[0] for o in observed]
             self._palm[live] = [o[1] for o in observed]
         ball, palm = self._ball, self._palm
         self._t += 1
-        self._grounded |= ball[:, 2] < GROUND_Z
+        self._grounded |= ball[:, 2] < self._ground_z
         distance = np.sqrt(((ball - palm) ** 2).sum(axis=1))
         reward = np.where(self._grounded, GROUND_REWARD, -np.minimum(np.maximum(distance, MIN_DISTANCE), DISTANCE_CAP))
         return distance, reward
@@ -237,12 +238,15 @@ class BatchedBallCatchEnv(EnvBase):
         flat = matrices.detach().cpu().double().reshape(-1, 4, 3).numpy()
         finite = np.isfinite(flat).all(axis=(1, 2))
         if not finite.all():
-            raise ValueError(f"controller matrices contain non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
+            bad = np.flatnonzero(~finite).tolist()
+            raise ValueError(f"controller matrices contain non-finite values in worlds {bad}")
         offsets, scale = self._jitter(), self._torque_scale.tolist()
         episodes = []
         for i, world in enumerate(self.worlds):
             world.reset(offsets[i])
-            episodes.append(_linear_episode(world, flat[i].tolist(), scale, squash, steps))
+            episodes.append(
+                _linear_episode(world, flat[i].tolist(), scale, squash, steps, self._transmission, self._ground_z)
+            )
             observations, _, _, self._palm[i], self._grounded[i] = episodes[-1]
             self._ball[i] = observations[-1]
         self._t[:] = steps
@@ -297,11 +301,13 @@ class BatchedBallCatchEnv(EnvBase):
 
 def _linear_episode(
     world: BallCatchWorld, matrix: list[list[float]], torque_scale: list[float], squash: bool, steps: int,
+    transmission: tuple[tuple[int, float], ...], ground_z: float,
 ) -> tuple[list, list, list, tuple[float, ...], bool]:
     """One episode of a freshly reset ``world`` under ``u = M x`` (the hot loop of
     :meth:`BatchedBallCatchEnv.linear_episodes`, in plain Python floats: numpy is slower on
-    3-vectors). A world whose ball touched the ground is frozen, as in
-    :meth:`BatchedBallCatchEnv._advance`.
+    3-vectors). A world whose ball touched the ground (centre below ``ground_z``) is frozen, as
+    in :meth:`BatchedBallCatchEnv._advance`; ``transmission`` maps the actuator torques to the
+    joints (:attr:`~sde_torchrl.envs.ballcatch.ArmModel.transmission`).
 
     Returns:
         The ball positions (``steps + 1``), the pre-squash ``u`` and the rewards (``steps``
@@ -319,9 +325,9 @@ def _linear_episode(
              m2[0] * x0 + m2[1] * x1 + m2[2] * x2, m3[0] * x0 + m3[1] * x1 + m3[2] * x2)
         samples.append(u)
         if not grounded:
-            scaled = [action(v) * s for v, s in zip(u, torque_scale)]
-            ball, palm = world.step_and_observe([scaled[a] * g for a, g in JOINT_TRANSMISSION])
-            grounded = ball[2] < GROUND_Z
+            scaled = [action(v) * s for v, s in zip(u, torque_scale, strict=True)]
+            ball, palm = world.step_and_observe([scaled[a] * g for a, g in transmission])
+            grounded = ball[2] < ground_z
         observations.append(ball)
         rewards.append(step_reward(ball, palm, grounded)[0])
     return observations, samples, rewards, palm, grounded
@@ -351,7 +357,7 @@ def make_parallel_ballcatch(
 
 def make_ballcatch_env(
     episodes: int = 1, *, runs: int | None = None, first_run: int = 0, stream: str = "env",
-    episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None,
+    episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None, model: str = "cup",
 ) -> TransformedEnv:
     """The batched ball-catching env as the trainer builds envs: ``[runs, episodes]`` worlds
     with ``is_init`` (episodes end by themselves after ``episode_length`` steps).
@@ -364,14 +370,13 @@ def make_ballcatch_env(
         episode_length: steps per episode (the paper's 500).
         jitter: half-width of the uniform horizontal release offset.
         seed: seed of the release jitter.
+        model: the arm, ``"cup"`` or ``"pybrain"`` (:data:`~sde_torchrl.envs.ballcatch.ARM_MODELS`).
 
     Returns:
-        ``TransformedEnv(BatchedBallCatchEnv(...), InitTracker())`` with ``episode_length`` set.
+        ``TransformedEnv(BatchedBallCatchEnv(...), InitTracker())``.
     """
     base = BatchedBallCatchEnv(
-        num_worlds=episodes, config=BallCatchConfig(jitter=jitter), max_steps=episode_length,
+        num_worlds=episodes, config=BallCatchConfig(jitter=jitter, model=model), max_steps=episode_length,
         seed=seed, runs=runs, first_run=first_run, stream=stream,
     )
-    env = TransformedEnv(base, InitTracker())
-    env.episode_length = episode_length
-    return env
+    return TransformedEnv(base, InitTracker())
