@@ -29,8 +29,8 @@ from omegaconf import DictConfig
 from sde_torchrl.build import register_resolvers, run_job
 from sde_torchrl.checkpoint import CheckpointMismatchError
 from sde_torchrl.config import describe_error
-from sde_torchrl.progress import progress_wanted
 from sde_torchrl.interrupt import TrainingInterrupted
+from sde_torchrl.progress import progress_wanted
 
 log = logging.getLogger("train")
 register_resolvers()

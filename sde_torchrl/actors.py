@@ -108,7 +108,7 @@ class MLP(nn.Module):
         sizes = [in_features, *hidden, out_features]
         self.layers = nn.ModuleList(
             BatchedLinear(n_in, n_out, bias=bias, runs=runs, init=init)
-            for n_in, n_out in zip(sizes[:-1], sizes[1:])
+            for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True)
         )
 
     def reset_parameters(self, streams: RunStreams | None = None) -> None:

@@ -95,7 +95,7 @@ class RunStreams:
         """Restores what :meth:`state_dict` saved."""
         if len(state["generators"]) != self.runs:
             raise ValueError(f"state holds {len(state['generators'])} runs, these streams {self.runs}")
-        for g, g_state in zip(self.generators, state["generators"]):
+        for g, g_state in zip(self.generators, state["generators"], strict=True):
             g.set_state(g_state)
         self._buffer = state["buffer"].clone()
 

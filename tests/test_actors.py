@@ -26,7 +26,7 @@ def test_stacked_runs_are_independent_copies():
     out = stacked(TensorDict({"observation": x}, [3, 4]))["loc"]
     for r in range(3):
         single = MLPActor(2, 2, hidden=[3])
-        for layer_s, layer_r in zip(single.module.layers, stacked.module.layers):
+        for layer_s, layer_r in zip(single.module.layers, stacked.module.layers, strict=True):
             layer_s.weight.data, layer_s.bias.data = layer_r.weight[r].clone(), layer_r.bias[r].clone()
         torch.testing.assert_close(single(TensorDict({"observation": x[r]}, [4]))["loc"], out[r])
 
@@ -52,7 +52,7 @@ def test_per_run_initialisation_streams_match_single_runs():
     stacked.module.reset_parameters(RunStreams(5, 3, "init"))
     single = MLPActor(2, 2, hidden=[3], init=[-1.0, 0.0], runs=1)
     single.module.reset_parameters(RunStreams(5, 1, "init", first_run=2))
-    for a, b in zip(stacked.parameters(), single.parameters()):
+    for a, b in zip(stacked.parameters(), single.parameters(), strict=True):
         torch.testing.assert_close(a[2], b[0])
 
 

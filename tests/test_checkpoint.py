@@ -16,7 +16,6 @@ from _helpers import REPO, build, own_stderr_lines, read_rows, run_cli, summary_
 from sde_torchrl.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
 from sde_torchrl.files import write_json_atomic
 
-
 # ------------------------------------------------------------------------------ in process
 
 class Crash(RuntimeError):

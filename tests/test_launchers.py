@@ -1,10 +1,9 @@
 """Sweeps on distributed engines: Ray (hydra-ray-launcher, a local cluster started on loopback)
 and Slurm's launcher (hydra-submitit-launcher, with submitit's local executor).
 
-These need the ``ray`` / ``sweeps`` extras and take a while (a Ray head node starts), so they
-are marked ``launchers`` and skipped in the default run; run them with
-``python -m pytest tests/test_launchers.py`` (or ``-m launchers``). Each trains a sweep split
-into shards through the launcher and checks that the merged shards equal one process.
+They need the launchers that ``pip install -e ".[dev]"`` installs (``ray``, ``sweeps`` extras) and
+are skipped without them (``tests/conftest.py``). Each trains a sweep split into shards through
+the launcher and checks that the merged shards equal one process.
 """
 
 from __future__ import annotations
@@ -17,7 +16,6 @@ import tempfile
 from pathlib import Path
 
 import pytest
-
 from test_sweeps import _metrics, _train
 
 pytestmark = pytest.mark.launchers

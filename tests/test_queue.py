@@ -19,7 +19,7 @@ def test_queue_drops_the_oldest_and_adds_the_newest(tmp_path):
     trainer.update = recording_update
     summary = trainer.train(tmp_path)
     assert [s.shape[:2] for s in seen] == [torch.Size([2, 6])] * 4
-    for before, after in zip(seen, seen[1:]):
+    for before, after in zip(seen, seen[1:], strict=False):
         torch.testing.assert_close(after[:, :4], before[:, 2:])  # kept, in order
         assert not torch.equal(after[:, 4:], before[:, 4:])       # two new episodes per run
     assert [int(r["episodes"]) for r in read_rows(tmp_path)][::2] == [6, 8, 10, 12]
