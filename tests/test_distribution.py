@@ -18,7 +18,7 @@ from torch import distributions as D
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import Unbounded
-from torchrl.envs import Compose, GymEnv, InitTracker, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import Compose, GymEnv, InitTracker, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, ValueOperator
 from torchrl.modules.distributions.utils import has_analytic_entropy
@@ -227,13 +227,23 @@ def test_stored_noise_reproduces_the_taken_action_and_log_prob():
     torch.testing.assert_close(dist.log_prob(td["action"]), td["action_log_prob"])
 
 
-def test_deterministic_exploration_acts_with_loc_and_needs_no_noise():
+@pytest.mark.parametrize("squash", [False, True])
+def test_deterministic_exploration_acts_with_loc_and_needs_no_noise(squash):
     sde = SDEParams(1, 3)
-    policy = make_sde_actor(_linear_actor(), sde)
+    policy = make_sde_actor(_linear_actor(), sde, squash=squash, low=-2.0, high=2.0)
     td = TensorDict({"observation": torch.randn(5, 3)}, [5])
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         out = policy(td)
-    torch.testing.assert_close(out["action"], out["loc"])
+    torch.testing.assert_close(out["action"], 2 * torch.tanh(out["loc"]) if squash else out["loc"])
+
+
+def test_resets_redraw_without_init_tracker():
+    torch.manual_seed(0)
+    sde = SDEParams(1, 3)
+    env = TransformedEnv(GymEnv("Pendulum-v1"), Compose(StepCounter(max_steps=3), sde.make_tensordict_primer()))
+    td = env.rollout(9, make_sde_actor(_linear_actor(), sde), break_when_any_done=False)
+    noise, starts = td["sde_noise"][..., 0, 0], td["step_count"].squeeze(-1) == 0
+    assert torch.equal(noise[1:] != noise[:-1], starts[1:])
 
 
 def test_dtype_follows_the_policy():
@@ -348,8 +358,10 @@ def test_clip_ppo_loss(squash):
     torch.testing.assert_close(recomputed, batch["action_log_prob"])
     log_weight = loss._log_weight(batch, batch.shape)[0]
     torch.testing.assert_close(log_weight.exp(), torch.ones_like(log_weight))  # ratio 1 on the first epoch
+    stored_noise = batch["sde_noise"].clone()
     out = loss(batch)
     assert float(out["clip_fraction"]) == 0.0
+    assert torch.equal(batch["sde_noise"], stored_noise)  # the replay draws nothing
     (out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]).backward()
     _assert_grads(policy, sde)
 
@@ -412,6 +424,39 @@ def test_vmap_under_default_randomness():
     batched = policy(td.clone())["action"]
     vmapped = torch.vmap(lambda t: policy(t))(td.clone())["action"]  # randomness="error": nothing is drawn
     torch.testing.assert_close(vmapped, batched)
+
+
+def test_vmap_with_the_gaussian_part_needs_a_random_mode():
+    sde = SDEParams(1, 3, gaussian_init_param=-1.0)
+    policy = make_sde_actor(_linear_actor(), sde)
+    td = TensorDict({"observation": torch.randn(6, 3), "sde_noise": torch.randn(6, 1, 3)}, [6])
+    out = torch.vmap(lambda t: policy(t), randomness="different")(td)  # eq. 22's ε is i.i.d. per step
+    assert out["action"].shape == (6, 1)
+
+
+def test_compiled_policy_matches_eager():
+    torch.manual_seed(0)
+    sde = SDEParams(1, 3)
+    policy = make_sde_actor(_linear_actor(), sde, squash=True, low=-2.0, high=2.0)
+    td = TensorDict({"observation": torch.randn(6, 3), "sde_noise": torch.randn(6, 1, 3)}, [6])
+    compiled = torch.compile(policy, backend="aot_eager")
+    got, want = compiled(td.clone()), policy(td.clone())
+    torch.testing.assert_close(got["action"], want["action"])
+    torch.testing.assert_close(got["action_log_prob"], want["action_log_prob"])
+
+
+def test_parallel_env_with_the_primer_on_the_batched_env():
+    torch.manual_seed(0)
+    sde = SDEParams(1, 3)
+    base = ParallelEnv(2, lambda: TransformedEnv(GymEnv("Pendulum-v1"), StepCounter(max_steps=4)))
+    env = TransformedEnv(base, Compose(InitTracker(), sde.make_tensordict_primer()))
+    try:
+        td = env.rollout(8, make_sde_actor(_linear_actor(), sde), break_when_any_done=False)
+    finally:
+        env.close()
+    noise = td["sde_noise"][..., 0, 0]
+    assert noise[0, 0] != noise[1, 0]  # each worker its own ξ
+    assert torch.equal(noise[:, 1:] != noise[:, :-1], td["is_init"].squeeze(-1)[:, 1:])
 
 
 # ----------------------------------------------------------------------------- documentation
