@@ -110,12 +110,14 @@ class SDENormal(Distribution):
         self.gaussian_scale = gaussian_scale
         self.scale = sde_variance(self.sigma_hat, features, gaussian_scale).sqrt()
         shapes = [loc.shape[:-1], features.shape[:-1], sigma_hat.shape[:-2], self.scale.shape[:-1]]
+        if noise is not None:
+            shapes.append(noise.shape[:-2])
         try:
             batch_shape = torch.broadcast_shapes(*shapes)
         except RuntimeError as err:
             raise ValueError(
-                f"batch shapes do not broadcast: loc {tuple(loc.shape)}, sigma_hat "
-                f"{tuple(sigma_hat.shape)}, features {tuple(features.shape)}"
+                f"batch shapes do not broadcast: loc {tuple(loc.shape)}, sigma_hat {tuple(sigma_hat.shape)}, "
+                f"features {tuple(features.shape)}, noise {None if noise is None else tuple(noise.shape)}"
             ) from err
         self.action_dim, self.feature_dim = action_dim, feature_dim
         super().__init__(batch_shape, torch.Size([action_dim]), validate_args=validate_args)

@@ -146,6 +146,11 @@ class SDEParams(TensorDictModuleBase):
         gaussian_scale_key: where ``σ_gauss`` is written (eq. 22 only).
         age_key: the primer's step counter (``"every_n"`` only).
 
+    Attributes:
+        streams: per-run :class:`~sde_torchrl.rng.RunStreams` for the primer's draws when runs
+            are stacked (the env's leading batch dimension); set it before
+            :meth:`make_tensordict_primer`. ``None``: torch's global generator.
+
     Examples:
         >>> from tensordict import TensorDict
         >>> sde = SDEParams(action_dim=2, feature_dim=3)

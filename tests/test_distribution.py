@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import distributions as D
 from torch import nn
 from torchrl.collectors import Collector
@@ -123,6 +123,12 @@ def test_shared_sigma_broadcasts_like_the_full_matrix():
     dist = SDENormal(loc, shared, x, noise)
     torch.testing.assert_close(dist.log_prob(loc + 0.1), full.log_prob(loc + 0.1))
     torch.testing.assert_close(dist.rsample(), full.rsample())
+
+
+def test_batch_shapes_that_do_not_broadcast_are_named():
+    loc, sigma_hat, x, _ = _params()
+    with pytest.raises(ValueError, match=re.escape("noise (5, 2, 3)")):
+        SDENormal(loc, sigma_hat, x, torch.zeros(5, A, S))
 
 
 def test_wrong_matrix_shape_names_expected_and_got():
@@ -270,6 +276,19 @@ def test_gaussian_part_is_learnable_and_written():
     torch.testing.assert_close(td["sde_gaussian_scale"], torch.ones(4, 1))
     policy.get_dist(td.clone()).log_prob(td["action"]).sum().backward()
     assert sde.gaussian_param.grad.abs().sum() > 0
+
+
+def test_keys_are_configurable():
+    torch.manual_seed(0)
+    sde = SDEParams(1, 3, loc_key="mean", feature_key="features", noise_key=("sde", "xi"), sigma_key=("sde", "sigma"))
+    actor = TensorDictModule(nn.Linear(3, 1), in_keys=["observation"], out_keys=["mean"])
+    copy = TensorDictModule(lambda obs: obs.clone(), in_keys=["observation"], out_keys=["features"])
+    env = TransformedEnv(GymEnv("Pendulum-v1"), Compose(StepCounter(max_steps=3), sde.make_tensordict_primer()))
+    policy = make_sde_actor(TensorDictSequential(actor, copy), sde, action_key="action")
+    td = env.rollout(5, policy, break_when_any_done=False)
+    assert td["sde", "xi"].shape == (5, 1, 3) and td["sde", "sigma"].shape == (5, 1, 3)
+    expected = td["mean"] + ((td["sde", "sigma"] * td["sde", "xi"]) @ td["features"].unsqueeze(-1)).squeeze(-1)
+    torch.testing.assert_close(td["action"], expected)
 
 
 # ----------------------------------------------------------------------------- wiring mistakes
