@@ -30,6 +30,7 @@ import sde_torchrl.distribution
 import sde_torchrl.sde_actor
 from sde_torchrl.distribution import SDENormal, TanhSDENormal, sde_variance
 from sde_torchrl.exploration import expln
+from sde_torchrl.rng import RunStreams
 from sde_torchrl.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "torchrl_losses.md"
@@ -267,6 +268,13 @@ def test_stacked_runs_write_their_own_sigma():
     sigma = sde(td)["sde_sigma_hat"]
     assert sigma.shape == (2, 5, 2, 3)
     torch.testing.assert_close(sigma[:, 0, 0, 0], torch.tensor([math.exp(-2), 1.0]))
+
+
+def test_stacked_runs_draw_from_their_own_streams():
+    sde = SDEParams(1, 3, runs=2)
+    sde.streams = RunStreams(seed=7, runs=2, stream="explore")
+    env = TransformedEnv(SerialEnv(2, lambda: GymEnv("Pendulum-v1")), sde.make_tensordict_primer())
+    torch.testing.assert_close(env.reset()["sde_noise"], RunStreams(seed=7, runs=2, stream="explore").normal((2, 1, 3)))
 
 
 def test_gaussian_part_is_learnable_and_written():
