@@ -108,8 +108,9 @@ class SDENormal(Distribution):
         self.loc, self.sigma_hat, self.features = loc, sigma_hat.to(loc.dtype), features
         self.noise = None if noise is None else noise.to(loc.dtype)
         self.gaussian_scale = gaussian_scale
-        self.scale = sde_variance(self.sigma_hat, features, gaussian_scale).sqrt()
-        shapes = [loc.shape[:-1], features.shape[:-1], sigma_hat.shape[:-2], self.scale.shape[:-1]]
+        shapes = [loc.shape[:-1], features.shape[:-1], sigma_hat.shape[:-2]]
+        if gaussian_scale is not None:
+            shapes.append(gaussian_scale.shape[:-1])
         if noise is not None:
             shapes.append(noise.shape[:-2])
         try:
@@ -117,8 +118,10 @@ class SDENormal(Distribution):
         except RuntimeError as err:
             raise ValueError(
                 f"batch shapes do not broadcast: loc {tuple(loc.shape)}, sigma_hat {tuple(sigma_hat.shape)}, "
-                f"features {tuple(features.shape)}, noise {None if noise is None else tuple(noise.shape)}"
+                f"features {tuple(features.shape)}, noise {None if noise is None else tuple(noise.shape)}, "
+                f"gaussian_scale {None if gaussian_scale is None else tuple(gaussian_scale.shape)}"
             ) from err
+        self.scale = sde_variance(self.sigma_hat, features, gaussian_scale).sqrt()
         self.action_dim, self.feature_dim = action_dim, feature_dim
         super().__init__(batch_shape, torch.Size([action_dim]), validate_args=validate_args)
 

@@ -130,6 +130,8 @@ def test_batch_shapes_that_do_not_broadcast_are_named():
     loc, sigma_hat, x, _ = _params()
     with pytest.raises(ValueError, match=re.escape("noise (5, 2, 3)")):
         SDENormal(loc, sigma_hat, x, torch.zeros(5, A, S))
+    with pytest.raises(ValueError, match=re.escape("features (5, 3)")):
+        SDENormal(loc, sigma_hat, torch.zeros(5, S))
 
 
 def test_wrong_matrix_shape_names_expected_and_got():
