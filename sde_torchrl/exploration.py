@@ -72,6 +72,25 @@ def deterministic_exploration() -> bool:
     return exploration_type() in _DETERMINISTIC
 
 
+def sigma_param_shape(sharing: str, action_dim: int, feature_dim: int) -> tuple[int, int]:
+    """Shape of ``p`` (``σ̂ = expln(p)``) for a sharing mode (paper section 2.3, footnote 1).
+
+    Args:
+        sharing: one ``σ̂`` per matrix element (``"element"``), per action (``"action"``) or one
+            for all (``"single"``).
+        action_dim: ``A``.
+        feature_dim: ``S``.
+
+    Returns:
+        ``(A, S)``, ``(A, 1)`` or ``(1, 1)``: broadcastable to the ``A × S`` matrix.
+
+    Examples:
+        >>> sigma_param_shape("action", 2, 3)
+        (2, 1)
+    """
+    return {"element": (action_dim, feature_dim), "action": (action_dim, 1)}.get(sharing, (1, 1))
+
+
 def gaussian_log_prob(sample: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
     """``Σ_j log N(sample_j; loc_j, scale_j²)`` over the last dimension (eq. 13)."""
     return (-0.5 * ((sample - loc) / scale).square() - scale.log() - _HALF_LOG_2PI).sum(-1)
@@ -163,9 +182,8 @@ class StateDependentExplorer(TensorDictModuleBase):
         self.streams: RunStreams | None = None
 
         run_shape = () if runs is None else (runs,)
-        sigma_shape = {"element": (action_dim, feature_dim), "action": (action_dim, 1)}
         self._register("sigma_param", torch.full(
-            run_shape + sigma_shape.get(sharing, (1, 1)), float(init_param)
+            run_shape + sigma_param_shape(sharing, action_dim, feature_dim), float(init_param)
         ), learn_sigma)
         self.has_gaussian = gaussian_init_param is not None
         if self.has_gaussian:

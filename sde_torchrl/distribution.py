@@ -1,0 +1,331 @@
+"""The state-dependent Normal distribution (paper eqs. 17-22) as a ``torch.distributions.Distribution``.
+
+TorchRL's PPO, A2C and SAC losses rebuild the policy's distribution from stored tensordict
+entries and score the stored action (``get_dist`` then ``log_prob``). :class:`SDENormal` needs
+only stored entries for that: the controller's mean ``loc``, the exploration standard deviations
+``σ̂`` and the features ``x`` give the per-step Gaussian of eq. (20); the noise matrix ``ξ``
+carried in the tensordict makes ``rsample()`` reproduce the action the policy took,
+``u = loc + (σ̂ ⊙ ξ) x`` (eqs. 17-19). :class:`TanhSDENormal` squashes that action into
+``[low, high]`` and scores it with the tanh transform's log-determinant.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch.distributions import Distribution, constraints
+
+from sde_torchrl.exploration import MIN_VARIANCE, gaussian_log_prob
+
+_HALF_LOG_2PI_E = 0.5 * math.log(2 * math.pi * math.e)
+_LOG_2 = math.log(2.0)
+
+
+def sde_variance(
+    sigma_hat: torch.Tensor, features: torch.Tensor, gaussian_scale: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Per-action variance of the SDE action: ``σ_j² = Σ_i (x_i σ̂_ji)² [+ σ_gauss_j²]`` (eqs. 20, 22).
+
+    Args:
+        sigma_hat: ``σ̂``, ``[*, A, S]`` (or broadcastable to it).
+        features: ``x``, ``[*, S]``.
+        gaussian_scale: standard deviation of eq. (22)'s i.i.d. Gaussian part, ``[*, A]``, or
+            ``None`` for pure SDE.
+
+    Returns:
+        ``σ²`` of shape ``[*, A]``, floored at :data:`~sde_torchrl.exploration.MIN_VARIANCE`
+        (at ``x = 0`` SDE adds no noise and the likelihood would be infinite).
+
+    Examples:
+        >>> sde_variance(torch.full((2, 3), 0.5), torch.tensor([1.0, 2.0, 0.0]))
+        tensor([1.2500, 1.2500])
+    """
+    variance = (sigma_hat.square() * features.square().unsqueeze(-2)).sum(-1)
+    if gaussian_scale is not None:
+        variance = variance + gaussian_scale.square()
+    return variance.clamp_min(MIN_VARIANCE)
+
+
+class SDENormal(Distribution):
+    """The action distribution of state-dependent exploration, one step at a time (eqs. 17-22).
+
+    The action is ``u = loc + Θ̂ x [+ σ_gauss ε]`` with ``Θ̂ = σ̂ ⊙ ξ``, ``ξ ~ N(0, I)`` (eqs.
+    17-19, 22). Given the state, ``u_j ~ N(loc_j, σ_j²)`` with ``σ_j² = Σ_i (x_i σ̂_ji)² +
+    σ_gauss_j²`` (eq. 20): that per-step Gaussian is what :meth:`log_prob` scores (summed over the
+    action dimension, TorchRL's ``IndependentNormal`` convention) and what :meth:`entropy`
+    measures.
+
+    Sampling: :meth:`rsample` with an empty ``sample_shape`` uses the carried ``noise`` ``ξ``
+    (the matrix held for the episode, or for ``n`` steps), so it returns the very action the
+    policy took; it is reparameterised in ``loc`` and ``σ̂`` (and ``gaussian_scale``). With a
+    non-empty ``sample_shape``, or without ``noise``, fresh ``ξ`` is drawn: independent samples
+    of the same per-step Gaussian. Eq. (22)'s Gaussian part is drawn i.i.d. at every call.
+    ``mean``, ``mode`` and ``deterministic_sample`` are ``loc``.
+
+    Args:
+        loc: the controller's mean ``f(x; θ)``, ``[*, A]``.
+        sigma_hat: ``σ̂``, ``[*, A, S]`` or broadcastable (``[A, S]``, ``[*, A, 1]``, ...).
+        features: the exploration features ``x``, ``[*, S]`` (cast to ``loc``'s dtype).
+        noise: the carried standard-normal matrix ``ξ``, ``[*, A, S]``, or ``None``.
+        gaussian_scale: ``σ_gauss`` of eq. (22), ``[*, A]`` (or broadcastable), or ``None``.
+        validate_args: passed to :class:`torch.distributions.Distribution`.
+
+    Raises:
+        ValueError: if the shapes do not fit ``[*, A]``, ``[*, A, S]``, ``[*, S]``.
+
+    Examples:
+        >>> loc, x = torch.zeros(4, 2), torch.ones(4, 3)
+        >>> dist = SDENormal(loc, torch.full((2, 3), 0.1), x, noise=torch.ones(4, 2, 3))
+        >>> dist.rsample()  # loc + (σ̂ ⊙ ξ) x = 0.1 * 3
+        tensor([[0.3000, 0.3000],
+                [0.3000, 0.3000],
+                [0.3000, 0.3000],
+                [0.3000, 0.3000]])
+        >>> dist.log_prob(loc).shape, dist.batch_shape, dist.event_shape
+        (torch.Size([4]), torch.Size([4]), torch.Size([2]))
+    """
+
+    arg_constraints: dict = {}
+    support = constraints.real_vector
+    has_rsample = True
+
+    def __init__(
+        self,
+        loc: torch.Tensor,
+        sigma_hat: torch.Tensor,
+        features: torch.Tensor,
+        noise: torch.Tensor | None = None,
+        gaussian_scale: torch.Tensor | None = None,
+        validate_args: bool | None = False,
+    ) -> None:
+        features = features.to(loc.dtype)
+        action_dim, feature_dim = loc.shape[-1], features.shape[-1]
+        _check_matrix("sigma_hat", sigma_hat, action_dim, feature_dim)
+        if noise is not None:
+            _check_matrix("noise", noise, action_dim, feature_dim)
+        self.loc, self.sigma_hat, self.features = loc, sigma_hat.to(loc.dtype), features
+        self.noise = None if noise is None else noise.to(loc.dtype)
+        self.gaussian_scale = gaussian_scale
+        shapes = [loc.shape[:-1], features.shape[:-1], sigma_hat.shape[:-2]]
+        if gaussian_scale is not None:
+            shapes.append(gaussian_scale.shape[:-1])
+        if noise is not None:
+            shapes.append(noise.shape[:-2])
+        try:
+            batch_shape = torch.broadcast_shapes(*shapes)
+        except RuntimeError as err:
+            raise ValueError(
+                f"batch shapes do not broadcast: loc {tuple(loc.shape)}, sigma_hat {tuple(sigma_hat.shape)}, "
+                f"features {tuple(features.shape)}, noise {None if noise is None else tuple(noise.shape)}, "
+                f"gaussian_scale {None if gaussian_scale is None else tuple(gaussian_scale.shape)}"
+            ) from err
+        self.scale = sde_variance(self.sigma_hat, features, gaussian_scale).sqrt()
+        self.action_dim, self.feature_dim = action_dim, feature_dim
+        super().__init__(batch_shape, torch.Size([action_dim]), validate_args=validate_args)
+
+    @property
+    def mean(self) -> torch.Tensor:
+        """``loc``: SDE noise has zero mean."""
+        return self.loc.expand(self._extended_shape())
+
+    @property
+    def mode(self) -> torch.Tensor:
+        """``loc``."""
+        return self.mean
+
+    @property
+    def deterministic_sample(self) -> torch.Tensor:
+        """``loc``: what TorchRL acts with under ``ExplorationType.DETERMINISTIC``."""
+        return self.mean
+
+    @property
+    def stddev(self) -> torch.Tensor:
+        """``σ_j = sqrt(Σ_i (x_i σ̂_ji)² [+ σ_gauss_j²])`` (eq. 20)."""
+        return self.scale.expand(self._extended_shape())
+
+    @property
+    def variance(self) -> torch.Tensor:
+        """``σ_j²`` (eq. 20)."""
+        return self.stddev.square()
+
+    def rsample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:
+        """``loc + (σ̂ ⊙ ξ) x [+ σ_gauss ε]`` (eqs. 17-19, 22), differentiable in the parameters.
+
+        Args:
+            sample_shape: leading sample dimensions; empty uses the carried ``noise`` (if any).
+
+        Returns:
+            A sample of shape ``sample_shape + batch_shape + [A]``.
+        """
+        sample_shape = torch.Size(sample_shape)
+        noise = self.noise
+        if noise is None or len(sample_shape) > 0:
+            noise = torch.randn(
+                sample_shape + self.batch_shape + (self.action_dim, self.feature_dim),
+                dtype=self.loc.dtype, device=self.loc.device,
+            )
+        sample = self.loc + (self.sigma_hat * noise * self.features.unsqueeze(-2)).sum(-1)
+        if self.gaussian_scale is not None:
+            shape = self._extended_shape(sample_shape)
+            sample = sample + self.gaussian_scale * torch.randn(shape, dtype=sample.dtype, device=sample.device)
+        return sample.expand(self._extended_shape(sample_shape))
+
+    def sample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:
+        """:meth:`rsample` without gradients."""
+        with torch.no_grad():
+            return self.rsample(sample_shape)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        """``Σ_j log N(value_j; loc_j, σ_j²)`` (eqs. 13, 20): needs no noise, only stored entries.
+
+        Autograd of this through ``loc`` and ``σ̂`` gives the paper's scores (14), (16), (21).
+
+        Args:
+            value: an action ``[*sample, *batch, A]``.
+
+        Returns:
+            The log-density, shape ``[*sample, *batch]``.
+        """
+        return gaussian_log_prob(value, self.loc, self.scale)
+
+    def entropy(self) -> torch.Tensor:
+        """Entropy of the per-step Gaussian, ``Σ_j (½ log(2πe) + log σ_j)``, shape ``batch_shape``."""
+        return (_HALF_LOG_2PI_E + self.scale.log()).sum(-1).expand(self.batch_shape)
+
+
+class TanhSDENormal(SDENormal):
+    """:class:`SDENormal` squashed into ``[low, high]``: ``a = mid + half · tanh(u)``.
+
+    ``mid = (high + low) / 2``, ``half = (high - low) / 2``. The density is the change of
+    variables of the pre-squash Gaussian (eq. 20):
+    ``log p(a) = log N(u; loc, σ²) - Σ_j log(half_j (1 - tanh² u_j))`` with
+    ``u = atanh((a - mid) / half)``; the log-determinant is evaluated in the stable form
+    ``log(1 - tanh² u) = 2 (log 2 - u - softplus(-2u))``.
+
+    :meth:`rsample_and_log_prob` (what TorchRL's SAC calls) scores the exact pre-squash sample.
+    :meth:`log_prob` of a stored action inverts the squash; the inverse is clamped to
+    ``|tanh u| <= 1 - eps(dtype)`` (``|u| <= 8.3`` in float32, 18.7 in float64): beyond that the
+    stored action has lost the digits that would tell ``u`` apart, and the score is that of
+    ``u`` at the clamp. The collection-time log-prob uses the same inverse, so PPO's ratio
+    stays exactly 1 on unchanged parameters either way. ``mean`` and ``entropy`` have no closed
+    form (TorchRL's losses estimate the entropy by sampling); ``mode`` and
+    ``deterministic_sample`` are ``mid + half · tanh(loc)``.
+
+    Args:
+        loc: pre-squash mean, ``[*, A]``.
+        sigma_hat: ``σ̂``, ``[*, A, S]`` or broadcastable.
+        features: ``x``, ``[*, S]``.
+        noise: the carried ``ξ`` ``[*, A, S]``, or ``None``.
+        gaussian_scale: ``σ_gauss`` of eq. (22), or ``None``.
+        low: lower action bound(s), a number or a tensor broadcastable to ``[A]``.
+        high: upper action bound(s), strictly above ``low``.
+        validate_args: passed to :class:`torch.distributions.Distribution`.
+
+    Raises:
+        ValueError: if ``high <= low`` anywhere.
+
+    Examples:
+        >>> dist = TanhSDENormal(torch.zeros(3, 1), torch.full((1, 2), 0.5), torch.ones(3, 2),
+        ...                      low=-2.0, high=2.0)
+        >>> action = dist.sample()
+        >>> bool(((action > -2) & (action < 2)).all())
+        True
+        >>> dist.deterministic_sample
+        tensor([[0.],
+                [0.],
+                [0.]])
+    """
+
+    support = constraints.real_vector  # the interval [low, high] per action; args are not validated
+    entropy = Distribution.entropy  # no closed form: TorchRL's losses fall back to sampling
+
+    def __init__(
+        self,
+        loc: torch.Tensor,
+        sigma_hat: torch.Tensor,
+        features: torch.Tensor,
+        noise: torch.Tensor | None = None,
+        gaussian_scale: torch.Tensor | None = None,
+        low: torch.Tensor | float = -1.0,
+        high: torch.Tensor | float = 1.0,
+        validate_args: bool | None = False,
+    ) -> None:
+        super().__init__(loc, sigma_hat, features, noise, gaussian_scale, validate_args=validate_args)
+        low = torch.as_tensor(low, dtype=loc.dtype, device=loc.device)
+        high = torch.as_tensor(high, dtype=loc.dtype, device=loc.device)
+        if not torch.compiler.is_compiling() and bool((high <= low).any()):
+            raise ValueError(f"TanhSDENormal needs high > low everywhere, got low={low}, high={high}")
+        self.low, self.high = low, high
+        self._mid, self._half = (high + low) / 2, (high - low) / 2
+        self._max_abs_tanh = 1.0 - torch.finfo(loc.dtype).eps
+
+    def squash(self, pre_squash: torch.Tensor) -> torch.Tensor:
+        """``mid + half · tanh(u)``."""
+        return self._mid + self._half * torch.tanh(pre_squash)
+
+    def unsquash(self, action: torch.Tensor) -> torch.Tensor:
+        """``atanh((a - mid) / half)``, clamped to ``|tanh u| <= 1 - eps``."""
+        unit = ((action - self._mid) / self._half).clamp(-self._max_abs_tanh, self._max_abs_tanh)
+        return torch.atanh(unit)
+
+    def _log_det(self, pre_squash: torch.Tensor) -> torch.Tensor:
+        """``Σ_j log |da_j / du_j| = Σ_j log(half_j (1 - tanh² u_j))``."""
+        log_one_minus_tanh_sq = 2 * (_LOG_2 - pre_squash - F.softplus(-2 * pre_squash))
+        return (self._half.log() + log_one_minus_tanh_sq).sum(-1)
+
+    def _pre_squash_log_prob(self, pre_squash: torch.Tensor) -> torch.Tensor:
+        return super().log_prob(pre_squash) - self._log_det(pre_squash)
+
+    @property
+    def mean(self) -> torch.Tensor:
+        raise NotImplementedError("the mean of a tanh-squashed Gaussian has no closed form")
+
+    @property
+    def mode(self) -> torch.Tensor:
+        """``mid + half · tanh(loc)``."""
+        return self.squash(self.loc).expand(self._extended_shape())
+
+    @property
+    def deterministic_sample(self) -> torch.Tensor:
+        """``mid + half · tanh(loc)``: the squashed controller output."""
+        return self.mode
+
+    def rsample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:
+        """The squashed :meth:`SDENormal.rsample`."""
+        return self.squash(super().rsample(sample_shape))
+
+    def rsample_and_log_prob(
+        self, sample_shape: torch.Size | tuple[int, ...] = ()
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised action and the log-density of its exact pre-squash sample.
+
+        Args:
+            sample_shape: leading sample dimensions (empty: the carried noise).
+
+        Returns:
+            ``(action, log_prob)``.
+        """
+        pre_squash = SDENormal.rsample(self, sample_shape)
+        return self.squash(pre_squash), self._pre_squash_log_prob(pre_squash)
+
+    def sample_and_log_prob(
+        self, sample_shape: torch.Size | tuple[int, ...] = ()
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Like :meth:`rsample_and_log_prob` with the action detached (score-function gradients)."""
+        with torch.no_grad():
+            pre_squash = SDENormal.rsample(self, sample_shape)
+        return self.squash(pre_squash), self._pre_squash_log_prob(pre_squash)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        """Log-density of a squashed action (change of variables through the clamped inverse)."""
+        return self._pre_squash_log_prob(self.unsquash(value))
+
+
+def _check_matrix(name: str, matrix: torch.Tensor, action_dim: int, feature_dim: int) -> None:
+    if matrix.dim() < 2 or matrix.shape[-2] not in (1, action_dim) or matrix.shape[-1] not in (1, feature_dim):
+        raise ValueError(
+            f"{name} has shape {tuple(matrix.shape)}; expected [..., A, S] = [..., {action_dim}, "
+            f"{feature_dim}] (A from loc, S from features), or 1 where shared"
+        )
