@@ -33,7 +33,7 @@ from sde_torchrl.exploration import expln
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "torchrl_losses.md"
+README = Path(__file__).resolve().parents[1] / "README.md"
 A, S = 2, 3
 
 
@@ -505,11 +505,13 @@ def test_every_public_name_has_examples():
 
 
 def test_docs_examples_run_as_written():
-    blocks = re.findall(r"```python\n(.*?)```", DOC.read_text(), re.S)
-    assert len(blocks) == 2, f"expected the example and the explicit wiring in {DOC}"
+    section = re.search(r"<!-- losses:start -->(.*?)<!-- losses:end -->", README.read_text(), re.S)
+    assert section, "README markers of the TorchRL-losses section not found"
+    blocks = re.findall(r"```python\n(.*?)```", section.group(1), re.S)
+    assert len(blocks) == 2, "expected the example and the explicit wiring in the README section"
     namespace: dict = {}
     for block in blocks:  # the second block rebuilds the first one's policy by hand
-        exec(compile(block, str(DOC), "exec"), namespace)
+        exec(compile(block, str(README), "exec"), namespace)
     rebuilt = namespace["policy"]
     td = namespace["env"].reset()
     with set_exploration_type(ExplorationType.DETERMINISTIC):
