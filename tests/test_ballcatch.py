@@ -500,3 +500,26 @@ def test_model_option_reaches_gymnasium_and_is_checked():
         BallCatchConfig(model="ode")
     with pytest.raises(ValueError, match="contradicts"):
         BallCatchEnv(config=BallCatchConfig(), model="pybrain")
+
+
+def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
+    """``env.model`` (checked against a copy of the model names: config.py imports no pybullet)
+    reaches the batched env that ``train.py`` builds."""
+    from _helpers import compose_config, run_cli
+
+    from sde_torchrl import build, config
+
+    assert config.ARM_MODELS == tuple(ARM_MODELS)
+    cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=1",
+                         "env.episode_length=5", "eval_episodes=1", "logger=none")
+    trainer = build.build_trainer(cfg)
+    try:
+        assert {env.base_env.config.model for env in (trainer.env, trainer.eval_env)} == {"pybrain"}
+    finally:
+        trainer.env.close()
+        trainer.eval_env.close()
+    result = run_cli("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=2", "episode_queue=2",
+                     "env.episode_length=20", run_dir=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    bad = run_cli("+experiment=ballcatch", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
+    assert bad.returncode != 0 and "env.model=ode: one of cup, pybrain" in bad.stderr
