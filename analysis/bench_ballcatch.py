@@ -44,8 +44,8 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, TransformedEnv
 
 from sde_torchrl.actors import LinearActor
-from sde_torchrl.envs.ballcatch import SCRIPTED_WEIGHTS, joint_torques
-from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch import BatchedBallCatchEnv, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch.models import SCRIPTED_WEIGHTS
 from sde_torchrl.exploration import StateDependentExplorer
 from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
 
@@ -65,8 +65,9 @@ def catching_policy(seed: int) -> tuple[TensorDictSequential, StateDependentExpl
 
 def joint_forces(env: BatchedBallCatchEnv, actions: torch.Tensor) -> list[list[list[float]]]:
     """Per step and world, the 11 joint torques the env applies for ``actions [N, K, 4]``."""
-    scaled = (actions.clamp(-1, 1).double() * torch.tensor(env.config.max_torques, dtype=torch.float64)).numpy()
-    return [joint_torques(scaled[:, k]).tolist() for k in range(scaled.shape[1])]
+    clipped = actions.clamp(-1, 1).double().tolist()
+    return [[world.joint_forces(a[k]) for world, a in zip(env.worlds, clipped, strict=True)]
+            for k in range(actions.shape[1])]
 
 
 def time_raw(env: BatchedBallCatchEnv, forces: list[list[list[float]]], lockstep: bool) -> tuple[float, float]:

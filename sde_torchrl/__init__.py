@@ -11,8 +11,8 @@ from sde_torchrl.exploration import StateDependentExplorer, expln, expln_inverse
 register_ballcatch()  # gymnasium.make("sde_torchrl/BallCatch-v0"); pybullet loads on first use
 
 #: Public names whose modules import pybullet: loaded on first access (PEP 562).
-_LAZY = {"BallCatchEnv": "sde_torchrl.envs.ballcatch",
-         "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch_torchrl"}
+_LAZY = {"BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
+         "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched"}
 
 
 def __getattr__(name: str):

@@ -99,7 +99,7 @@ class BallCatchEnvConf:
         'pybrain'
     """
 
-    _target_: str = "sde_torchrl.envs.ballcatch_torchrl.make_ballcatch_env"
+    _target_: str = "sde_torchrl.envs.ballcatch.batched.make_ballcatch_env"
     episode_length: int = 500
     jitter: float = 0.05
     model: str = "cup"

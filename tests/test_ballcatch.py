@@ -20,18 +20,19 @@ from sde_torchrl.envs.ballcatch import (
     ARM_MODELS,
     BALLCATCH_ID,
     EPISODE_STEPS,
-    GROUND_Z,
-    PYBRAIN_SCRIPTED_WEIGHTS,
-    SCRIPTED_WEIGHTS,
     BallCatchConfig,
     BallCatchEnv,
     BallCatchWorld,
+    BatchedBallCatchEnv,
     episode_return,
-    main,
+    make_ballcatch_env,
+    make_parallel_ballcatch,
     register_ballcatch,
     scripted_action,
 )
-from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_ballcatch_env, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch.demo import main
+from sde_torchrl.envs.ballcatch.models import PYBRAIN_SCRIPTED_WEIGHTS, SCRIPTED_WEIGHTS
+from sde_torchrl.envs.ballcatch.task import GROUND_Z
 
 SEEDS = range(5)
 
@@ -72,7 +73,7 @@ def test_catch_needs_a_closed_hand(env, monkeypatch, finger_row, low, high):
     paper's R ~ -1.5 regime, not a catch); a hand closed from the start holds the ball in its cup."""
     weights = SCRIPTED_WEIGHTS.copy()
     weights[3] = finger_row
-    monkeypatch.setattr("sde_torchrl.envs.ballcatch.SCRIPTED_WEIGHTS", weights)
+    monkeypatch.setattr("sde_torchrl.envs.ballcatch.models.SCRIPTED_WEIGHTS", weights)
     assert low <= episode_return(env, "scripted", 0) <= high
 
 
@@ -241,7 +242,7 @@ def test_batched_partial_reset(benv):
     assert out["observation"][1, 2] == pytest.approx(float(start[1, 2]), abs=1e-5)  # back up top
     assert (out["observation"][1, :2] - start[1, :2]).abs().max() <= 0.1  # within twice the jitter
     torch.testing.assert_close(out["observation"][[0, 2]], moved[[0, 2]])
-    np.testing.assert_array_equal(benv._t, [60, 0, 60])
+    assert [e.t for e in benv.episodes] == [60, 0, 60]
 
 
 def test_batched_seed_is_private_and_reproducible(benv):
@@ -516,8 +517,7 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     try:
         assert {env.base_env.config.model for env in (trainer.env, trainer.eval_env)} == {"pybrain"}
     finally:
-        trainer.env.close()
-        trainer.eval_env.close()
+        trainer.close()
     result = run_cli("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=2", "episode_queue=2",
                      "env.episode_length=20", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]

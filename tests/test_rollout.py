@@ -9,8 +9,9 @@ from torchrl.envs import RewardScaling
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
-from sde_torchrl.envs.ballcatch import GROUND_Z, SCRIPTED_WEIGHTS
-from sde_torchrl.envs.ballcatch_torchrl import make_ballcatch_env
+from sde_torchrl.envs.ballcatch import make_ballcatch_env
+from sde_torchrl.envs.ballcatch.models import SCRIPTED_WEIGHTS
+from sde_torchrl.envs.ballcatch.task import GROUND_Z
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.rollout import (
     collect_episodes,
