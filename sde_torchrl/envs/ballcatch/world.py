@@ -125,8 +125,9 @@ class BallCatchWorld:
         except pybullet.error as err:
             self.close()
             raise RuntimeError(f"BallCatch {name}: building the world failed: {err}") from err
-        self._max_torques = tuple(float(t) for t in self.config.max_torques)
-        self._transmission = self.config.arm.transmission
+        torques = self.config.max_torques
+        # per joint: its actuator, that actuator's maximum torque and the joint's share of it
+        self._drive = tuple((a, float(torques[a]), gain) for a, gain in self.config.arm.transmission)
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> None:
@@ -219,8 +220,7 @@ class BallCatchWorld:
         the fraction of its actuator's torque that :attr:`ArmModel.transmission` gives (model
         "cup": every proximal finger joint the full finger torque, every distal one
         :data:`~sde_torchrl.envs.ballcatch.models.DISTAL_TORQUE_RATIO` of it)."""
-        scaled = [a * s for a, s in zip(action, self._max_torques, strict=True)]
-        return [scaled[actuator] * gain for actuator, gain in self._transmission]
+        return [action[actuator] * torque * gain for actuator, torque, gain in self._drive]
 
     def step(self, action: Sequence[float]) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """Apply the torques of ``action`` (:meth:`joint_forces`) for one 0.01 s physics step.
