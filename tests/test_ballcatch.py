@@ -328,14 +328,17 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     assert len(worlds) == 4 and not any(w.is_connected() for w in worlds)
 
 
-def test_benchmark_prints_one_json_line_with_its_figures():
+@pytest.mark.parametrize("model", ["cup", "pybrain"])
+def test_benchmark_prints_one_json_line_with_its_figures(model):
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "analysis/bench_ballcatch.py", "--worlds", "2", "--steps", "5",
-                             "--repeats", "1"], cwd=root, capture_output=True, text=True, timeout=300)
+                             "--repeats", "1", "--model", model], cwd=root, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     figures = json.loads(result.stdout.strip().splitlines()[-1])
-    assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0
+    assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0 and figures["model"] == model
     assert figures["ratio"] == pytest.approx(figures["env_steps_per_s"] / figures["raw_steps_per_s"], rel=1e-2)
+    assert figures["rex_ratio"] == pytest.approx(figures["rex_env_steps_per_s"] / figures["rex_raw_steps_per_s"],
+                                                 rel=1e-2)
     # the stricter of the two replay orders is the denominator
     assert figures["raw_steps_per_s"] == max(figures["raw_episode_order_steps_per_s"],
                                              figures["raw_lockstep_steps_per_s"])
