@@ -14,7 +14,7 @@ __all__ = ["linear_episode"]
 
 
 def linear_episode(
-    episode: CatchEpisode, matrices: Sequence[Sequence[Sequence[float]]], squash: bool = True
+    episode: CatchEpisode, matrices: Sequence[Sequence[float]], squash: bool = True
 ) -> tuple[list, list, list]:
     """One episode of a freshly reset world under ``u_t = M_t x_t``, ``x_t`` the ball position.
 
@@ -24,8 +24,9 @@ def linear_episode(
 
     Args:
         episode: the world's episode, just reset.
-        matrices: ``M_t`` for every step, each ``4 x 3`` as nested sequences (the same object
-            repeated for a map fixed per episode); their number is the episode length.
+        matrices: ``M_t`` for every step, each ``4 x 3`` flattened row by row into 12 floats
+            (the same object repeated for a map fixed per episode); their number is the episode
+            length.
         squash: the action is ``tanh(u)`` (else ``u``, which the task rules clip to ``[-1, 1]``).
 
     Returns:
@@ -38,7 +39,7 @@ def linear_episode(
         >>> world = BallCatchWorld()
         >>> episode = CatchEpisode(world)
         >>> episode.reset((0.0, 0.0))
-        >>> observations, samples, rewards = linear_episode(episode, [scripted_weights().tolist()] * 500)
+        >>> observations, samples, rewards = linear_episode(episode, [scripted_weights().ravel().tolist()] * 500)
         >>> len(observations), len(samples), sum(rewards) / 500 > -1.0  # the scripted catch
         (501, 500, True)
         >>> world.close()
@@ -46,10 +47,10 @@ def linear_episode(
     ball = episode.ball
     observations, samples, rewards = [ball], [], []
     step, tanh = episode.step, math.tanh
-    for m0, m1, m2, m3 in matrices:
+    for a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2 in matrices:
         x0, x1, x2 = ball
-        u = (m0[0] * x0 + m0[1] * x1 + m0[2] * x2, m1[0] * x0 + m1[1] * x1 + m1[2] * x2,
-             m2[0] * x0 + m2[1] * x1 + m2[2] * x2, m3[0] * x0 + m3[1] * x1 + m3[2] * x2)
+        u = (a0 * x0 + a1 * x1 + a2 * x2, b0 * x0 + b1 * x1 + b2 * x2,
+             c0 * x0 + c1 * x1 + c2 * x2, d0 * x0 + d1 * x1 + d2 * x2)
         samples.append(u)
         rewards.append(step([tanh(v) for v in u] if squash else u))
         ball = episode.ball
