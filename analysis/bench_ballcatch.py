@@ -21,7 +21,9 @@ Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats``
   (``raw_lockstep_steps_per_s``); ``ratio = env_steps_per_s / raw_steps_per_s``;
 * ``rex_env_steps_per_s``, ``rex_raw_steps_per_s`` and ``rex_ratio``: the same for the REX
   policy (whole episodes per world under the per-step maps ``Θ + σ̂ ⊙ ξ_t``), against the replay
-  of its own actions;
+  of its own actions; ``rex_step_env_steps_per_s``: REX collected by stepping all worlds together
+  with a policy call per step (:func:`sde_torchrl.rollout.tensor_rollout`, REX's path before
+  it ran whole episodes);
 * ``raw_loop_steps_per_s``: the bare lockstep replay loop of the SDE actions,
   ``setJointMotorControlArray`` + ``stepSimulation`` per world and step;
 * ``step_env_steps_per_s`` and ``step_ratio``: the env stepped for all worlds at once with the
@@ -183,6 +185,7 @@ def main() -> None:
                 record(f"{method}_raw_loop", raw_loop)
             step_sps, step_actions, _ = time_collect(env, args.steps, args.seed, episodes=False)
             record("step_env", step_sps)
+            record("rex_step_env", time_collect(env, args.steps, args.seed, False, SCHEDULES["rex"])[0])
             record("core", time_core(env, step_actions))
             record("torchrl", time_torchrl(env, args.steps, args.seed, args.worlds, args.model))
     finally:
@@ -208,6 +211,7 @@ def main() -> None:
         "rex_env_steps_per_s": round(best["rex_env"], 1),
         "rex_raw_steps_per_s": round(raw["rex"], 1),
         "rex_ratio": round(best["rex_env"] / raw["rex"], 3),
+        "rex_step_env_steps_per_s": round(best["rex_step_env"], 1),
         "raw_episode_order_steps_per_s": round(best["sde_raw_episode"], 1),
         "raw_lockstep_steps_per_s": round(best["sde_raw_lockstep"], 1),
         "raw_loop_steps_per_s": round(best["sde_raw_loop"], 1),
