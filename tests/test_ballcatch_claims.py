@@ -1,18 +1,16 @@
 """The ball-catching comparisons of the paper (Fig. 5 and 6) on the full budget: 100 runs each of
-SDE and REX, with REINFORCE and with ENAC. Slow (about 45 and 35 minutes on 2 cores):
+SDE and REX, with REINFORCE and with ENAC. Slow (the README gives the sweep times):
 ``python -m pytest -m slow tests/test_ballcatch_claims.py``."""
 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
+from _helpers import load_script, run_cli
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
-import fig5  # noqa: E402
-from _helpers import run_cli  # noqa: E402
+fig5 = load_script("fig5")
 
 
 def _sweep(tmp_path: Path, experiment: str, estimator: str) -> dict:
