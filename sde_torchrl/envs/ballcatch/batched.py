@@ -219,11 +219,11 @@ class BatchedBallCatchEnv(EnvBase):
         if not finite.all():
             bad = np.flatnonzero(~finite).tolist()
             raise ValueError(f"controller matrices contain non-finite values in worlds {bad}")
-        offsets, maps = self._jitter(), flat.tolist()  # rows of 12 floats: numpy lists them fastest
-        episodes = []
+        offsets, episodes = self._jitter(), []
         for i, episode in enumerate(self.episodes):
             episode.reset(offsets[i])
-            episodes.append(linear_episode(episode, maps[i] if per_step else maps[i] * steps, squash))
+            maps = flat[i].tolist()  # rows of 12 floats, one world at a time: numpy lists them fastest
+            episodes.append(linear_episode(episode, maps if per_step else maps * steps, squash))
         observations, samples, rewards = (torch.tensor([e[k] for e in episodes], dtype=torch.float64) for k in range(3))
         return (observations.float().reshape(*batch, steps + 1, 3), samples.float().reshape(*batch, steps, 4),
                 rewards.float().reshape(*batch, steps, 1))
