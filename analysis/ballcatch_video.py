@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sde_torchrl.envs.ballcatch import BallCatchEnv, episode_return, write_gif
+from sde_torchrl.envs.ballcatch import BallCatchEnv, episode_return
+from sde_torchrl.envs.ballcatch.demo import write_gif
 
 WEIGHT = "module.0.module.weight"
 """The linear controller's ``Θ`` in the policy's state dict (``summary.json: final_parameters``)."""

@@ -1,34 +1,42 @@
-"""Benchmark: batched ball-catching env (with a linear SDE policy in the loop) vs raw pybullet.
+"""Benchmark: batched ball-catching env (with a linear SDE or REX policy in the loop) vs raw pybullet.
 
-The policy is the paper's controller class, ``tanh(Θ x + (σ̂ ⊙ ξ) x)`` (``LinearActor`` +
-``StateDependentExplorer``, noise drawn once per episode), with ``Θ`` set to the shipped
-catching controller (:data:`~sde_torchrl.envs.ballcatch.SCRIPTED_WEIGHTS`) and ``σ̂ = e^-3``:
-the regime of a trained policy, where the ball is held for the whole episode and every world
-is simulated at every step. (A dropping policy is cheaper still: grounded worlds are frozen.)
+The policy is the paper's controller class, ``tanh(Θ x + Θ̂ x)`` (``LinearActor`` +
+``StateDependentExplorer``), with ``Θ`` set to the arm model's scripted catching controller
+(:func:`~sde_torchrl.envs.ballcatch.models.scripted_weights`) and ``σ̂ = e^-3``: the regime of
+a trained policy, where the ball is held for the whole episode and every world is simulated at
+every step. (A dropping policy is cheaper still: grounded worlds are frozen.) Its exploration
+is SDE (``Θ̂`` drawn once per episode) or REX (``Θ̂`` redrawn at every step).
 
 Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats`` interleaved runs:
 
-* ``env_steps_per_s``: the env with the policy in the loop, collected as the trainer collects
-  for this policy (:func:`sde_torchrl.rollout.linear_episode_rollout`: each world runs its
-  whole episode under its map ``Θ + σ̂ ⊙ ξ``, the policy's log-likelihood tensors are computed
-  for all steps afterwards);
+* ``env_steps_per_s``: the env with the SDE policy in the loop, collected as the trainer
+  collects for this policy (:func:`sde_torchrl.rollout.linear_episode_rollout`: each world runs
+  its whole episode under its map ``Θ + σ̂ ⊙ ξ``, the policy's log-likelihood tensors are
+  computed for all steps afterwards);
 * ``raw_steps_per_s``: time spent inside ``stepSimulation`` alone, replaying the env run's
-  actions as torques on the same N worlds (the same physics regime; the torque calls, reads
-  and loop are *not* counted), in whichever order is faster: world by world
-  (``raw_episode_order_steps_per_s``, the order the env uses) or all worlds per step
+  actions as torques (the world's own :meth:`~sde_torchrl.envs.ballcatch.world.BallCatchWorld.joint_forces`:
+  each model's torque scale and transmission) on the same N worlds (the same physics regime;
+  the torque calls, reads and loop are *not* counted), in whichever order is faster: world by
+  world (``raw_episode_order_steps_per_s``, the order the env uses) or all worlds per step
   (``raw_lockstep_steps_per_s``); ``ratio = env_steps_per_s / raw_steps_per_s``;
-* ``raw_loop_steps_per_s``: the bare lockstep replay loop, ``setJointMotorControlArray`` +
-  ``stepSimulation`` per world and step;
+* ``rex_env_steps_per_s``, ``rex_raw_steps_per_s`` and ``rex_ratio``: the same for the REX
+  policy (whole episodes per world under the per-step maps ``Θ + σ̂ ⊙ ξ_t``), against the replay
+  of its own actions; ``rex_step_env_steps_per_s``: REX collected by stepping all worlds together
+  with a policy call per step (:func:`sde_torchrl.rollout.tensor_rollout`, REX's path before
+  it ran whole episodes);
+* ``raw_loop_steps_per_s``: the bare lockstep replay loop of the SDE actions,
+  ``setJointMotorControlArray`` + ``stepSimulation`` per world and step;
 * ``step_env_steps_per_s`` and ``step_ratio``: the env stepped for all worlds at once with the
-  policy called once per step (:func:`sde_torchrl.rollout.tensor_rollout`, the path for any
-  other policy), against ``raw_lockstep_steps_per_s``; ``env_core_steps_per_s``: the env's
-  own ``_step`` alone in that mode;
-* ``torchrl_rollout_steps_per_s`` and ``torchrl_rollout_ratio``: the same env and policy through
-  ``TransformedEnv(env, InitTracker + primer).rollout`` (TorchRL's per-step machinery);
+  SDE policy called once per step (:func:`sde_torchrl.rollout.tensor_rollout`, the path for any
+  other policy, and REX's before it ran whole episodes), against ``raw_lockstep_steps_per_s``;
+  ``env_core_steps_per_s``: the env's own ``_step`` alone in that mode;
+* ``torchrl_rollout_steps_per_s`` and ``torchrl_rollout_ratio``: the same env and SDE policy
+  through ``TransformedEnv(env, InitTracker + primer).rollout`` (TorchRL's per-step machinery);
+* ``policy_mean_reward`` and ``rex_policy_mean_reward``: mean reward of the timed episodes;
 * with ``--workers 2``: ``parallel_env_steps_per_s``, ``env.rollout`` on a ``ParallelEnv`` of
   two batched envs (one per core) holding ``--worlds`` worlds between them.
 
-Usage: ``python analysis/bench_ballcatch.py --worlds 16 --steps 500``
+Usage: ``python analysis/bench_ballcatch.py --model pybrain --worlds 16 --steps 500``
 """
 
 from __future__ import annotations
@@ -44,29 +52,36 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, TransformedEnv
 
 from sde_torchrl.actors import LinearActor
-from sde_torchrl.envs.ballcatch import SCRIPTED_WEIGHTS, joint_torques
-from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch import ARM_MODELS, BallCatchConfig, BatchedBallCatchEnv, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch.models import scripted_weights
 from sde_torchrl.exploration import StateDependentExplorer
 from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
 
 SIGMA_PARAM = -3.0
 """log-scale of the exploration noise of the benchmark policy (σ̂ = e^-3)."""
+SCHEDULES = {"sde": "episode", "rex": "step"}
+"""The explorer's schedule for each exploration method."""
 
 
-def catching_policy(seed: int) -> tuple[TensorDictSequential, StateDependentExplorer]:
-    """The linear SDE policy with ``Θ`` = the scripted catching controller."""
+def catching_policy(
+    seed: int, model: str, schedule: str = "episode"
+) -> tuple[TensorDictSequential, StateDependentExplorer]:
+    """The linear policy with ``Θ`` = the model's scripted catching controller and exploration
+    redrawn per ``schedule`` (``episode``: SDE, ``step``: REX)."""
     torch.manual_seed(seed)
     actor = LinearActor(3, 4, bias=False)
     with torch.no_grad():
-        actor.module.weight.copy_(torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float32))
-    explorer = StateDependentExplorer(action_dim=4, feature_dim=3, squash=True, init_param=SIGMA_PARAM)
+        actor.module.weight.copy_(torch.as_tensor(scripted_weights(model), dtype=torch.float32))
+    explorer = StateDependentExplorer(action_dim=4, feature_dim=3, schedule=schedule, squash=True,
+                                      init_param=SIGMA_PARAM)
     return TensorDictSequential(actor, explorer), explorer
 
 
 def joint_forces(env: BatchedBallCatchEnv, actions: torch.Tensor) -> list[list[list[float]]]:
-    """Per step and world, the 11 joint torques the env applies for ``actions [N, K, 4]``."""
-    scaled = (actions.clamp(-1, 1).double() * torch.tensor(env.config.max_torques, dtype=torch.float64)).numpy()
-    return [joint_torques(scaled[:, k]).tolist() for k in range(scaled.shape[1])]
+    """Per step and world, the joint torques the env applies for ``actions [N, K, 4]``."""
+    clipped = actions.clamp(-1, 1).double().tolist()
+    return [[world.joint_forces(a[k]) for world, a in zip(env.worlds, clipped, strict=True)]
+            for k in range(actions.shape[1])]
 
 
 def time_raw(env: BatchedBallCatchEnv, forces: list[list[list[float]]], lockstep: bool) -> tuple[float, float]:
@@ -102,12 +117,16 @@ def time_core(env: BatchedBallCatchEnv, actions: torch.Tensor) -> float:
     return actions.shape[1] * env.num_worlds / (time.perf_counter() - start)
 
 
-def time_collect(env: BatchedBallCatchEnv, steps: int, seed: int, episodes: bool) -> tuple[float, torch.Tensor, float]:
+def time_collect(
+    env: BatchedBallCatchEnv, steps: int, seed: int, episodes: bool, schedule: str = "episode"
+) -> tuple[float, torch.Tensor, float]:
     """One collection as the trainer does it, by whole episodes per world (``episodes``) or by
     stepping all worlds together; returns ``(world-steps/s, actions [N, K, 4], mean reward)``."""
-    policy, explorer = catching_policy(seed)
+    policy, explorer = catching_policy(seed, env.config.model, schedule)
     tenv = TransformedEnv(env, Compose(InitTracker(), explorer.make_tensordict_primer()))
     base = linear_episode_env(tenv, policy) if episodes else tensor_step_env(tenv, policy)
+    if base is None:
+        raise RuntimeError(f"the {'whole-episode' if episodes else 'tensor-stepping'} path refused the policy")
     collect = linear_episode_rollout if episodes else tensor_rollout
     with torch.no_grad():
         collect(base, policy, 2)  # warm-up (first-call overheads)
@@ -117,9 +136,9 @@ def time_collect(env: BatchedBallCatchEnv, steps: int, seed: int, episodes: bool
     return steps * env.num_worlds / elapsed, td["action"].clone(), float(td["next", "reward"].mean())
 
 
-def time_torchrl(env, steps: int, seed: int, num_worlds: int) -> float:
+def time_torchrl(env, steps: int, seed: int, num_worlds: int, model: str) -> float:
     """World-steps per second of ``TransformedEnv(env, ...).rollout(steps, policy)``."""
-    policy, explorer = catching_policy(seed)
+    policy, explorer = catching_policy(seed, model)
     tenv = TransformedEnv(env, Compose(InitTracker(), explorer.make_tensordict_primer()))
     tenv.set_seed(seed)
     with torch.no_grad():
@@ -133,6 +152,7 @@ def time_torchrl(env, steps: int, seed: int, num_worlds: int) -> float:
 def main() -> None:
     """Parse arguments, run the timings and print one JSON line."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", choices=tuple(ARM_MODELS), default=BallCatchConfig.model, help="the arm")
     parser.add_argument("--worlds", type=int, default=16)
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--seed", type=int, default=0)
@@ -145,49 +165,63 @@ def main() -> None:
     if args.workers >= 2 and args.worlds % args.workers:
         parser.error(f"--worlds ({args.worlds}) must be divisible by --workers ({args.workers})")
     torch.set_num_threads(1)
-    env = BatchedBallCatchEnv(num_worlds=args.worlds, seed=args.seed)
-    kinds = ("env", "raw_episode", "raw_lockstep", "raw_loop", "step_env", "core", "torchrl")
-    timings: dict[str, list[float]] = {k: [] for k in kinds}
+    config = BallCatchConfig(model=args.model)
+    env = BatchedBallCatchEnv(num_worlds=args.worlds, config=config, seed=args.seed)
+    timings: dict[str, list[float]] = {}
+    mean_reward = {}
+
+    def record(kind: str, value: float) -> None:
+        timings.setdefault(kind, []).append(value)
+
     try:
         for _ in range(args.repeats):  # interleaved, so background load hits all alike
-            sps, actions, mean_reward = time_collect(env, args.steps, args.seed, episodes=True)
-            timings["env"].append(sps)
-            forces = joint_forces(env, actions)
-            timings["raw_episode"].append(time_raw(env, forces, lockstep=False)[0])
-            raw, raw_loop = time_raw(env, forces, lockstep=True)
-            timings["raw_lockstep"].append(raw)
-            timings["raw_loop"].append(raw_loop)
+            for method, schedule in SCHEDULES.items():
+                sps, actions, mean_reward[method] = time_collect(env, args.steps, args.seed, True, schedule)
+                record(f"{method}_env", sps)
+                forces = joint_forces(env, actions)
+                record(f"{method}_raw_episode", time_raw(env, forces, lockstep=False)[0])
+                raw, raw_loop = time_raw(env, forces, lockstep=True)
+                record(f"{method}_raw_lockstep", raw)
+                record(f"{method}_raw_loop", raw_loop)
             step_sps, step_actions, _ = time_collect(env, args.steps, args.seed, episodes=False)
-            timings["step_env"].append(step_sps)
-            timings["core"].append(time_core(env, step_actions))
-            timings["torchrl"].append(time_torchrl(env, args.steps, args.seed, args.worlds))
+            record("step_env", step_sps)
+            record("rex_step_env", time_collect(env, args.steps, args.seed, False, SCHEDULES["rex"])[0])
+            record("core", time_core(env, step_actions))
+            record("torchrl", time_torchrl(env, args.steps, args.seed, args.worlds, args.model))
     finally:
         env.close()
     best = {k: max(v) for k, v in timings.items()}
+    raw = {m: max(best[f"{m}_raw_episode"], best[f"{m}_raw_lockstep"]) for m in SCHEDULES}
     extra = {}
     if args.workers >= 2:
-        parallel = make_parallel_ballcatch(args.workers, args.worlds // args.workers)
+        parallel = make_parallel_ballcatch(args.workers, args.worlds // args.workers, config)
         try:
             extra["parallel_workers"] = args.workers
-            extra["parallel_env_steps_per_s"] = round(time_torchrl(parallel, args.steps, args.seed, args.worlds), 1)
+            extra["parallel_env_steps_per_s"] = round(
+                time_torchrl(parallel, args.steps, args.seed, args.worlds, args.model), 1)
         finally:
             parallel.close()
-    raw = max(best["raw_episode"], best["raw_lockstep"])
     print(json.dumps({
+        "model": args.model,
         "worlds": args.worlds,
         "steps": args.steps,
-        "env_steps_per_s": round(best["env"], 1),
-        "raw_steps_per_s": round(raw, 1),
-        "ratio": round(best["env"] / raw, 3),
-        "raw_episode_order_steps_per_s": round(best["raw_episode"], 1),
-        "raw_lockstep_steps_per_s": round(best["raw_lockstep"], 1),
-        "raw_loop_steps_per_s": round(best["raw_loop"], 1),
+        "env_steps_per_s": round(best["sde_env"], 1),
+        "raw_steps_per_s": round(raw["sde"], 1),
+        "ratio": round(best["sde_env"] / raw["sde"], 3),
+        "rex_env_steps_per_s": round(best["rex_env"], 1),
+        "rex_raw_steps_per_s": round(raw["rex"], 1),
+        "rex_ratio": round(best["rex_env"] / raw["rex"], 3),
+        "rex_step_env_steps_per_s": round(best["rex_step_env"], 1),
+        "raw_episode_order_steps_per_s": round(best["sde_raw_episode"], 1),
+        "raw_lockstep_steps_per_s": round(best["sde_raw_lockstep"], 1),
+        "raw_loop_steps_per_s": round(best["sde_raw_loop"], 1),
         "step_env_steps_per_s": round(best["step_env"], 1),
-        "step_ratio": round(best["step_env"] / best["raw_lockstep"], 3),
+        "step_ratio": round(best["step_env"] / best["sde_raw_lockstep"], 3),
         "env_core_steps_per_s": round(best["core"], 1),
         "torchrl_rollout_steps_per_s": round(best["torchrl"], 1),
-        "torchrl_rollout_ratio": round(best["torchrl"] / best["raw_lockstep"], 3),
-        "policy_mean_reward": round(mean_reward, 4),
+        "torchrl_rollout_ratio": round(best["torchrl"] / best["sde_raw_lockstep"], 3),
+        "policy_mean_reward": round(mean_reward["sde"], 4),
+        "rex_policy_mean_reward": round(mean_reward["rex"], 4),
         **extra,
     }))
 

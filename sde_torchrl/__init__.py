@@ -13,8 +13,8 @@ from sde_torchrl.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make
 register_ballcatch()  # gymnasium.make("sde_torchrl/BallCatch-v0"); pybullet loads on first use
 
 #: Public names whose modules import pybullet: loaded on first access (PEP 562).
-_LAZY = {"BallCatchEnv": "sde_torchrl.envs.ballcatch",
-         "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch_torchrl"}
+_LAZY = {"BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
+         "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched"}
 
 
 def __getattr__(name: str):

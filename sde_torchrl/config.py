@@ -41,6 +41,7 @@ SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
 ACTIVATIONS = ("sigmoid", "tanh", "relu")
 NORMALIZATIONS = ("bounds", "stats")
+ARM_MODELS = ("cup", "pybrain")
 
 
 # ------------------------------------------------------------------------------ schemas
@@ -89,20 +90,25 @@ class BallCatchEnvConf:
     Attributes:
         episode_length: steps of 0.01 s per episode.
         jitter: half-width of the uniform horizontal release offset, in ``[0, 0.4]``.
+        model: the arm, ``cup`` or ``pybrain`` (after PyBrain's ``arm.xode``).
 
     Examples:
         >>> BallCatchEnvConf().episode_length
         500
+        >>> BallCatchEnvConf(model="pybrain").model
+        'pybrain'
     """
 
-    _target_: str = "sde_torchrl.envs.ballcatch_torchrl.make_ballcatch_env"
+    _target_: str = "sde_torchrl.envs.ballcatch.batched.make_ballcatch_env"
     episode_length: int = 500
     jitter: float = 0.05
+    model: str = "cup"
 
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
         if not is_finite_number(self.jitter) or not 0 <= self.jitter <= 0.4:
             raise ArgumentError("env.jitter", self.jitter, "a number in [0, 0.4]")
+        one_of("env.model", self.model, ARM_MODELS)
 
 
 @dataclass

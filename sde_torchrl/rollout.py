@@ -7,11 +7,12 @@ faster path. :func:`collect_episodes` tries the paths in this order and takes th
 eligibility function accepts the env and the policy:
 
 1. **Linear episodes** (:func:`linear_episode_env`, :func:`linear_episode_rollout`): the policy
-   is a bias-free linear controller ``Θ x`` with SDE redrawn once per episode and no Gaussian
-   noise (the paper's ball-catching controller), so each episode follows one fixed linear map
-   ``Θ + σ̂ ⊙ ξ`` (eqs. 17-19, :func:`episode_matrix`); an env that is a
-   :class:`LinearEpisodeEnv` runs every world's whole episode under its map, and ``loc``,
-   ``scale`` and the likelihoods are computed for all steps at once.
+   is a bias-free linear controller ``Θ x`` with no Gaussian noise whose exploration is redrawn
+   once per episode (SDE, the paper's ball-catching controller) or at every step (REX), so
+   each step's action is a linear map known before the episode starts: ``Θ + σ̂ ⊙ ξ`` for the
+   whole episode or ``Θ + σ̂ ⊙ ξ_t`` at step ``t`` (eqs. 17-19, :func:`episode_matrix`); an env
+   that is a :class:`LinearEpisodeEnv` runs every world's whole episode under its maps, and
+   ``loc``, ``scale`` and the likelihoods are computed for all steps at once.
 2. **Tensor stepping** (:func:`tensor_step_env`, :func:`tensor_rollout`): the env is a
    :class:`TensorStepEnv` (dynamics as tensor functions) and the policy a ``TensorDictModule``
    followed by a :class:`TensorExplorer`; both are called on tensors at every step and one
@@ -28,14 +29,14 @@ What every path guarantees, for the same env, policy and random-stream states:
   task for every schedule, MLP actors, squashing and Gaussian noise, and on the ball-catching
   worlds: ``tests/test_rollout.py::test_tensor_rollout_equals_env_rollout`` and
   ``::test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds``. Linear episodes draw
-  the same ``ξ`` bit for bit and leave the streams where tensor stepping leaves them
-  (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act``); the env evaluates
-  the map in float64 where tensor stepping rounds to float32, so before the ball reaches the
-  hand ``observation``, ``is_init``, ``done`` and ``truncated`` are identical and ``loc``,
-  ``action_sample``, ``action``, ``scale``, the next observation and the reward agree to 1e-4,
-  and mean episode rewards to 0.02 over 120 steps
-  (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, random and deterministic
-  exploration).
+  the same ``ξ`` (per episode or per step) bit for bit and leave the streams where tensor
+  stepping leaves them (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act``);
+  the env evaluates the maps in float64 where tensor stepping rounds to float32, so before the
+  ball reaches the hand ``observation``, ``is_init``, ``done`` and ``truncated`` are identical
+  and ``loc``, ``action_sample``, ``action``, ``scale``, the next observation and the reward
+  agree to 1e-4, and mean episode rewards to 0.02 over 120 steps
+  (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, SDE and REX, random and
+  deterministic exploration).
 * **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the explorer's
   ``feature_key`` (the observation), ``loc_key``, ``scale_key``, ``log_prob_key``,
   ``sample_key``, ``action_key``, ``is_init_key`` and, unless exploration is deterministic,
@@ -72,6 +73,10 @@ OBSERVATION_KEY, REWARD_KEY, DONE_KEY, TRUNCATED_KEY = "observation", "reward", 
 #: explorer's primer). Any other transform must run, so it rules the fast paths out.
 _REPRODUCED_TRANSFORMS = (Compose, StepCounter, InitTracker, TensorDictPrimer)
 
+#: Exploration schedules under which a linear controller's maps are known before an episode
+#: starts: redrawn per episode (SDE) or per step (REX).
+LINEAR_SCHEDULES = ("episode", "step")
+
 
 # ------------------------------------------------------------------------ what the paths need
 # From Python 3.12 on, isinstance against a protocol sees only class and plain instance
@@ -100,8 +105,9 @@ class LinearEpisodeEnv(TensorStepEnv, Protocol):
     (:class:`~sde_torchrl.envs.BatchedBallCatchEnv`)."""
 
     def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
-        """Fresh episodes under ``u = M x``: ``(observations [*batch, steps + 1, S], pre-squash
-        actions [*batch, steps, A], rewards [*batch, steps, 1])``."""
+        """Fresh episodes under ``u_t = M_t x_t``, ``M`` shaped ``[*batch, A, S]`` (one map per
+        episode) or ``[*batch, steps, A, S]`` (one per step): ``(observations [*batch, steps + 1,
+        S], pre-squash actions [*batch, steps, A], rewards [*batch, steps, 1])``."""
 
 
 @runtime_checkable
@@ -244,28 +250,28 @@ def linear_episode_env(env: EnvBase, policy: TensorDictSequential) -> LinearEpis
 
     That needs what :func:`tensor_step_env` needs, an env that is a :class:`LinearEpisodeEnv`,
     an actor whose network is a bias-free :class:`~sde_torchrl.actors.BatchedLinear` stacked like
-    the explorer, and an
-    :class:`EpisodeExplorer` with the ``episode`` schedule and no Gaussian noise (the paper's
-    ball-catching controller).
+    the explorer, and an :class:`EpisodeExplorer` with the ``episode`` (SDE, the paper's
+    ball-catching controller) or ``step`` (REX) schedule and no Gaussian noise.
     """
     base = tensor_step_env(env, policy)
     if not isinstance(base, LinearEpisodeEnv):
         return None
     actor, explorer = policy.module
     linear = isinstance(actor.module, BatchedLinear) and actor.module.bias is None
-    fixed_per_episode = (isinstance(explorer, EpisodeExplorer) and explorer.schedule == "episode"
-                         and not explorer.has_gaussian)
-    return base if linear and fixed_per_episode and actor.module.run_dims == explorer.run_dims else None
+    known_maps = (isinstance(explorer, EpisodeExplorer) and explorer.schedule in LINEAR_SCHEDULES
+                  and not explorer.has_gaussian)
+    return base if linear and known_maps and actor.module.run_dims == explorer.run_dims else None
 
 
 def linear_episode_rollout(env: LinearEpisodeEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
     """Fresh episodes as :func:`tensor_rollout` collects them, for a linear controller whose
-    exploration is fixed per episode.
+    exploration is redrawn per episode (SDE) or per step (REX).
 
-    The env runs each world's whole episode under its map ``Θ + σ̂ ⊙ ξ`` (:func:`episode_matrix`),
-    then the actor and explorer compute ``loc``, ``scale`` and log-likelihoods for all steps at
-    once. Same random streams and keys as :func:`tensor_rollout`; the actions agree to float32
-    rounding (the env evaluates the map in float64).
+    The env runs each world's whole episode under its maps ``Θ + σ̂ ⊙ ξ`` (``Θ + σ̂ ⊙ ξ_t`` per
+    step for REX, :func:`episode_matrix`), then the actor and explorer compute ``loc``,
+    ``scale`` and log-likelihoods for all steps at once. Same random streams and keys as
+    :func:`tensor_rollout`; the actions agree to float32 rounding (the env evaluates the maps in
+    float64).
 
     Args:
         env: an env accepted by :func:`linear_episode_env`.
@@ -280,7 +286,7 @@ def linear_episode_rollout(env: LinearEpisodeEnv, policy: TensorDictSequential, 
     matrices, noise = episode_matrix(explorer, actor.module.weight, batch, steps)
     observations, sample, reward = env.linear_episodes(matrices, steps, explorer.squash)
     observation = observations[..., :-1, :]
-    if noise is not None:
+    if noise is not None and explorer.schedule == "episode":
         noise = noise.unsqueeze(len(batch)).expand(*batch, steps, *noise.shape[len(batch):])
     return _episodes(explorer, observation, observations[..., 1:, :], actor.module(observation), sample, reward,
                      noise)
@@ -289,22 +295,25 @@ def linear_episode_rollout(env: LinearEpisodeEnv, policy: TensorDictSequential, 
 def episode_matrix(
     explorer: EpisodeExplorer, weight: torch.Tensor, batch: torch.Size, steps: int
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """The linear map an episode of a linear controller ``Θ x`` follows: ``Θ + σ̂ ⊙ ξ``
-    (eqs. 17-19), or ``Θ`` under deterministic exploration.
+    """The linear maps an episode of a linear controller ``Θ x`` follows: ``Θ + σ̂ ⊙ ξ`` for the
+    whole episode (``episode`` schedule, SDE) or ``Θ + σ̂ ⊙ ξ_t`` at every step ``t`` (``step``
+    schedule, REX) (eqs. 17-19), or ``Θ`` under deterministic exploration.
 
-    Only for the ``episode`` schedule without Gaussian noise, where one ``ξ`` holds for the
-    whole episode. The explorer's random streams advance exactly as ``steps`` calls of its
-    ``act`` from an episode start (one fresh draw per step, the first one kept), so both ways of
-    collecting produce the same episodes.
+    Only without Gaussian noise, where these maps are all of the exploration. The explorer's
+    random streams advance exactly as ``steps`` calls of its ``act`` from an episode start (one
+    fresh draw per step; the ``episode`` schedule keeps the first), so both ways of collecting
+    produce the same episodes.
 
     Args:
-        explorer: the explorer, with the ``episode`` schedule and no Gaussian noise.
+        explorer: the explorer, with the ``episode`` or ``step`` schedule and no Gaussian noise.
         weight: ``Θ``, ``[*runs, A, S]``.
         batch: batch shape of the episodes, runs first.
         steps: episode length.
 
     Returns:
-        ``(M [*batch, A, S], ξ [*batch, A, S] or None)``.
+        ``(M, ξ)``: ``M [*batch, A, S]`` and ``ξ [*batch, A, S]`` for the ``episode`` schedule,
+        ``M [*batch, steps, A, S]`` and ``ξ [*batch, steps, A, S]`` for ``step``; under
+        deterministic exploration ``(Θ [*batch, A, S], None)`` for both.
 
     Raises:
         ValueError: for another schedule or with Gaussian noise.
@@ -315,16 +324,23 @@ def episode_matrix(
         >>> matrix, noise = episode_matrix(explorer, torch.zeros(4, 3), torch.Size([5]), steps=10)
         >>> matrix.shape, noise.shape
         (torch.Size([5, 4, 3]), torch.Size([5, 4, 3]))
+        >>> rex = StateDependentExplorer(4, 3, schedule="step")
+        >>> episode_matrix(rex, torch.zeros(4, 3), torch.Size([5]), steps=10)[0].shape
+        torch.Size([5, 10, 4, 3])
     """
-    if explorer.schedule != "episode" or explorer.has_gaussian:
-        raise ValueError("a fixed linear map per episode needs schedule='episode' and no Gaussian noise")
+    if explorer.schedule not in LINEAR_SCHEDULES or explorer.has_gaussian:
+        raise ValueError("linear maps known in advance need schedule='episode' or 'step' and no Gaussian noise")
     shape = (*batch, explorer.action_dim, explorer.feature_dim)
-    theta = align(weight, explorer.run_dims, len(batch)).expand(shape)
     if deterministic_exploration():
-        return theta, None
-    noise = draw_normal(shape, explorer.streams)
-    for _ in range(steps - 1):
-        draw_normal(shape, explorer.streams)
+        return align(weight, explorer.run_dims, len(batch)).expand(shape), None
+    draws = (draw_normal(shape, explorer.streams) for _ in range(steps))
+    if explorer.schedule == "step":
+        noise = torch.stack(list(draws), dim=len(batch))
+    else:
+        noise = next(draws)
+        for _ in draws:  # act's later draws, discarded by the episode schedule
+            pass
+    theta = align(weight, explorer.run_dims, noise.dim() - 2).expand(noise.shape)
     return theta + explorer.noise_matrix(noise), noise
 
 

@@ -20,18 +20,19 @@ from sde_torchrl.envs.ballcatch import (
     ARM_MODELS,
     BALLCATCH_ID,
     EPISODE_STEPS,
-    GROUND_Z,
-    PYBRAIN_SCRIPTED_WEIGHTS,
-    SCRIPTED_WEIGHTS,
     BallCatchConfig,
     BallCatchEnv,
     BallCatchWorld,
+    BatchedBallCatchEnv,
     episode_return,
-    main,
+    make_ballcatch_env,
+    make_parallel_ballcatch,
     register_ballcatch,
     scripted_action,
 )
-from sde_torchrl.envs.ballcatch_torchrl import BatchedBallCatchEnv, make_ballcatch_env, make_parallel_ballcatch
+from sde_torchrl.envs.ballcatch.demo import main
+from sde_torchrl.envs.ballcatch.models import PYBRAIN_SCRIPTED_WEIGHTS, SCRIPTED_WEIGHTS
+from sde_torchrl.envs.ballcatch.task import GROUND_Z
 
 SEEDS = range(5)
 
@@ -72,7 +73,7 @@ def test_catch_needs_a_closed_hand(env, monkeypatch, finger_row, low, high):
     paper's R ~ -1.5 regime, not a catch); a hand closed from the start holds the ball in its cup."""
     weights = SCRIPTED_WEIGHTS.copy()
     weights[3] = finger_row
-    monkeypatch.setattr("sde_torchrl.envs.ballcatch.SCRIPTED_WEIGHTS", weights)
+    monkeypatch.setattr("sde_torchrl.envs.ballcatch.models.SCRIPTED_WEIGHTS", weights)
     assert low <= episode_return(env, "scripted", 0) <= high
 
 
@@ -241,7 +242,7 @@ def test_batched_partial_reset(benv):
     assert out["observation"][1, 2] == pytest.approx(float(start[1, 2]), abs=1e-5)  # back up top
     assert (out["observation"][1, :2] - start[1, :2]).abs().max() <= 0.1  # within twice the jitter
     torch.testing.assert_close(out["observation"][[0, 2]], moved[[0, 2]])
-    np.testing.assert_array_equal(benv._t, [60, 0, 60])
+    assert [e.t for e in benv.episodes] == [60, 0, 60]
 
 
 def test_batched_seed_is_private_and_reproducible(benv):
@@ -327,14 +328,17 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     assert len(worlds) == 4 and not any(w.is_connected() for w in worlds)
 
 
-def test_benchmark_prints_one_json_line_with_its_figures():
+@pytest.mark.parametrize("model", ["cup", "pybrain"])
+def test_benchmark_prints_one_json_line_with_its_figures(model):
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "analysis/bench_ballcatch.py", "--worlds", "2", "--steps", "5",
-                             "--repeats", "1"], cwd=root, capture_output=True, text=True, timeout=300)
+                             "--repeats", "1", "--model", model], cwd=root, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     figures = json.loads(result.stdout.strip().splitlines()[-1])
-    assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0
+    assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0 and figures["model"] == model
     assert figures["ratio"] == pytest.approx(figures["env_steps_per_s"] / figures["raw_steps_per_s"], rel=1e-2)
+    assert figures["rex_ratio"] == pytest.approx(figures["rex_env_steps_per_s"] / figures["rex_raw_steps_per_s"],
+                                                 rel=1e-2)
     # the stricter of the two replay orders is the denominator
     assert figures["raw_steps_per_s"] == max(figures["raw_episode_order_steps_per_s"],
                                              figures["raw_lockstep_steps_per_s"])
@@ -500,3 +504,25 @@ def test_model_option_reaches_gymnasium_and_is_checked():
         BallCatchConfig(model="ode")
     with pytest.raises(ValueError, match="contradicts"):
         BallCatchEnv(config=BallCatchConfig(), model="pybrain")
+
+
+def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
+    """``env.model`` (checked against a copy of the model names: config.py imports no pybullet)
+    reaches the batched env that ``train.py`` builds."""
+    from _helpers import compose_config, run_cli
+
+    from sde_torchrl import build, config
+
+    assert config.ARM_MODELS == tuple(ARM_MODELS)
+    cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=1",
+                         "env.episode_length=5", "eval_episodes=1", "logger=none")
+    trainer = build.build_trainer(cfg)
+    try:
+        assert {env.base_env.config.model for env in (trainer.env, trainer.eval_env)} == {"pybrain"}
+    finally:
+        trainer.close()
+    result = run_cli("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=2", "episode_queue=2",
+                     "env.episode_length=20", run_dir=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    bad = run_cli("+experiment=ballcatch", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
+    assert bad.returncode != 0 and "env.model=ode: one of cup, pybrain" in bad.stderr

@@ -9,8 +9,9 @@ from torchrl.envs import RewardScaling
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
-from sde_torchrl.envs.ballcatch import GROUND_Z, SCRIPTED_WEIGHTS
-from sde_torchrl.envs.ballcatch_torchrl import make_ballcatch_env
+from sde_torchrl.envs.ballcatch import make_ballcatch_env
+from sde_torchrl.envs.ballcatch.models import SCRIPTED_WEIGHTS
+from sde_torchrl.envs.ballcatch.task import GROUND_Z
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.rollout import (
     collect_episodes,
@@ -99,14 +100,15 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
 
 
 # ---------------------------------------------- whole episodes of fixed linear maps (fast path)
-def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, worlds=2, steps=120):
-    """The paper's controller (scripted weights) with SDE on ``[runs, worlds]`` ball-catching worlds."""
+def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, worlds=2, steps=120, every_n=None):
+    """The paper's controller (scripted weights) with SDE (or REX, ``schedule="step"``) on
+    ``[runs, worlds]`` ball-catching worlds."""
 
     actor = LinearActor(3, 4, bias=bias, runs=runs)
     with torch.no_grad():
         actor.module.weight.copy_(torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float32))
-    explorer = StateDependentExplorer(4, 3, schedule=schedule, squash=True, init_param=-2.0, runs=runs,
-                                      gaussian_init_param=gaussian)
+    explorer = StateDependentExplorer(4, 3, schedule=schedule, every_n=every_n, squash=True, init_param=-2.0,
+                                      runs=runs, gaussian_init_param=gaussian)
     explorer.streams = RunStreams(0, runs, "explore")
     env = make_ballcatch_env(worlds, runs=runs, episode_length=steps)
     env.set_seed(3)
@@ -114,14 +116,16 @@ def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, world
     return env, TensorDictSequential(actor, explorer)
 
 
+@pytest.mark.parametrize("schedule", ["episode", "step"])
 @pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
-def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode):
-    # The worlds run the same physics under the same release jitter and noise; only the
-    # controller's float64 arithmetic differs (float32 on the step path), so the episodes agree
-    # to rounding until contacts amplify it (the ball reaches the hand after ~95 steps).
+def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode, schedule):
+    # The worlds run the same physics under the same release jitter and noise (one ξ per episode
+    # for SDE, one per step for REX); only the controller's float64 arithmetic differs (float32
+    # on the step path), so the episodes agree to rounding until contacts amplify it (the ball
+    # reaches the hand after ~95 steps).
     steps, before_contact = 120, 60
-    env, policy = _catching_setup()
-    env2, policy2 = _catching_setup()
+    env, policy = _catching_setup(schedule)
+    env2, policy2 = _catching_setup(schedule)
     base = linear_episode_env(env2, policy2)
     assert base is env2.base_env
     with torch.no_grad(), set_exploration_type(mode):
@@ -179,8 +183,10 @@ def test_linear_episodes_reject_bad_matrices():
 @pytest.mark.parametrize("setup, usable", [
     (dict(), True),
     (dict(bias=True), False),
-    (dict(schedule="step"), False),
+    (dict(schedule="step"), True),
+    (dict(schedule="every_n", every_n=5), False),
     (dict(gaussian=-1.0), False),
+    (dict(schedule="step", gaussian=-1.0), False),
 ])
 def test_linear_episode_path_needs_a_bias_free_linear_map_fixed_per_episode(setup, usable):
     env, policy = _catching_setup(**setup)
@@ -194,27 +200,52 @@ def test_linear_episode_path_needs_an_env_that_runs_linear_episodes():
     assert linear_episode_env(env, policy) is None
 
 
-def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act():
+@pytest.mark.parametrize("schedule", ["episode", "step"])
+def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act(schedule):
     runs, steps = 2, 5
-    env, policy = _catching_setup(runs=runs)
+    env, policy = _catching_setup(schedule, runs=runs)
     actor, explorer = policy.module
     weight = actor.module.weight.detach()
     matrix, noise = episode_matrix(explorer, weight, torch.Size([runs, 3]), steps)
     after_matrix = explorer.streams.normal((runs, 7))
 
     explorer.streams = RunStreams(0, runs, "explore")
-    x, previous = torch.randn(runs, 3, 3), None
+    x, previous, noises = torch.randn(runs, 3, 3), None, []
     for t in range(steps):
         _, previous, _ = explorer.act(torch.zeros(runs, 3, 4), x, previous,
                                       torch.full((runs, 3, 1), t == 0))
-    torch.testing.assert_close(noise, previous, rtol=0, atol=0)
+        noises.append(previous)
+    expected = previous if schedule == "episode" else torch.stack(noises, dim=2)  # [runs, 3, (steps,) 4, 3]
+    torch.testing.assert_close(noise, expected, rtol=0, atol=0)
     torch.testing.assert_close(explorer.streams.normal((runs, 7)), after_matrix, rtol=0, atol=0)
     sigma = explorer.sde_sigma.detach()[:, None]
-    torch.testing.assert_close(matrix, weight[:, None] + sigma * noise)
+    theta = weight[:, None]
+    if schedule == "step":
+        sigma, theta = sigma[:, None], theta[:, None]
+    torch.testing.assert_close(matrix, theta + sigma * noise)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         deterministic, none = episode_matrix(explorer, weight, torch.Size([runs, 3]), steps)
     assert none is None and torch.equal(deterministic, weight[:, None].expand(runs, 3, 4, 3))
     env.close()
+
+
+def test_per_step_maps_run_like_one_map_per_episode():
+    """The same map given once per step gives the episodes of one map per episode, bit for bit."""
+    env, _ = _catching_setup(steps=150)
+    env2, _ = _catching_setup(steps=150)
+    matrices = torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float32) + 0.1 * torch.randn(2, 2, 4, 3)
+    per_episode = env.base_env.linear_episodes(matrices, 150)
+    per_step = env2.base_env.linear_episodes(matrices.unsqueeze(2).expand(2, 2, 150, 4, 3), 150)
+    for expected, got in zip(per_episode, per_step, strict=True):
+        assert torch.equal(got, expected)
+    with pytest.raises(ValueError, match=r"or \(2, 2, 10, 4, 3\), got \(2, 2, 9, 4, 3\)"):
+        env.base_env.linear_episodes(torch.zeros(2, 2, 9, 4, 3), 10)
+    bad = torch.zeros(2, 2, 10, 4, 3)
+    bad[1, 0, 7, 3, 2] = float("inf")
+    with pytest.raises(ValueError, match=r"non-finite values in worlds \[2\]"):
+        env.base_env.linear_episodes(bad, 10)
+    env.close()
+    env2.close()
 
 
 # ------------------------------------------------------------------------------ the entry point
@@ -238,10 +269,11 @@ def test_collect_episodes_steps_tensors_where_it_can(schedule, mode):
     assert not episodes["loc"].requires_grad  # collected without a graph
 
 
+@pytest.mark.parametrize("schedule", ["episode", "step"])
 @pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
-def test_collect_episodes_runs_linear_episodes_where_it_can(mode):
-    env, policy = _catching_setup(steps=30)
-    env2, policy2 = _catching_setup(steps=30)
+def test_collect_episodes_runs_linear_episodes_where_it_can(mode, schedule):
+    env, policy = _catching_setup(schedule, steps=30)
+    env2, policy2 = _catching_setup(schedule, steps=30)
     with set_exploration_type(mode):
         with torch.no_grad():
             reference = linear_episode_rollout(env.base_env, policy, 30)

@@ -25,6 +25,6 @@ def register_ballcatch() -> None:
         return
     gym.register(
         id=BALLCATCH_ID,
-        entry_point="sde_torchrl.envs.ballcatch:BallCatchEnv",
+        entry_point="sde_torchrl.envs.ballcatch.gym_env:BallCatchEnv",
         max_episode_steps=EPISODE_STEPS,
     )

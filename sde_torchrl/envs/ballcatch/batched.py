@@ -1,9 +1,11 @@
 """Batched TorchRL form of the ball-catching task: N pybullet worlds stepped together in one process.
 
-Each world is a :class:`~sde_torchrl.envs.ballcatch.BallCatchWorld` (its own DIRECT physics
-client); the env has ``batch_size [N]`` so a policy runs once per step for all N worlds. Physics,
-reward and episode length are exactly those of the gymnasium env
-:class:`~sde_torchrl.envs.ballcatch.BallCatchEnv`.
+Each world is a :class:`~sde_torchrl.envs.ballcatch.world.BallCatchWorld` (its own DIRECT physics
+client) stepped through the task rules (:class:`~sde_torchrl.envs.ballcatch.task.CatchEpisode`,
+as in the gymnasium env :class:`~sde_torchrl.envs.ballcatch.gym_env.BallCatchEnv`); the env has
+``batch_size [N]`` so a policy runs once per step for all N worlds. Whole episodes of linear
+controllers run world by world instead (:meth:`BatchedBallCatchEnv.linear_episodes`,
+:mod:`~sde_torchrl.envs.ballcatch.episodes`).
 
 To use a second core, run two batched envs in two processes with :func:`make_parallel_ballcatch`
 (a :class:`torchrl.envs.ParallelEnv`, batch size ``[workers, N]``).
@@ -12,7 +14,6 @@ To use a second core, run two batched envs in two processes with :func:`make_par
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 import torch
@@ -20,16 +21,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, InitTracker, ParallelEnv, TransformedEnv
 
-from sde_torchrl.envs.ballcatch import (
-    DISTANCE_CAP,
-    EPISODE_STEPS,
-    GROUND_REWARD,
-    MIN_DISTANCE,
-    BallCatchConfig,
-    BallCatchWorld,
-    joint_torques,
-    step_reward,
-)
+from sde_torchrl.envs.ballcatch.episodes import linear_episode
+from sde_torchrl.envs.ballcatch.task import EPISODE_STEPS, CatchEpisode
+from sde_torchrl.envs.ballcatch.world import BallCatchConfig, BallCatchWorld
 from sde_torchrl.rng import RunStreams
 
 __all__ = ["BatchedBallCatchEnv", "make_ballcatch_env", "make_parallel_ballcatch"]
@@ -95,13 +89,6 @@ class BatchedBallCatchEnv(EnvBase):
         self.max_steps = max_steps
         self.runs, self.first_run, self.stream = runs, first_run, stream
         self._set_seed(seed)
-        self._torque_scale = np.asarray(self.config.max_torques, dtype=np.float64)
-        self._transmission = self.config.arm.transmission
-        self._ground_z = self.config.arm.ground_z
-        self._t = np.zeros(num_worlds, dtype=np.int64)
-        self._grounded = np.zeros(num_worlds, dtype=bool)
-        self._ball = np.zeros((num_worlds, 3), dtype=np.float64)
-        self._palm = np.zeros((num_worlds, 3), dtype=np.float64)
         self.worlds: list[BallCatchWorld] = []
         try:
             for i in range(num_worlds):
@@ -109,6 +96,7 @@ class BatchedBallCatchEnv(EnvBase):
         except Exception:
             self._close_worlds()
             raise
+        self.episodes = [CatchEpisode(world, max_steps) for world in self.worlds]
         self._make_specs()
 
     # ------------------------------------------------------------------ specs
@@ -151,42 +139,18 @@ class BatchedBallCatchEnv(EnvBase):
         """Reset the worlds selected by ``"_reset"`` (all if absent); others keep their state."""
         mask = self._reset_mask(tensordict)
         offsets = self._jitter()
-        for i in np.flatnonzero(mask):
-            world = self.worlds[i]
-            world.reset(offsets[i])
-            self._ball[i] = world.ball_position()
-            self._palm[i] = world.palm_position()
-        self._t[mask] = 0
-        self._grounded[mask] = False
-        distance = np.linalg.norm(self._ball - self._palm, axis=1)
-        truncated = self._t >= self.max_steps
-        return self._pack(distance, truncated)
+        for i in np.flatnonzero(mask).tolist():
+            self.episodes[i].reset(offsets[i])
+        return self._pack()
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Apply the ``[N, 4]`` action in every world, step once, observe and score."""
-        distance, reward = self._advance(tensordict.get("action"))
-        return self._pack(distance, self._t >= self.max_steps, reward)
+        return self._pack(self._advance(tensordict.get("action")))
 
-    def _advance(self, action: torch.Tensor | None) -> tuple[np.ndarray, np.ndarray]:
-        """One physics step of every world under ``action``: distances and rewards ``[N]``.
-
-        Worlds whose ball has touched the ground are frozen (absorbing state, reward -3): they
-        are not stepped and keep their last positions.
-        """
-        scaled = self._scaled_action(action)
-        live = np.flatnonzero(~self._grounded)
-        if len(live):
-            worlds = self.worlds
-            forces = joint_torques(scaled[live], self._transmission).tolist()
-            observed = [worlds[i].step_and_observe(f) for i, f in zip(live.tolist(), forces, strict=True)]
-            self._ball[live] = [o[0] for o in observed]
-            self._palm[live] = [o[1] for o in observed]
-        ball, palm = self._ball, self._palm
-        self._t += 1
-        self._grounded |= ball[:, 2] < self._ground_z
-        distance = np.sqrt(((ball - palm) ** 2).sum(axis=1))
-        reward = np.where(self._grounded, GROUND_REWARD, -np.minimum(np.maximum(distance, MIN_DISTANCE), DISTANCE_CAP))
-        return distance, reward
+    def _advance(self, action: torch.Tensor | None) -> list[float]:
+        """One step of the task rules in every world under ``action``: the rewards ``[N]``
+        (worlds whose ball has touched the ground stay frozen)."""
+        return [episode.step(a) for episode, a in zip(self.episodes, self._actions(action), strict=True)]
 
     # ---------------------------------------------- tensor stepping (sde_torchrl.rollout)
     def initial_state(self) -> torch.Tensor:
@@ -199,25 +163,29 @@ class BatchedBallCatchEnv(EnvBase):
         Returns:
             Ball positions ``[N, 3]`` and rewards ``[N, 1]``, as :meth:`_step` computes them.
         """
-        _, reward = self._advance(u)
+        reward = self._advance(u)
         batch = tuple(self.batch_size)
-        return (torch.from_numpy(self._ball.astype(np.float32)).reshape(*batch, 3),
-                torch.from_numpy(reward.astype(np.float32)).reshape(*batch, 1))
+        return (torch.tensor([e.ball for e in self.episodes], dtype=torch.float32).reshape(*batch, 3),
+                torch.tensor(reward, dtype=torch.float32).reshape(*batch, 1))
 
-    # ----------------------------------- whole episodes of fixed linear controllers (fast path)
+    # ---------------------------------------------- whole episodes of linear controllers (fast path)
     def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
-        """Fresh episodes of every world under a fixed linear controller ``u = M x`` each.
+        """Fresh episodes of every world under a linear controller ``u_t = M_t x_t`` each, whose
+        maps are known in advance: one ``M`` for the whole episode or one per step.
 
         SDE with its episode schedule makes the exploratory policy one linear map of the
-        observation for a whole episode (``Θ + Θ̂``, eqs. 17-19), and the deterministic policy
-        is ``Θ`` itself. Such a controller needs no batched policy call per step, so each world
-        runs its whole episode on its own, while its physics state stays in the CPU cache
-        (stepping N worlds in turn evicts it at every step). Physics, release jitter, reward
-        and grounding are those of :meth:`_step`; the controller works in float64 where the
-        step-by-step path rounds the observation and action to float32 (differences ~1e-7).
+        observation for a whole episode (``Θ + Θ̂``, eqs. 17-19), REX (the ``step`` schedule) one
+        known map per step (``Θ + Θ̂_t``), and the deterministic policy is ``Θ`` itself. Such a
+        controller needs no batched policy call per step, so each world runs its whole episode on
+        its own (:func:`~sde_torchrl.envs.ballcatch.episodes.linear_episode`), while its physics
+        state stays in the CPU cache (stepping N worlds in turn evicts it at every step). Physics,
+        release jitter and task rules are those of :meth:`_step`; the controller works in float64
+        where the step-by-step path rounds the observation and action to float32 (differences
+        ~1e-7).
 
         Args:
-            matrices: ``M``, shaped ``[*batch_size, 4, 3]``.
+            matrices: ``M``, shaped ``[*batch_size, 4, 3]`` (one per episode) or
+                ``[*batch_size, steps, 4, 3]`` (one per step).
             steps: episode length.
             squash: apply ``tanh`` to ``u`` (else ``u`` is clipped to ``[-1, 1]`` like any action).
 
@@ -229,27 +197,33 @@ class BatchedBallCatchEnv(EnvBase):
         Raises:
             ValueError: for matrices of the wrong shape or with non-finite entries, or
                 ``steps < 1``.
+
+        Examples:
+            >>> env = BatchedBallCatchEnv(num_worlds=2, seed=0)
+            >>> per_step = torch.zeros(2, 100, 4, 3)
+            >>> per_step[..., 0] = 1.0  # u_t = (x, x, x, x): arm up, hand closed
+            >>> observations, samples, rewards = env.linear_episodes(per_step, 100)
+            >>> observations.shape, samples.shape, rewards.shape
+            (torch.Size([2, 101, 3]), torch.Size([2, 100, 4]), torch.Size([2, 100, 1]))
+            >>> env.close()
         """
         if steps < 1:
             raise ValueError(f"steps must be >= 1, got {steps}")
         batch = tuple(self.batch_size)
-        if tuple(matrices.shape) != (*batch, 4, 3):
-            raise ValueError(f"matrices must have shape {(*batch, 4, 3)}, got {tuple(matrices.shape)}")
-        flat = matrices.detach().cpu().double().reshape(-1, 4, 3).numpy()
+        shape = tuple(matrices.shape)
+        if shape not in ((*batch, 4, 3), (*batch, steps, 4, 3)):
+            raise ValueError(f"matrices must have shape {(*batch, 4, 3)} or {(*batch, steps, 4, 3)}, got {shape}")
+        per_step = len(shape) == len(batch) + 3
+        flat = matrices.detach().cpu().double().reshape(self.num_worlds, -1, 12).numpy()
         finite = np.isfinite(flat).all(axis=(1, 2))
         if not finite.all():
             bad = np.flatnonzero(~finite).tolist()
             raise ValueError(f"controller matrices contain non-finite values in worlds {bad}")
-        offsets, scale = self._jitter(), self._torque_scale.tolist()
-        episodes = []
-        for i, world in enumerate(self.worlds):
-            world.reset(offsets[i])
-            episodes.append(
-                _linear_episode(world, flat[i].tolist(), scale, squash, steps, self._transmission, self._ground_z)
-            )
-            observations, _, _, self._palm[i], self._grounded[i] = episodes[-1]
-            self._ball[i] = observations[-1]
-        self._t[:] = steps
+        offsets, episodes = self._jitter(), []
+        for i, episode in enumerate(self.episodes):
+            episode.reset(offsets[i])
+            maps = flat[i].tolist()  # rows of 12 floats, one world at a time: numpy lists them fastest
+            episodes.append(linear_episode(episode, maps if per_step else maps * steps, squash))
         observations, samples, rewards = (torch.tensor([e[k] for e in episodes], dtype=torch.float64) for k in range(3))
         return (observations.float().reshape(*batch, steps + 1, 3), samples.float().reshape(*batch, steps, 4),
                 rewards.float().reshape(*batch, steps, 1))
@@ -262,8 +236,8 @@ class BatchedBallCatchEnv(EnvBase):
             return np.ones(self.num_worlds, dtype=bool)
         return reset.reshape(self.num_worlds, -1).any(-1).cpu().numpy()
 
-    def _scaled_action(self, action: torch.Tensor | None) -> np.ndarray:
-        """Validate the ``[N, 4]`` action; the actuator torques ``clip(action) * max_torques``."""
+    def _actions(self, action: torch.Tensor | None) -> list[list[float]]:
+        """The validated ``[N, 4]`` action, one row of floats per world (the task clips them)."""
         if action is None:
             raise ValueError("the input tensordict has no 'action' entry")
         if tuple(action.shape) != (*self.batch_size, 4):
@@ -272,21 +246,22 @@ class BatchedBallCatchEnv(EnvBase):
         finite = np.isfinite(a).all(axis=-1)
         if not finite.all():
             raise ValueError(f"action contains non-finite values in worlds {np.flatnonzero(~finite).tolist()}")
-        return np.minimum(np.maximum(a, -1.0), 1.0) * self._torque_scale
+        return a.tolist()
 
-    def _pack(self, distance: np.ndarray, truncated: np.ndarray, reward: np.ndarray | None = None) -> TensorDict:
+    def _pack(self, reward: list[float] | None = None) -> TensorDict:
         """Observations, done flags (never terminated) and, after a step, rewards as a ``[N]`` TensorDict."""
         batch = tuple(self.batch_size)
-        trunc = torch.from_numpy(truncated).reshape(*batch, 1)
+        episodes = self.episodes
+        trunc = torch.tensor([e.truncated for e in episodes]).reshape(*batch, 1)
         data = {
-            "observation": torch.from_numpy(self._ball.astype(np.float32)).reshape(*batch, 3),
-            "distance": torch.from_numpy(distance.astype(np.float32)).reshape(*batch, 1),
+            "observation": torch.tensor([e.ball for e in episodes], dtype=torch.float32).reshape(*batch, 3),
+            "distance": torch.tensor([e.distance for e in episodes], dtype=torch.float32).reshape(*batch, 1),
             "done": trunc,
             "terminated": torch.zeros_like(trunc),
             "truncated": trunc.clone(),
         }
         if reward is not None:
-            data["reward"] = torch.from_numpy(reward.astype(np.float32)).reshape(*batch, 1)
+            data["reward"] = torch.tensor(reward, dtype=torch.float32).reshape(*batch, 1)
         return TensorDict(data, batch_size=self.batch_size, device=self.device)
 
     def _close_worlds(self) -> None:
@@ -297,40 +272,6 @@ class BatchedBallCatchEnv(EnvBase):
         """Disconnect every physics client."""
         self._close_worlds()
         super().close(raise_if_closed=raise_if_closed)
-
-
-def _linear_episode(
-    world: BallCatchWorld, matrix: list[list[float]], torque_scale: list[float], squash: bool, steps: int,
-    transmission: tuple[tuple[int, float], ...], ground_z: float,
-) -> tuple[list, list, list, tuple[float, ...], bool]:
-    """One episode of a freshly reset ``world`` under ``u = M x`` (the hot loop of
-    :meth:`BatchedBallCatchEnv.linear_episodes`, in plain Python floats: numpy is slower on
-    3-vectors). A world whose ball touched the ground (centre below ``ground_z``) is frozen, as
-    in :meth:`BatchedBallCatchEnv._advance`; ``transmission`` maps the actuator torques to the
-    joints (:attr:`~sde_torchrl.envs.ballcatch.ArmModel.transmission`).
-
-    Returns:
-        The ball positions (``steps + 1``), the pre-squash ``u`` and the rewards (``steps``
-        each) as lists, the last palm position and whether the ball is on the ground.
-    """
-    ball, palm = world.ball_position(), world.palm_position()
-    observations, samples, rewards = [ball], [], []
-    grounded = False
-    (m0, m1, m2, m3) = matrix
-    # tanh's values lie in [-1, 1] already: the clip of any action is needed without it.
-    action = math.tanh if squash else (lambda v: min(max(v, -1.0), 1.0))
-    for _ in range(steps):
-        x0, x1, x2 = ball
-        u = (m0[0] * x0 + m0[1] * x1 + m0[2] * x2, m1[0] * x0 + m1[1] * x1 + m1[2] * x2,
-             m2[0] * x0 + m2[1] * x1 + m2[2] * x2, m3[0] * x0 + m3[1] * x1 + m3[2] * x2)
-        samples.append(u)
-        if not grounded:
-            scaled = [action(v) * s for v, s in zip(u, torque_scale, strict=True)]
-            ball, palm = world.step_and_observe([scaled[a] * g for a, g in transmission])
-            grounded = ball[2] < ground_z
-        observations.append(ball)
-        rewards.append(step_reward(ball, palm, grounded)[0])
-    return observations, samples, rewards, palm, grounded
 
 
 def make_parallel_ballcatch(
@@ -370,7 +311,7 @@ def make_ballcatch_env(
         episode_length: steps per episode (the paper's 500).
         jitter: half-width of the uniform horizontal release offset.
         seed: seed of the release jitter.
-        model: the arm, ``"cup"`` or ``"pybrain"`` (:data:`~sde_torchrl.envs.ballcatch.ARM_MODELS`).
+        model: the arm, ``"cup"`` or ``"pybrain"`` (:data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`).
 
     Returns:
         ``TransformedEnv(BatchedBallCatchEnv(...), InitTracker())``.
