@@ -23,6 +23,8 @@ SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
 ACTIVATIONS = ("sigmoid", "tanh", "relu")
 NORMALIZATIONS = ("bounds", "stats")
+REWARD_STATES = ("noise_free", "noisy")
+EPISODE_RETURNS = ("sum", "mean")
 
 # ``typing`` generics, not ``list[int]``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP006, UP007
@@ -66,10 +68,11 @@ class MinimizeEnvConf:
     _target_: str = "sde_torchrl.envs.make_minimize_env"
     episode_length: int = 15
     dim: int = 1
-    x0: Any = 5.0  # a scalar or a dim-vector
+    x0: Any = 2.0  # a scalar or a dim-vector
     x0_spread: float = 0.0
     step_size: float = 0.1
     noise_std: float = 0.5
+    reward_state: str = "noise_free"  # noise_free (authors' code) | noisy
 
 
 @dataclass
@@ -260,6 +263,7 @@ def _check_env(env: DictConfig, prefix: str) -> None:
                 raise ConfigError(f"{prefix}.{key}", value, "a finite number >= 0")
         if not _is_finite_number(env.get("step_size")):
             raise ConfigError(f"{prefix}.step_size", env.get("step_size"), "a finite number")
+        _one_of(env, "reward_state", REWARD_STATES, prefix)
     elif target.endswith("make_ballcatch_env"):
         jitter = env.get("jitter")
         if not _is_finite_number(jitter) or not 0 <= jitter <= 0.4:

@@ -9,8 +9,9 @@ from _helpers import compose_config, own_stderr_lines, run_cli
 
 from sde_torchrl import actors, exploration
 from sde_torchrl.config import (
-    ACTIVATIONS, SCHEDULES, SHARINGS, ConfigError, describe_error, validate,
+    ACTIVATIONS, REWARD_STATES, SCHEDULES, SHARINGS, ConfigError, describe_error, validate,
 )
+from sde_torchrl.envs import minimize
 
 
 def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
@@ -40,6 +41,7 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
     (("actor.init=[0,-1]",), "actor.init=[0, -1]: a number, or [low, high] with low < high"),
     (("estimator.max_grad_norm=0",), "estimator.max_grad_norm=0.0: a number > 0, or null (no bound)"),
     (("env.noise_std=-1",), "env.noise_std=-1.0: a finite number >= 0"),
+    (("env.reward_state=next",), "env.reward_state=next: one of noise_free, noisy"),
     (("r_lim=null", "stop_at_threshold=true"),
      "stop_at_threshold=true: needs a convergence threshold r_lim (not null)"),
     (("explorer.bogus=1",), "explorer.bogus: unknown key"),
@@ -84,6 +86,7 @@ def test_allowed_values_match_the_modules():
     assert SCHEDULES == exploration.SCHEDULES
     assert SHARINGS == exploration.SHARINGS
     assert set(ACTIVATIONS) == set(actors.ACTIVATIONS)
+    assert REWARD_STATES == minimize.REWARD_STATES
 
 
 def test_config_error_message():
