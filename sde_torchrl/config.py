@@ -138,6 +138,9 @@ class EstimatorConf:
 
     _target_: str = "sde_torchrl.estimators.ReinforceEstimator"
     max_grad_norm: Optional[float] = None
+    max_grad_entry: Optional[float] = None  # the authors' rescale to a largest entry (1000 in their code)
+    episode_return: str = "mean"  # mean (paper's text) | sum (authors' code)
+    variance_weighted: bool = False  # the authors' "auto-alpha" scores
 
 
 @dataclass
@@ -318,9 +321,11 @@ def _check_explorer(explorer: DictConfig, prefix: str) -> None:
 
 
 def _check_estimator(estimator: DictConfig, prefix: str) -> None:
-    bound = estimator.get("max_grad_norm")
-    if bound is not None and (not _is_finite_number(bound) or bound <= 0):
-        raise ConfigError(f"{prefix}.max_grad_norm", bound, "a number > 0, or null (no bound)")
+    for key in ("max_grad_norm", "max_grad_entry"):
+        bound = estimator.get(key)
+        if bound is not None and (not _is_finite_number(bound) or bound <= 0):
+            raise ConfigError(f"{prefix}.{key}", bound, "a number > 0, or null (no bound)")
+    _one_of(estimator, "episode_return", EPISODE_RETURNS, prefix)
 
 
 def _is_finite_number(value: Any) -> bool:

@@ -7,9 +7,9 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from _helpers import compose_config, own_stderr_lines, run_cli
 
-from sde_torchrl import actors, exploration
+from sde_torchrl import actors, estimators, exploration
 from sde_torchrl.config import (
-    ACTIVATIONS, REWARD_STATES, SCHEDULES, SHARINGS, ConfigError, describe_error, validate,
+    ACTIVATIONS, EPISODE_RETURNS, REWARD_STATES, SCHEDULES, SHARINGS, ConfigError, describe_error, validate,
 )
 from sde_torchrl.envs import minimize
 
@@ -42,6 +42,8 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
     (("estimator.max_grad_norm=0",), "estimator.max_grad_norm=0.0: a number > 0, or null (no bound)"),
     (("env.noise_std=-1",), "env.noise_std=-1.0: a finite number >= 0"),
     (("env.reward_state=next",), "env.reward_state=next: one of noise_free, noisy"),
+    (("estimator.max_grad_entry=-1",), "estimator.max_grad_entry=-1.0: a number > 0, or null (no bound)"),
+    (("estimator.episode_return=total",), "estimator.episode_return=total: one of sum, mean"),
     (("r_lim=null", "stop_at_threshold=true"),
      "stop_at_threshold=true: needs a convergence threshold r_lim (not null)"),
     (("explorer.bogus=1",), "explorer.bogus: unknown key"),
@@ -87,6 +89,7 @@ def test_allowed_values_match_the_modules():
     assert SHARINGS == exploration.SHARINGS
     assert set(ACTIVATIONS) == set(actors.ACTIVATIONS)
     assert REWARD_STATES == minimize.REWARD_STATES
+    assert EPISODE_RETURNS == estimators.EPISODE_RETURNS
 
 
 def test_config_error_message():
