@@ -17,11 +17,13 @@ Selection rule (written down, and committed, before any result of this search wa
    ``1/σ_j²`` longer (≈ 14× at x = 2, ≈ 200× at x = 0.5): 0.002, 0.001, 0.0005, 0.0002, 0.0001, 0.00005).
 2. A candidate passes when, in every one of the 8 settings (σ_noise 0.5 / 1.0 / 1.5 at EL 15,
    R_lim = -1.6; EL 5 / 15 / 30 / 45 / 60 at σ_noise 0.5, R_lim = -1.8), every run of REX and
-   of SDE stays finite and exceeds R_lim within 15,000 episodes. To keep the search near 20 min
+   of SDE stays finite and exceeds R_lim within 15,000 episodes. A run whose mean return falls
+   below 100 times its first update's counts as diverged, as a non-finite one does (and ends
+   its job at once). To keep the search near 20 min
    on 2 cores it uses 10 runs per job (seed 1), where Table 1 uses 30 (seed 0).
 3. For each (scores, bound, N), α is the largest grid value that passes. α is tried from the
    largest down; a failure because some run did not reach R_lim within the budget ends the
-   descent (a smaller α is slower still), a non-finite run moves on to the next smaller α.
+   descent (a smaller α is slower still), a diverged run moves on to the next smaller α.
 4. The chosen learner is the first (scores, bound) pair, in the order (variance-weighted,
    entry) [the authors' learner], (variance-weighted, norm), (plain, entry), (plain, norm), that
    has a passing N; within it, the N with the largest passing α; a tie in α goes to the N with
@@ -43,7 +45,6 @@ import logging
 import os
 import statistics
 import sys
-import tempfile
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
@@ -89,7 +90,9 @@ class Candidate:
 
 
 def run_job(experiment: str, overrides: list[str]) -> dict:
-    """Trains one job (in a worker process); returns its outcome and per-run episodes to R_lim."""
+    """Trains one job (in a worker process) by the trainer's own collect and update, until every
+    run has exceeded R_lim, a run diverges, or the budget is spent; returns the outcome and each
+    run's episodes to R_lim."""
     import torch
     from hydra import compose, initialize_config_dir
 
@@ -101,18 +104,26 @@ def run_job(experiment: str, overrides: list[str]) -> dict:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose("config", overrides=[f"+experiment={experiment}", *overrides])
     trainer = build_trainer(cfg)
-    with tempfile.TemporaryDirectory() as out_dir:
-        try:
-            summary = trainer.train(out_dir)
-        except NonFiniteError as error:
-            return {"outcome": "non-finite", "detail": str(error).splitlines()[0]}
-        finally:
-            trainer.close()
-    episodes = summary["episodes_to_threshold"]
-    missed = sum(e is None for e in episodes)
-    reached = [e for e in episodes if e is not None]
+    first: list[int | None] = [None] * cfg.runs
+    initial = None
+    try:
+        for k in range(cfg.updates):
+            returns = trainer.update(trainer.collect(), k)["return_mean"]
+            initial = returns if initial is None else initial
+            for r in (returns > cfg.r_lim).nonzero().flatten().tolist():
+                first[r] = first[r] or trainer.episodes_after(k)
+            if bool((returns < 100 * initial).any()):
+                return {"outcome": "diverged", "detail": f"return below 100x the first at update {k}"}
+            if all(e is not None for e in first):
+                break
+    except NonFiniteError as error:
+        return {"outcome": "diverged", "detail": str(error).splitlines()[0]}
+    finally:
+        trainer.close()
+    missed = sum(e is None for e in first)
+    reached = [e for e in first if e is not None]
     return {"outcome": "reached" if not missed else "not reached", "missed": missed,
-            "mean_episodes": statistics.mean(reached) if reached else None, "episodes": episodes}
+            "mean_episodes": statistics.mean(reached) if reached else None, "episodes": first}
 
 
 def try_candidate(pool: ProcessPoolExecutor, candidate: Candidate) -> dict:
@@ -177,8 +188,8 @@ def _cell(per_setting: dict | None) -> str:
         r = per_setting.get(explorer)
         if r is None:
             parts.append("·")
-        elif r["outcome"] == "non-finite":
-            parts.append("NaN")
+        elif r["outcome"] == "diverged":
+            parts.append("div")
         elif r["outcome"] == "not reached":
             parts.append(f"{r['missed']}/{RUNS} miss")
         else:
@@ -192,7 +203,8 @@ def write_outputs(tried: list[dict], passing: dict, chosen: dict | None, out: Pa
     labels = [label for _, _, label in SETTINGS]
     lines = [
         "Learner search (analysis/learner_search.py; rule in its docstring): per setting, mean episodes "
-        f"to R_lim of REX / SDE over {RUNS} runs (seed {SEED}), `NaN` = a run became non-finite, "
+        f"to R_lim of REX / SDE over {RUNS} runs (seed {SEED}), `div` = a run diverged (non-finite, or "
+        "below 100× its first return), "
         f"`k/{RUNS} miss` = k runs did not reach R_lim within {BUDGET:,} episodes, `·` = not run "
         "(the candidate had already failed).",
         "",
