@@ -152,26 +152,36 @@ def try_candidate(pool: ProcessPoolExecutor, candidate: Candidate) -> dict:
             "total_episodes": total, "settings": results}
 
 
-def search(workers: int, run_all_pairs: bool, out: Path) -> dict:
-    """Applies the selection rule of the module docstring; writes the table after every candidate."""
+def search(workers: int, run_all_pairs: bool, out: Path, resume: bool = False) -> dict:
+    """Applies the selection rule of the module docstring; writes the table after every candidate.
+
+    With ``resume``, candidates already in ``out/learner_search.json`` are not run again: their
+    recorded results enter the rule as if just run.
+    """
     tried, passing, chosen = [], {}, None
-    start = time.perf_counter()
+    done = {}
+    if resume and (out / "learner_search.json").exists():
+        done = {Candidate(**r["candidate"]): r for r in json.loads((out / "learner_search.json").read_text())["tried"]}
+    offset = max((r["wall_s"] for r in done.values()), default=0.0)
+    start = time.perf_counter() - offset
     with ProcessPoolExecutor(max_workers=workers) as pool:
         for scores, bound in PAIRS:
             if chosen is not None and not run_all_pairs:
                 break
             for n in EPISODES_PER_UPDATE:
                 for alpha in ALPHAS[scores]:
-                    result = try_candidate(pool, Candidate(scores, bound, n, alpha))
-                    result["wall_s"] = round(time.perf_counter() - start, 1)
+                    candidate = Candidate(scores, bound, n, alpha)
+                    result = done.get(candidate) or try_candidate(pool, candidate)
+                    result.setdefault("wall_s", round(time.perf_counter() - start, 1))
                     tried.append(result)
                     log.info("%s: %s", result["candidate"], "passed" if result["passed"] else result["failure"])
                     write_outputs(tried, passing, chosen, out)
                     if result["passed"]:
                         passing.setdefault((scores, bound), []).append(result)
                         break
-                    if result["failure"] == "not reached":
-                        break
+                    if any(r["outcome"] == "not reached" for per in result["settings"].values()
+                           for r in per.values()):
+                        break  # some run too slow: a smaller α is slower still (rule, step 3)
             if chosen is None and passing.get((scores, bound)):
                 chosen = min(passing[(scores, bound)],
                              key=lambda r: (-r["candidate"]["alpha"], r["total_episodes"]))["candidate"]
@@ -235,9 +245,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="where learner_search.md/json go")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--all", action="store_true", help="also search the pairs after the first passing one")
+    parser.add_argument("--resume", action="store_true", help="reuse the candidates already in --out")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    result = search(args.workers, args.all, args.out)
+    result = search(args.workers, args.all, args.out, args.resume)
     print(json.dumps({"chosen": result["chosen"], "candidates_tried": len(result["tried"])}))
     return 0 if result["chosen"] else 1
 
