@@ -1,9 +1,10 @@
 """Reproduce the function-minimisation results: Table 1, Fig. 2 and Fig. 3 of the paper.
 
 Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
-``minimize2d_mlp``: each job trains 30 runs side by side) on a pool of worker processes, or reads
-finished run directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md``,
-``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
+``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
+that ``analysis/learner_search.py`` chose) on a pool of worker processes, or reads finished run
+directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
+paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
 Usage:
     python analysis/table1.py --out results/table1              # run everything, then report
@@ -35,6 +36,9 @@ PAPER = {
     ("episode_length", 0.5, 60): (-1.8, 8050, 500), ("noise", 0.5, 15): (-1.6, 9950, 2000),
     ("noise", 1.0, 15): (-1.6, 9850, 1400), ("noise", 1.5, 15): (-1.6, 7700, 900),
 }
+#: Fig. 3 right of the paper: REX "stuck near R = -70" after 15,000 episodes; SDE reaches -70
+#: after about 1,000 episodes.
+PAPER_MLP = {"rex_plateau": -70.0, "sde_episodes_to_plateau": 1000}
 #: Updates averaged for the 2-D MLP's curves and final plateau.
 SMOOTH = 10
 
@@ -197,12 +201,42 @@ def mlp_summary(runs: list[dict]) -> dict | None:
 
 # ------------------------------------------------------------------------------- writing
 
+def checks(rows: list[dict], mlp: dict | None) -> dict:
+    """The done-when checks of issue 12 on the table: all runs converged, speed-up growing with
+    EL (EL 60 ≥ 3× EL 5) and noise (σ 1.5 > σ 0.5), counts within a factor 2 of the paper's,
+    and the 2-D MLP's SDE reaching REX's plateau ≥ 5× sooner and ending higher."""
+    def row(sweep, noise, length):
+        return next((r for r in rows if (r["sweep"], r["sigma_noise"], r["episode_length"]) == (sweep, noise, length)),
+                    {})
+
+    def within(ours, paper):
+        return ours is not None and paper / 2 <= ours <= 2 * paper
+
+    within_2 = [r for r in rows if "paper" in r and within(r.get("rex_episodes"), r["paper"]["rex_episodes"])
+                and within(r.get("sde_episodes"), r["paper"]["sde_episodes"])]
+    speed = {key: row(*key).get("speedup") for key in
+             (("episode_length", 0.5, 5), ("episode_length", 0.5, 60), ("noise", 0.5, 15), ("noise", 1.5, 15))}
+    result = {
+        "all_runs_converged": all(r.get(f"{e}_spread", {}).get("not_converged", 1) == 0
+                                  for r in rows for e in ("rex", "sde")),
+        "settings_within_factor_2": len(within_2), "settings": len(rows),
+        "speedup_el60_over_el5": (speed[("episode_length", 0.5, 60)] / speed[("episode_length", 0.5, 5)]
+                                  if all(speed.values()) else None),
+        "speedup_grows_with_noise": (speed[("noise", 1.5, 15)] > speed[("noise", 0.5, 15)]
+                                     if all(speed.values()) else None),
+    }
+    if mlp:
+        result["mlp_plateau_speedup"] = mlp.get("plateau_speedup")
+        result["mlp_sde_ends_higher"] = mlp["final_mean_return"]["sde"] > mlp["final_mean_return"]["rex"]
+    return result
+
+
 def _fmt(value, digits=0):
     return "—" if value is None else f"{value:.{digits}f}"
 
 
-def write_markdown(rows: list[dict], mlp: dict | None, path: Path) -> None:
-    """The paper's Table 1 layout, ours beside the paper's."""
+def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float | None = None) -> None:
+    """The paper's Table 1 layout, ours beside the paper's, then the 2-D MLP and the checks."""
     lines = [
         "| sweep | σ_noise | EL | R_lim (ours / paper) | REX (ours / paper) | SDE (ours / paper) "
         "| speed-up (ours / paper) | not converged REX / SDE |",
@@ -226,8 +260,20 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path) -> None:
             f"2-D MLP ({mlp['runs']} runs, {mlp['episodes']} episodes): REX's final plateau "
             f"{mlp['rex_plateau']:.2f} reached after {_fmt(reached['sde'])} episodes by SDE and "
             f"{_fmt(reached['rex'])} by REX (×{_fmt(mlp.get('plateau_speedup'), 1)}); final mean "
-            f"return SDE {mlp['final_mean_return']['sde']:.2f}, REX {mlp['final_mean_return']['rex']:.2f}.",
+            f"return SDE {mlp['final_mean_return']['sde']:.2f}, REX {mlp['final_mean_return']['rex']:.2f} "
+            f"(summed return; paper: REX stuck near {PAPER_MLP['rex_plateau']:.0f}, SDE there after about "
+            f"{PAPER_MLP['sde_episodes_to_plateau']:,} episodes).",
         ]
+    c = checks(rows, mlp)
+    lines += [
+        "",
+        f"Checks: every run of every job reached R_lim: {c['all_runs_converged']}; settings with both counts "
+        f"within a factor 2 of the paper's: {c['settings_within_factor_2']} of {c['settings']}; speed-up EL 60 / "
+        f"EL 5: {_fmt(c['speedup_el60_over_el5'], 2)} (paper 5.71); speed-up σ 1.5 > σ 0.5: "
+        f"{c['speedup_grows_with_noise']}.",
+    ]
+    if wall_s is not None:
+        lines.append(f"Wall time of `python analysis/table1.py`: {wall_s:.0f} s.")
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -312,9 +358,11 @@ def main(argv: list[str] | None = None) -> int:
         log.error("no finished runs under %s", source)
         return 1
     rows, mlp = table_rows(runs), mlp_summary(runs)
+    wall_s = None if args.source else time.perf_counter() - start
     (args.out / "table1.json").write_text(json.dumps(
-        {"rows": rows, "mlp2d": mlp, "wall_s": time.perf_counter() - start}, indent=2))
-    write_markdown(rows, mlp, args.out / "table1.md")
+        {"rows": rows, "mlp2d": mlp, "paper_mlp2d": PAPER_MLP, "checks": checks(rows, mlp), "wall_s": wall_s},
+        indent=2))
+    write_markdown(rows, mlp, args.out / "table1.md", wall_s)
     plot_convergence(runs, "noise", args.out / "fig2.png")
     plot_convergence(runs, "episode_length", args.out / "fig3_left.png")
     if mlp:

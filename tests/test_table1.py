@@ -29,7 +29,7 @@ def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
     assert {(r["sweep"], r["sigma_noise"], r["episode_length"]) for r in table["rows"]} == SETTINGS
     for row in table["rows"]:
         assert row["paper"]["rex_episodes"] > row["paper"]["sde_episodes"]
-        assert row["r_lim"] < 0
+        assert row["r_lim"] == row["paper"]["r_lim"]  # the paper's R_lim, unchanged, on the authors' task
         for explorer in ("rex", "sde"):
             assert row[f"{explorer}_spread"]["runs"] == 2
     assert table["mlp2d"]["runs"] == 2 and table["mlp2d"]["episodes"] == 32
@@ -37,6 +37,9 @@ def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
         assert (tmp_path / "a" / name).stat().st_size > 0, name
     markdown = (tmp_path / "a" / "table1.md").read_text()
     assert markdown.count("\n| noise |") == 3 and markdown.count("\n| episode_length |") == 5
+    assert set(table["checks"]) >= {"all_runs_converged", "settings_within_factor_2", "speedup_el60_over_el5"}
+    summary = json.loads(next((tmp_path / "a" / "runs").rglob("summary.json")).read_text())
+    assert summary["episode_return"] == "sum"
 
     again = _table1(tmp_path / "b", "--from", str(tmp_path / "a" / "runs"))
     assert again["rows"] == table["rows"] and again["mlp2d"] == table["mlp2d"]
