@@ -78,8 +78,8 @@ def test_gym_normalisation_must_be_known():
     assert line == "env.normalize_obs=running: null or one of bounds, stats"
 
 
-@pytest.mark.parametrize("experiment", ["minimize", "minimize_guessed", "noise_sweep", "episode_length_sweep", "minimize2d_mlp",
-                                        "pendulum"])
+@pytest.mark.parametrize("experiment", ["minimize", "minimize_guessed", "noise_sweep", "episode_length_sweep",
+                                        "minimize2d_mlp", "pendulum"])
 def test_experiments_validate(experiment):
     validate(compose_config(f"+experiment={experiment}"))
 

@@ -56,8 +56,8 @@ class MinimizeEnv(EnvBase):
 
     def __init__(
         self, episodes: int = 10, *, dim: int = 1, x0: float | Sequence[float] = 5.0,
-        x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5,
-        reward_state: str = "noisy", runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
+        x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5, reward_state: str = "noisy",
+        runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
     ) -> None:
         for name, value in (("episodes", episodes), ("dim", dim)):
             if not isinstance(value, int) or value < 1:
