@@ -278,7 +278,8 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
 
 
 def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
-    """One panel per setting of ``sweep``: mean ± std of the returns over runs, REX and SDE."""
+    """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX and
+    SDE (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -290,13 +291,13 @@ def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
     fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
     for ax, setting in zip(axes[0], settings):
         for summary in (s for s in chosen if _setting(s) == setting):
-            _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX")
+            _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX", robust=True)
             ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
         label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
         r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
         ax.set(title=label, xlabel="episodes", xscale="log",
                ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
-    axes[0][0].set_ylabel("mean return R")
+    axes[0][0].set_ylabel("return R (median, quartiles)")
     axes[0][0].legend(loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -308,14 +309,20 @@ def _lower_limit(chosen: list[dict], setting: tuple) -> float:
     return 1.5 * min(starts)
 
 
-def _plot_band(ax, summary: dict, label: str, smooth: int = 1) -> None:
-    mean, std = _mean_curve(summary["curves"], smooth)
+def _plot_band(ax, summary: dict, label: str, smooth: int = 1, robust: bool = False) -> None:
+    """Mean ± std over runs per update, or with ``robust`` median and quartiles."""
+    if robust:
+        columns = list(zip(*summary["curves"]))
+        quartiles = [statistics.quantiles(c, n=4, method="inclusive") for c in columns]
+        centre, low, high = ([q[i] for q in quartiles] for i in (1, 0, 2))
+    else:
+        centre, std = _mean_curve(summary["curves"], smooth)
+        low, high = [m - s for m, s in zip(centre, std, strict=True)], [m + s for m, s in zip(centre, std, strict=True)]
     per_update = summary["settings"]["episodes_per_update"]
-    episodes = [(i + 1) * per_update for i in range(len(mean))]
+    episodes = [(i + 1) * per_update for i in range(len(centre))]
     style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"}}[label]
-    ax.plot(episodes, mean, label=label, **style)
-    ax.fill_between(episodes, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
-                    color=style["color"], alpha=0.2)
+    ax.plot(episodes, centre, label=label, **style)
+    ax.fill_between(episodes, low, high, color=style["color"], alpha=0.2)
 
 
 def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
