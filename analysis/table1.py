@@ -1,9 +1,10 @@
 """Reproduce the function-minimisation results: Table 1, Fig. 2 and Fig. 3 of the paper.
 
 Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
-``minimize2d_mlp``: each job trains 30 runs side by side) on a pool of worker processes, or reads
-finished run directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md``,
-``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
+``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
+that ``analysis/learner_search.py`` chose) on a pool of worker processes, or reads finished run
+directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
+paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
 Usage:
     python analysis/table1.py --out results/table1              # run everything, then report
@@ -33,6 +34,9 @@ PAPER = {
     ("episode_length", 0.5, 60): (-1.8, 8050, 500), ("noise", 0.5, 15): (-1.6, 9950, 2000),
     ("noise", 1.0, 15): (-1.6, 9850, 1400), ("noise", 1.5, 15): (-1.6, 7700, 900),
 }
+#: Fig. 3 right of the paper: REX "stuck near R = -70" after 15,000 episodes; SDE reaches -70
+#: after about 1,000 episodes.
+PAPER_MLP = {"rex_plateau": -70.0, "sde_episodes_to_plateau": 1000}
 #: Updates averaged for the 2-D MLP's curves and final plateau.
 SMOOTH = 10
 
@@ -188,12 +192,42 @@ def mlp_summary(runs: list[dict]) -> dict | None:
 
 # ------------------------------------------------------------------------------- writing
 
+def checks(rows: list[dict], mlp: dict | None) -> dict:
+    """The done-when checks of issue 12 on the table: all runs converged, speed-up growing with
+    EL (EL 60 ≥ 3× EL 5) and noise (σ 1.5 > σ 0.5), counts within a factor 2 of the paper's,
+    and the 2-D MLP's SDE reaching REX's plateau ≥ 5× sooner and ending higher."""
+    def row(sweep, noise, length):
+        return next((r for r in rows if (r["sweep"], r["sigma_noise"], r["episode_length"]) == (sweep, noise, length)),
+                    {})
+
+    def within(ours, paper):
+        return ours is not None and paper / 2 <= ours <= 2 * paper
+
+    within_2 = [r for r in rows if "paper" in r and within(r.get("rex_episodes"), r["paper"]["rex_episodes"])
+                and within(r.get("sde_episodes"), r["paper"]["sde_episodes"])]
+    speed = {key: row(*key).get("speedup") for key in
+             (("episode_length", 0.5, 5), ("episode_length", 0.5, 60), ("noise", 0.5, 15), ("noise", 1.5, 15))}
+    result = {
+        "all_runs_converged": all(r.get(f"{e}_spread", {}).get("not_converged", 1) == 0
+                                  for r in rows for e in ("rex", "sde")),
+        "settings_within_factor_2": len(within_2), "settings": len(rows),
+        "speedup_el60_over_el5": (speed[("episode_length", 0.5, 60)] / speed[("episode_length", 0.5, 5)]
+                                  if all(speed.values()) else None),
+        "speedup_grows_with_noise": (speed[("noise", 1.5, 15)] > speed[("noise", 0.5, 15)]
+                                     if all(speed.values()) else None),
+    }
+    if mlp:
+        result["mlp_plateau_speedup"] = mlp.get("plateau_speedup")
+        result["mlp_sde_ends_higher"] = mlp["final_mean_return"]["sde"] > mlp["final_mean_return"]["rex"]
+    return result
+
+
 def _fmt(value, digits=0):
     return "—" if value is None else f"{value:.{digits}f}"
 
 
-def write_markdown(rows: list[dict], mlp: dict | None, path: Path) -> None:
-    """The paper's Table 1 layout, ours beside the paper's."""
+def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float | None = None) -> None:
+    """The paper's Table 1 layout, ours beside the paper's, then the 2-D MLP and the checks."""
     lines = [
         "| sweep | σ_noise | EL | R_lim (ours / paper) | REX (ours / paper) | SDE (ours / paper) "
         "| speed-up (ours / paper) | not converged REX / SDE |",
@@ -217,13 +251,26 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path) -> None:
             f"2-D MLP ({mlp['runs']} runs, {mlp['episodes']} episodes): REX's final plateau "
             f"{mlp['rex_plateau']:.2f} reached after {_fmt(reached['sde'])} episodes by SDE and "
             f"{_fmt(reached['rex'])} by REX (×{_fmt(mlp.get('plateau_speedup'), 1)}); final mean "
-            f"return SDE {mlp['final_mean_return']['sde']:.2f}, REX {mlp['final_mean_return']['rex']:.2f}.",
+            f"return SDE {mlp['final_mean_return']['sde']:.2f}, REX {mlp['final_mean_return']['rex']:.2f} "
+            f"(summed return; paper: REX stuck near {PAPER_MLP['rex_plateau']:.0f}, SDE there after about "
+            f"{PAPER_MLP['sde_episodes_to_plateau']:,} episodes).",
         ]
+    c = checks(rows, mlp)
+    lines += [
+        "",
+        f"Checks: every run of every job reached R_lim: {c['all_runs_converged']}; settings with both counts "
+        f"within a factor 2 of the paper's: {c['settings_within_factor_2']} of {c['settings']}; speed-up EL 60 / "
+        f"EL 5: {_fmt(c['speedup_el60_over_el5'], 2)} (paper 5.71); speed-up σ 1.5 > σ 0.5: "
+        f"{c['speedup_grows_with_noise']}.",
+    ]
+    if wall_s is not None:
+        lines.append(f"Wall time of `python analysis/table1.py`: {wall_s:.0f} s.")
     path.write_text("\n".join(lines) + "\n")
 
 
 def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
-    """One panel per setting of ``sweep``: mean ± std of the returns over runs, REX and SDE."""
+    """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX and
+    SDE (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -235,13 +282,13 @@ def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
     fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
     for ax, setting in zip(axes[0], settings, strict=True):
         for summary in (s for s in chosen if _setting(s) == setting):
-            _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX")
+            _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX", robust=True)
             ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
         label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
         r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
         ax.set(title=label, xlabel="episodes", xscale="log",
                ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
-    axes[0][0].set_ylabel("mean return R")
+    axes[0][0].set_ylabel("return R (median, quartiles)")
     axes[0][0].legend(loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -253,14 +300,20 @@ def _lower_limit(chosen: list[dict], setting: tuple) -> float:
     return 1.5 * min(starts)
 
 
-def _plot_band(ax, summary: dict, label: str, smooth: int = 1) -> None:
-    mean, std = _mean_curve(summary["curves"], smooth)
+def _plot_band(ax, summary: dict, label: str, smooth: int = 1, robust: bool = False) -> None:
+    """Mean ± std over runs per update, or with ``robust`` median and quartiles."""
+    if robust:
+        columns = list(zip(*summary["curves"], strict=False))
+        quartiles = [statistics.quantiles(c, n=4, method="inclusive") for c in columns]
+        centre, low, high = ([q[i] for q in quartiles] for i in (1, 0, 2))
+    else:
+        centre, std = _mean_curve(summary["curves"], smooth)
+        low, high = [m - s for m, s in zip(centre, std, strict=True)], [m + s for m, s in zip(centre, std, strict=True)]
     per_update = summary["settings"]["episodes_per_update"]
-    episodes = [(i + 1) * per_update for i in range(len(mean))]
+    episodes = [(i + 1) * per_update for i in range(len(centre))]
     style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"}}[label]
-    ax.plot(episodes, mean, label=label, **style)
-    ax.fill_between(episodes, [m - s for m, s in zip(mean, std, strict=True)],
-                    [m + s for m, s in zip(mean, std, strict=True)], color=style["color"], alpha=0.2)
+    ax.plot(episodes, centre, label=label, **style)
+    ax.fill_between(episodes, low, high, color=style["color"], alpha=0.2)
 
 
 def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
@@ -303,9 +356,11 @@ def main(argv: list[str] | None = None) -> int:
         log.error("no finished runs under %s", source)
         return 1
     rows, mlp = table_rows(runs), mlp_summary(runs)
+    wall_s = None if args.source else time.perf_counter() - start
     (args.out / "table1.json").write_text(json.dumps(
-        {"rows": rows, "mlp2d": mlp, "wall_s": time.perf_counter() - start}, indent=2))
-    write_markdown(rows, mlp, args.out / "table1.md")
+        {"rows": rows, "mlp2d": mlp, "paper_mlp2d": PAPER_MLP, "checks": checks(rows, mlp), "wall_s": wall_s},
+        indent=2))
+    write_markdown(rows, mlp, args.out / "table1.md", wall_s)
     plot_convergence(runs, "noise", args.out / "fig2.png")
     plot_convergence(runs, "episode_length", args.out / "fig3_left.png")
     if mlp:

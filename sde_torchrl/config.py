@@ -42,6 +42,8 @@ SHARINGS = ("element", "action", "single")
 ACTIVATIONS = ("sigmoid", "tanh", "relu")
 NORMALIZATIONS = ("bounds", "stats")
 ARM_MODELS = ("cup", "pybrain")
+REWARD_STATES = ("noise_free", "noisy")
+EPISODE_RETURNS = ("sum", "mean")
 
 
 # ------------------------------------------------------------------------------ schemas
@@ -49,17 +51,19 @@ ARM_MODELS = ("cup", "pybrain")
 
 @dataclass
 class MinimizeEnvConf:
-    """``env=minimize``: the function-minimisation task (paper section 4.1),
-    ``x_{t+1} = x_t + s u_t + N(0, σ_noise²)``, ``r_t = -‖x_{t+1}‖²``.
+    """``env=minimize``: the function-minimisation task (paper section 4.1) as the authors' PyBrain
+    code runs it: ``x_{t+1} = x_t + s u_t + N(0, σ_noise²)``, ``r_t = -‖x_t + s u_t‖²``.
 
     Attributes:
         episode_length: ``EL``, steps per episode.
         dim: dimension of the state and action.
-        x0: start state, a scalar or a ``dim``-vector (not given by the paper; README,
-            "Calibration").
+        x0: start state, a scalar or a ``dim``-vector (not given by the paper; 2 in the
+            authors' code).
         x0_spread: half-width of a uniform jitter around ``x0``.
         step_size: ``s``.
         noise_std: ``σ_noise``.
+        reward_state: ``noise_free`` scores ``g(x_t + s u_t)`` (the authors' code), ``noisy``
+            scores the noisy next state ``g(x_{t+1})``.
 
     Examples:
         >>> MinimizeEnvConf(episode_length=30).dim
@@ -69,10 +73,11 @@ class MinimizeEnvConf:
     _target_: str = "sde_torchrl.envs.make_minimize_env"
     episode_length: int = 15
     dim: int = 1
-    x0: Any = 5.0
+    x0: Any = 2.0
     x0_spread: float = 0.0
     step_size: float = 0.1
     noise_std: float = 0.5
+    reward_state: str = "noise_free"
 
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
@@ -80,6 +85,7 @@ class MinimizeEnvConf:
         finite("env.x0_spread", self.x0_spread, minimum=0)
         finite("env.noise_std", self.noise_std, minimum=0)
         finite("env.step_size", self.step_size)
+        one_of("env.reward_state", self.reward_state, REWARD_STATES)
 
 
 @dataclass
@@ -270,6 +276,12 @@ class EstimatorConf:
 
     Attributes:
         max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
+        max_grad_entry: the authors' rescale: a run's gradient whose largest (signed) entry
+            exceeds this is scaled so that the entry equals it (1000 in their code); ``null``: off.
+        episode_return: ``mean`` (the paper's text, section 2.1) or ``sum`` (the authors' code) of
+            an episode's rewards; used by the estimator and every reported return.
+        variance_weighted: the authors' "auto-alpha" scores: each action's log-likelihood
+            weighted by its own variance ``σ_j²`` (held constant) before differentiating.
 
     Examples:
         >>> EstimatorConf(max_grad_norm=100.0).max_grad_norm
@@ -278,11 +290,16 @@ class EstimatorConf:
 
     _target_: str = "sde_torchrl.estimators.ReinforceEstimator"
     max_grad_norm: Optional[float] = None
+    max_grad_entry: Optional[float] = None
+    episode_return: str = "mean"
+    variance_weighted: bool = False
 
     def __post_init__(self) -> None:
-        bound = self.max_grad_norm
-        if bound is not None and (not is_finite_number(bound) or bound <= 0):
-            raise ArgumentError("estimator.max_grad_norm", bound, "a number > 0, or null (no bound)")
+        for key in ("max_grad_norm", "max_grad_entry"):
+            bound = getattr(self, key)
+            if bound is not None and (not is_finite_number(bound) or bound <= 0):
+                raise ArgumentError(f"estimator.{key}", bound, "a number > 0, or null (no bound)")
+        one_of("estimator.episode_return", self.episode_return, EPISODE_RETURNS)
 
 
 @dataclass

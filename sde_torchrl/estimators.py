@@ -19,6 +19,7 @@ from torch import nn
 from torch.func import functional_call, grad, vmap
 from torchrl.objectives import LossModule
 
+from sde_torchrl.checks import one_of
 from sde_torchrl.exploration import StateDependentExplorer
 
 
@@ -30,8 +31,15 @@ class EpisodeLogLikelihood(nn.Module):
     the explorer's likelihood are recomputed from the stored observations and pre-squash actions.
     The keys it reads are the explorer's until :meth:`set_keys` renames them.
 
+    With ``variance_weighted``, each action element's log-likelihood is multiplied by its own
+    variance ``σ_j²`` held constant (detached), the "auto-alpha" scores of the authors' PyBrain
+    explorers: the controller receives ``(u_j − μ_j)`` instead of ``(u_j − μ_j)/σ_j²`` (eq. 14
+    times ``σ_j²``) and ``σ̂`` the derivative of eq. (21) times ``σ_j²``. A variance-preconditioned
+    direction, not the gradient of the likelihood.
+
     Args:
         policy: the policy that collected the episodes.
+        variance_weighted: weight each action element's log-likelihood by its constant ``σ_j²``.
 
     Examples:
         >>> import torch
@@ -46,8 +54,9 @@ class EpisodeLogLikelihood(nn.Module):
         torch.Size([4])
     """
 
-    def __init__(self, policy: TensorDictSequential) -> None:
+    def __init__(self, policy: TensorDictSequential, variance_weighted: bool = False) -> None:
         super().__init__()
+        self.variance_weighted = variance_weighted
         explorer = policy.module[-1]
         if not isinstance(explorer, StateDependentExplorer):
             raise TypeError(
@@ -78,7 +87,12 @@ class EpisodeLogLikelihood(nn.Module):
         """
         loc = self.actor(steps.select(*self.actor.in_keys).copy()).get(self.loc_key)
         features = steps.get(self.feature_key).to(loc.dtype)
-        return self.explorer.log_prob(loc, features, steps.get(self.sample_key)).sum(-1)
+        sample = steps.get(self.sample_key)
+        if not self.variance_weighted:
+            return self.explorer.log_prob(loc, features, sample).sum(-1)
+        scale = self.explorer.scale(features)
+        per_element = -0.5 * ((sample - loc) / scale).square() - scale.log()  # eq. 13 without constants
+        return (scale.detach().square() * per_element).sum((-2, -1))
 
 
 def episode_scores(
@@ -121,18 +135,34 @@ def flatten_scores(scores: dict[str, torch.Tensor], run_dims: int) -> torch.Tens
     return torch.cat([s.flatten(run_dims + 1) for s in scores.values()], dim=-1)
 
 
-def episode_returns(episodes: TensorDictBase, reward_key: NestedKey = ("next", "reward")) -> torch.Tensor:
-    """``R = (1/T) Σ_t r_t``, the undiscounted average reward of each episode (section 2.1).
+#: Return definitions: the paper's text (``mean``) or the authors' PyBrain REINFORCE (``sum``).
+EPISODE_RETURNS = ("sum", "mean")
+
+
+def episode_returns(
+    episodes: TensorDictBase, reward_key: NestedKey = ("next", "reward"), kind: str = "mean",
+) -> torch.Tensor:
+    """``R = (1/T) Σ_t r_t`` (``mean``, the undiscounted average reward of section 2.1) or
+    ``R = Σ_t r_t`` (``sum``, what the authors' PyBrain REINFORCE uses:
+    ``getSumOverSequences('reward')``) of each episode.
 
     Args:
         episodes: TensorDict shaped ``[*runs, N, T]``.
         reward_key: where the per-step rewards are.
+        kind: ``"mean"`` or ``"sum"``.
 
     Returns:
         Tensor of shape ``[*runs, N]``.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict({"next": {"reward": torch.tensor([[[[-1.0], [-3.0]]]])}}, [1, 1, 2])
+        >>> episode_returns(td).item(), episode_returns(td, kind="sum").item()
+        (-2.0, -4.0)
     """
-    reward = episodes.get(reward_key)
-    return reward.reshape(*episodes.batch_size, -1).sum(-1).mean(-1)
+    one_of("kind", kind, EPISODE_RETURNS)
+    per_step = episodes.get(reward_key).reshape(*episodes.batch_size, -1).sum(-1)
+    return per_step.sum(-1) if kind == "sum" else per_step.mean(-1)
 
 
 def reinforce_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -191,6 +221,21 @@ def clip_per_run(gradient: torch.Tensor, max_norm: float) -> torch.Tensor:
     return gradient * (max_norm / norm.clamp_min(max_norm))
 
 
+def rescale_largest_entry(gradient: torch.Tensor, max_entry: float) -> torch.Tensor:
+    """Rescales each run's gradient ``[*runs, K]`` whose largest entry exceeds ``max_entry`` so
+    that this entry equals ``max_entry``, as the authors' PyBrain policy-gradient learner does
+    before its step (with 1000). The largest entry is the signed maximum, not the largest
+    magnitude: a gradient whose entries are all negative is never rescaled.
+
+    Examples:
+        >>> rescale_largest_entry(torch.tensor([[2000.0, -500.0], [-3000.0, 10.0]]), 1000.0)
+        tensor([[ 1000.,  -250.],
+                [-3000.,    10.]])
+    """
+    largest = gradient.max(dim=-1, keepdim=True).values
+    return torch.where(largest > max_entry, gradient * (max_entry / largest), gradient)
+
+
 class EpisodicEstimator(LossModule):
     """Base class: scores and returns of a batch of episodes → gradient → surrogate loss.
 
@@ -203,6 +248,15 @@ class EpisodicEstimator(LossModule):
         max_grad_norm: if set, each run's gradient is rescaled to at most this norm before the
             update (off by default: the paper's update is plain gradient ascent; the authors'
             own code bounded large gradients). ``gradient_norm`` reports the norm before.
+        max_grad_entry: if set, each run's gradient whose largest (signed) entry exceeds this is
+            rescaled so that this entry equals it (:func:`rescale_largest_entry`; the authors'
+            PyBrain learner used 1000).
+        episode_return: ``"mean"`` (the paper's text, section 2.1) or ``"sum"`` (the authors'
+            PyBrain REINFORCE) of each episode's rewards (:func:`episode_returns`); the trainer
+            reports returns, and compares them with ``r_lim``, in the same definition.
+        variance_weighted: the authors' "auto-alpha" scores: each action element's
+            log-likelihood weighted by its constant variance ``σ_j²`` (see
+            :class:`EpisodeLogLikelihood`).
     """
 
     @dataclass
@@ -226,12 +280,17 @@ class EpisodicEstimator(LossModule):
 
     tensor_keys: _AcceptedKeys
 
-    def __init__(self, policy: TensorDictSequential, max_grad_norm: float | None = None) -> None:
+    def __init__(
+        self, policy: TensorDictSequential, max_grad_norm: float | None = None, *,
+        max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
+    ) -> None:
         super().__init__()
-        if max_grad_norm is not None and not max_grad_norm > 0:
-            raise ValueError(f"max_grad_norm must be > 0 or None, got {max_grad_norm!r}")
-        self.max_grad_norm = max_grad_norm
-        self.log_likelihood = EpisodeLogLikelihood(policy)
+        for name, bound in (("max_grad_norm", max_grad_norm), ("max_grad_entry", max_grad_entry)):
+            if bound is not None and not bound > 0:
+                raise ValueError(f"{name} must be > 0 or None, got {bound!r}")
+        one_of("episode_return", episode_return, EPISODE_RETURNS)
+        self.max_grad_norm, self.max_grad_entry, self.episode_return = max_grad_norm, max_grad_entry, episode_return
+        self.log_likelihood = EpisodeLogLikelihood(policy, variance_weighted)
         self._tensor_keys = self.default_keys()
         self._set_in_keys()
 
@@ -255,16 +314,22 @@ class EpisodicEstimator(LossModule):
         """The parameters the scores cover, in the order of the flattened gradient."""
         return {n: p for n, p in self.log_likelihood.named_parameters() if p.requires_grad}
 
+    def returns(self, episodes: TensorDictBase) -> torch.Tensor:
+        """Each episode's return ``[*runs, N]`` in this estimator's definition (``episode_return``)."""
+        return episode_returns(episodes, self.tensor_keys.reward, self.episode_return)
+
     def estimate(self, scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Gradient ``[*runs, K]`` and diagnostics from scores ``[*runs, N, K]``, returns ``[*runs, N]``."""
         raise NotImplementedError
 
     def forward(self, episodes: TensorDictBase) -> TensorDictBase:
-        returns = episode_returns(episodes, self.tensor_keys.reward)
+        returns = self.returns(episodes)
         run_dims = episodes.batch_dims - 2
         scores = flatten_scores(episode_scores(self.log_likelihood, episodes), run_dims)
         gradient, diagnostics = self.estimate(scores, returns)
         diagnostics["gradient_norm"] = gradient.norm(dim=-1)
+        if self.max_grad_entry is not None:
+            gradient = rescale_largest_entry(gradient, self.max_grad_entry)
         if self.max_grad_norm is not None:
             gradient = clip_per_run(gradient, self.max_grad_norm)
         theta = torch.cat([p.flatten(run_dims) for p in self.learnable_parameters().values()], -1)

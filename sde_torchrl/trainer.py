@@ -25,7 +25,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl.checkpoint import job_streams, restore_job, result_config, save_job
 from sde_torchrl.episode_queue import EpisodeQueue
-from sde_torchrl.estimators import EpisodicEstimator, episode_returns
+from sde_torchrl.estimators import EpisodicEstimator
 from sde_torchrl.guard import FiniteGuard
 from sde_torchrl.interrupt import DeferredInterrupt, TrainingInterrupted
 from sde_torchrl.report import Reporter, close_logger
@@ -75,10 +75,11 @@ class Trainer:
         return self._rollout(self.env)
 
     def evaluate(self) -> torch.Tensor:
-        """Mean return of deterministic episodes (no exploration noise) per run, ``[runs]``."""
+        """Mean return of deterministic episodes (no exploration noise) per run, ``[runs]``, in
+        the estimator's return definition."""
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             episodes = self._rollout(self.eval_env)
-        return episode_returns(episodes).mean(-1)
+        return self.estimator.returns(episodes).mean(-1)
 
     def update(self, episodes: TensorDictBase, update: int) -> dict[str, torch.Tensor]:
         """One estimator pass and one optimiser step (eq. 1), guarded against non-finite values.
@@ -87,7 +88,7 @@ class Trainer:
             NonFiniteError: for a non-finite episode return, score, gradient or (after the
                 step) parameter, naming the update, the runs and the parameter.
         """
-        self.guard.check_returns(update, episode_returns(episodes, self.estimator.tensor_keys.reward))
+        self.guard.check_returns(update, self.estimator.returns(episodes))
         out = self.estimator(episodes)
         self.guard.check_estimate(update, out, episodes)
         self.optimizer.zero_grad(set_to_none=True)
@@ -145,7 +146,8 @@ class Trainer:
                 self._loop(run_dir, state, config, checkpoint_period, progress)
         finally:
             close_logger(self.logger)
-        summary = {**(labels or {}), **summarize(state, self.settings, self.policy, self.episodes_after)}
+        summary = {**(labels or {}), **summarize(state, self.settings, self.policy, self.episodes_after),
+                   "episode_return": self.estimator.episode_return}
         run_dir.write_summary(summary)
         log.info("results in %s", run_dir.path.resolve())
         return summary

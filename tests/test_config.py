@@ -7,9 +7,18 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from _helpers import compose_config, own_stderr_lines, run_cli
 
-from sde_torchrl import actors, exploration
+from sde_torchrl import actors, estimators, exploration
 from sde_torchrl.checks import ArgumentError
-from sde_torchrl.config import ACTIVATIONS, SCHEDULES, SHARINGS, describe_error, validate
+from sde_torchrl.config import (
+    ACTIVATIONS,
+    EPISODE_RETURNS,
+    REWARD_STATES,
+    SCHEDULES,
+    SHARINGS,
+    describe_error,
+    validate,
+)
+from sde_torchrl.envs import minimize
 
 
 def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
@@ -39,6 +48,9 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
     (("actor.init=[0,-1]",), "actor.init=[0, -1]: a number, or [low, high] with low < high"),
     (("estimator.max_grad_norm=0",), "estimator.max_grad_norm=0.0: a number > 0, or null (no bound)"),
     (("env.noise_std=-1",), "env.noise_std=-1.0: a finite number >= 0"),
+    (("env.reward_state=next",), "env.reward_state=next: one of noise_free, noisy"),
+    (("estimator.max_grad_entry=-1",), "estimator.max_grad_entry=-1.0: a number > 0, or null (no bound)"),
+    (("estimator.episode_return=total",), "estimator.episode_return=total: one of sum, mean"),
     (("r_lim=null", "stop_at_threshold=true"),
      "stop_at_threshold=true: needs a convergence threshold r_lim (not null)"),
     (("explorer.bogus=1",), "explorer.bogus: unknown key"),
@@ -73,8 +85,8 @@ def test_gym_normalisation_must_be_known():
     assert line == "env.normalize_obs=running: null or one of bounds, stats"
 
 
-@pytest.mark.parametrize("experiment", ["minimize", "noise_sweep", "episode_length_sweep", "minimize2d_mlp",
-                                        "pendulum"])
+@pytest.mark.parametrize("experiment", ["minimize", "minimize_guessed", "noise_sweep", "episode_length_sweep",
+                                        "minimize2d_mlp", "pendulum"])
 def test_experiments_validate(experiment):
     validate(compose_config(f"+experiment={experiment}"))
 
@@ -83,6 +95,8 @@ def test_allowed_values_match_the_modules():
     assert SCHEDULES == exploration.SCHEDULES
     assert SHARINGS == exploration.SHARINGS
     assert set(ACTIVATIONS) == set(actors.ACTIVATIONS)
+    assert REWARD_STATES == minimize.REWARD_STATES
+    assert EPISODE_RETURNS == estimators.EPISODE_RETURNS
 
 
 def test_config_error_message():

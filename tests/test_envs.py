@@ -92,15 +92,39 @@ def test_bad_episode_length_is_rejected():
         make_minimize_env(0)
 
 
+def test_noise_free_reward_scores_the_successor_before_the_state_noise():
+    """Hand-computed step: x = 2, u = -4, s = 0.1 → successor 1.6, reward -2.56, whatever the noise."""
+    env = MinimizeEnv(episodes=3, x0=2.0, noise_std=1.0, reward_state="noise_free", seed=1)
+    x = env.initial_state()
+    x_next, reward = env.transition(x, torch.full_like(x, -4.0))
+    torch.testing.assert_close(reward, torch.full((3, 1), -2.56))
+    assert not torch.allclose(x_next, torch.full_like(x_next, 1.6))  # the noise is in the next state only
+
+
+def test_unknown_reward_state_is_rejected():
+    with pytest.raises(ValueError, match="reward_state"):
+        MinimizeEnv(reward_state="next")
+
+
+@pytest.mark.parametrize("reward_state", ["noise_free", "noisy"])
+@pytest.mark.parametrize("episode_return", ["sum", "mean"])
 @pytest.mark.parametrize("theta, episode_length, noise_std", [(-2.0, 15, 0.5), (-5.0, 5, 1.5)])
-def test_expected_linear_return_matches_monte_carlo(theta, episode_length, noise_std):
-    env = MinimizeEnv(episodes=40_000, x0=5.0, noise_std=noise_std, seed=0)
+def test_expected_linear_return_matches_monte_carlo(theta, episode_length, noise_std, reward_state, episode_return):
+    env = MinimizeEnv(episodes=40_000, x0=2.0, noise_std=noise_std, reward_state=reward_state, seed=0)
     x, total = env.initial_state(), 0.0
     for _ in range(episode_length):
         x, reward = env.transition(x, theta * x)
         total = total + reward
-    monte_carlo = float((total / episode_length).mean())
-    assert monte_carlo == pytest.approx(expected_linear_return(theta, episode_length, 5.0, 0.1, noise_std), rel=0.01)
+    monte_carlo = float((total if episode_return == "sum" else total / episode_length).mean())
+    expected = expected_linear_return(theta, episode_length, 2.0, 0.1, noise_std, reward_state, episode_return)
+    assert monte_carlo == pytest.approx(expected, rel=0.01)
+
+
+def test_expected_linear_return_of_a_hand_computed_noise_free_episode():
+    """θ = -2, x0 = 2, T = 2, σ = 0.5: a² = 0.64; r_0 = -0.64·4, r_1 = -0.64·(0.64·4 + 0.25)."""
+    expected = -(0.64 * 4 + 0.64 * (0.64 * 4 + 0.25))
+    assert expected_linear_return(-2.0, 2, 2.0, 0.1, 0.5, "noise_free", "sum") == pytest.approx(expected)
+    assert expected_linear_return(-2.0, 2, 2.0, 0.1, 0.5, "noise_free", "mean") == pytest.approx(expected / 2)
 
 
 def test_midway_threshold_lies_half_way_between_start_and_optimum():

@@ -19,7 +19,13 @@ from sde_torchrl import (
     episode_scores,
     make_minimize_env,
 )
-from sde_torchrl.estimators import EpisodeLogLikelihood, enac_gradient, flatten_scores, reinforce_gradient
+from sde_torchrl.estimators import (
+    EpisodeLogLikelihood,
+    enac_gradient,
+    flatten_scores,
+    reinforce_gradient,
+    rescale_largest_entry,
+)
 
 
 def _policy(actor_kind="linear", runs=None, sharing="element", gaussian=None):
@@ -232,3 +238,61 @@ def test_max_grad_norm_rescales_each_run_separately():
     torch.testing.assert_close(clipped["gradient_norm"], norms)
     with pytest.raises(ValueError, match="max_grad_norm"):
         ReinforceEstimator(policy, max_grad_norm=0.0)
+
+
+def test_episode_returns_sum_or_mean_the_rewards():
+    rewards = torch.arange(24, dtype=torch.float32).reshape(2, 3, 4, 1)
+    td = TensorDict({"next": {"reward": rewards}}, [2, 3, 4])
+    torch.testing.assert_close(episode_returns(td, kind="sum"), rewards.squeeze(-1).sum(-1))
+    policy = _policy()
+    assert ReinforceEstimator(policy, episode_return="sum").returns(td).equal(rewards.squeeze(-1).sum(-1))
+    with pytest.raises(ValueError, match="episode_return"):
+        ReinforceEstimator(policy, episode_return="total")
+
+
+def _linear_closed_forms(policy, episodes):
+    """Per-episode closed forms on u = W x + Θ̂ x: eq. (14) for W, eq. (21) with expln' (24) for p."""
+    weight = policy.module[0].module.weight.detach()
+    sigma_hat = policy.module[1].sde_sigma.detach()  # p <= 0: expln'(p) = σ̂
+    x, u = episodes["observation"], episodes["action_sample"]
+    mu = x @ weight.T
+    variance = (x.square() @ sigma_hat.square().T)  # eq. (20), [N, T, A]
+    d = (u - mu).unsqueeze(-1)  # [N, T, A, 1]
+    xs = x.unsqueeze(-2)  # [N, T, 1, S]
+    plain_w = (d / variance.unsqueeze(-1) * xs).sum(1)
+    plain_p = (((d.square() - variance.unsqueeze(-1)) / variance.unsqueeze(-1).square()) * xs.square()
+               * sigma_hat.square()).sum(1)
+    return plain_w, plain_p, variance.unsqueeze(-1), d, xs, sigma_hat
+
+
+def test_variance_weighted_scores_match_the_authors_closed_forms():
+    """Weighted by σ_j² (constant): ∂/∂W_ji = Σ_t (u_j − μ_j) x_i, and the σ̂ score is eq. (21) × σ_j²."""
+    policy = TensorDictSequential(LinearActor(2, 2, bias=False, init=[-1.0, 0.0]), StateDependentExplorer(2, 2))
+    episodes = _episodes(policy, episodes=3, length=4)
+    plain = episode_scores(EpisodeLogLikelihood(policy), episodes)
+    weighted = episode_scores(EpisodeLogLikelihood(policy, variance_weighted=True), episodes)
+    plain_w, plain_p, variance, d, xs, sigma_hat = _linear_closed_forms(policy, episodes)
+    names = list(plain)
+    torch.testing.assert_close(plain[names[0]], plain_w, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(plain[names[1]], plain_p, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(weighted[names[0]], (d * xs).sum(1), rtol=1e-4, atol=1e-4)
+    expected_p = ((d.square() - variance) / variance * xs.square() * sigma_hat.square()).sum(1)
+    torch.testing.assert_close(weighted[names[1]], expected_p, rtol=1e-4, atol=1e-4)
+    assert not torch.allclose(weighted[names[0]], plain[names[0]], rtol=0.1)
+
+
+def test_max_grad_entry_rescales_by_the_signed_largest_entry_per_run():
+    policy = _policy(runs=2)
+    episodes = _episodes(policy, runs=2, episodes=6)
+    free = ReinforceEstimator(policy)(episodes)["gradient"]
+    largest = free.max(-1).values
+    bound = float(largest.min() + largest.max()) / 2  # rescales one run, leaves the other
+    rescaled = ReinforceEstimator(policy, max_grad_entry=bound)(episodes)["gradient"]
+    small, large = int(largest.argmin()), int(largest.argmax())
+    torch.testing.assert_close(rescaled[small], free[small])
+    torch.testing.assert_close(rescaled[large], free[large] * bound / largest[large])
+    assert float(rescaled[large].max()) == pytest.approx(bound)
+    negative = -torch.tensor([[5000.0, 1.0]])  # huge but negative entries: untouched (signed maximum)
+    torch.testing.assert_close(rescale_largest_entry(negative, 1000.0), negative)
+    with pytest.raises(ValueError, match="max_grad_entry"):
+        ReinforceEstimator(policy, max_grad_entry=0.0)

