@@ -16,26 +16,14 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 
-from sde_torchrl.config import TrainConf, register_configs, validate
+from sde_torchrl.config import TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
-from sde_torchrl.envs.minimize import midway_threshold
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.trainer import Trainer
 
 #: Config groups whose chosen option labels a run's summary.
 LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator")
-
-
-def register_resolvers() -> None:
-    """Config resolvers (``${midway_r_lim:T,x0,s,noise_std,theta0}``, see ``midway_threshold``)
-    and the config schemas of :mod:`sde_torchrl.config`: call before composing a config."""
-    register_configs()
-    OmegaConf.register_new_resolver(
-        "midway_r_lim",
-        lambda T, x0, s, noise, theta0: midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0)),
-        replace=True,
-    )
 
 
 def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:

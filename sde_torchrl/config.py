@@ -416,6 +416,21 @@ def register_configs() -> None:
         store.store(group=group, name=name, node=node)
 
 
+def register_resolvers() -> None:
+    """Config resolvers (``${midway_r_lim:T,x0,s,noise_std,theta0}``, see ``midway_threshold``)
+    and the config schemas (:func:`register_configs`): call before composing a config. Light:
+    torch is imported when a value is resolved, not here (``train.py`` locks its run directory
+    before importing torch)."""
+    register_configs()
+
+    def midway_r_lim(T, x0, s, noise, theta0):  # noqa: N803 - the paper's symbols
+        from sde_torchrl.envs.minimize import midway_threshold
+
+        return midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0))
+
+    OmegaConf.register_new_resolver("midway_r_lim", midway_r_lim, replace=True)
+
+
 def validate(cfg: DictConfig) -> TrainConf:
     """The composed config as schema objects, every value checked (once, before anything is built).
 
