@@ -390,6 +390,23 @@ class TrainConf:
             raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
         if self.stop_at_threshold and self.r_lim is None:
             raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
+        _check_can_learn(self)
+
+
+def _check_can_learn(conf: TrainConf) -> None:
+    """Refuses settings under which no update can change the policy (hours of compute for nothing).
+
+    REINFORCE's optimal baseline over a single episode equals that episode's return: with one
+    episode per update and no queue, every gradient is exactly 0. ENAC with fewer episodes than
+    parameters + 1 is not refused: its regression is rank-deficient, but the minimum-norm
+    solution it then takes is still an ascent direction (``rank`` reports it).
+    """
+    target = getattr(conf.estimator, "_target_", "") or ""
+    if target.endswith("ReinforceEstimator") and max(conf.episodes_per_update, conf.episode_queue) < 2:
+        raise ArgumentError(
+            "episodes_per_update", conf.episodes_per_update,
+            "at least 2 with estimator=reinforce (or an episode_queue of 2 or more): over a single "
+            "episode the optimal baseline equals its return, so every gradient is exactly 0")
 
 
 #: ``schema/<name>`` → dataclass; YAML files name these first in their defaults list.
