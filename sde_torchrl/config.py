@@ -399,7 +399,8 @@ def _check_can_learn(conf: TrainConf) -> None:
     REINFORCE's optimal baseline over a single episode equals that episode's return: with one
     episode per update and no queue, every gradient is exactly 0. ENAC with fewer episodes than
     parameters + 1 is not refused: its regression is rank-deficient, but the minimum-norm
-    solution it then takes is still an ascent direction (``rank`` reports it).
+    solution it then takes is not zero, only noisy: a warning once the parameters are counted
+    (:func:`sde_torchrl.build.warn_if_rank_deficient`).
     """
     target = getattr(conf.estimator, "_target_", "") or ""
     if target.endswith("ReinforceEstimator") and max(conf.episodes_per_update, conf.episode_queue) < 2:
