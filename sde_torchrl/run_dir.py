@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import logging
 import math
 import os
@@ -164,6 +165,35 @@ class RunDirectory:
 
     def _logger_csv_files(self) -> list[Path]:
         return sorted(self.path.glob("*/scalars/*.csv"))
+
+
+def read_summary(path: str | os.PathLike) -> dict[str, Any]:
+    """Reads a job's ``summary.json`` as strict JSON.
+
+    Raises:
+        DamagedFileError: it is not a JSON object (cut short, overwritten, NaN or infinity in
+            it); the remedy is to run the job again, which rewrites it from the checkpoint.
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "summary.json"
+        >>> write_json_atomic(path, {"runs": 2})
+        >>> read_summary(path)
+        {'runs': 2}
+    """
+    path = Path(path)
+    remedy = f"run the job's command again: a finished job rewrites {path.name} from its {CHECKPOINT}"
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"{constant} is not JSON")
+
+    try:
+        summary = json.loads(path.read_bytes(), parse_constant=refuse)
+    except ValueError as error:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise DamagedFileError(path, f"it is not valid JSON ({error})", remedy) from None
+    if not isinstance(summary, dict):
+        raise DamagedFileError(path, f"it holds a JSON {type(summary).__name__}, not an object", remedy)
+    return summary
 
 
 def _first_difference(lines: list[bytes], expected: list[bytes], rows: Sequence[dict[str, Any]]) -> str | None:
