@@ -69,12 +69,14 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     path = Path(path)
     remedy = (f"nothing was resumed from it; to train the job again from the start, delete {path.name} "
               f"(copy {path.parent / 'metrics.csv'} elsewhere first to keep the updates done so far)")
+    if path.stat().st_size == 0:
+        raise DamagedFileError(path, "it is empty", remedy)
     try:
         state = torch.load(path, weights_only=True)
     except FileNotFoundError:
         raise
     except Exception as error:  # noqa: BLE001 - whatever the damage, the file cannot be used
-        reason = " ".join(str(error).split())[:200] or type(error).__name__
+        reason = " ".join(str(error).split()).split(". ")[0][:200] or "no detail"  # torch's first sentence
         raise DamagedFileError(path, f"it cannot be read ({type(error).__name__}: {reason})", remedy) from error
     if not isinstance(state, dict):
         raise DamagedFileError(path, f"it holds a {type(state).__name__}, not a checkpoint", remedy)
