@@ -98,6 +98,12 @@ def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
         estimator: the job's estimator.
         episodes: episodes per run in each regression (``N``, or the queue's ``Q``).
         runs: the job's runs (the leading dimension of run-stacked parameters).
+
+    Examples:
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import ENACEstimator, LinearActor, StateDependentExplorer
+        >>> estimator = ENACEstimator(TensorDictSequential(LinearActor(1, 1), StateDependentExplorer(1, 1)))
+        >>> warn_if_rank_deficient(estimator, episodes=10, runs=1)  # 3 unknowns: nothing to say
     """
     if not isinstance(estimator, ENACEstimator):
         return

@@ -30,8 +30,8 @@ class RunDirectoryInUse(RuntimeError):
     """Another live process holds the run directory.
 
     Examples:
-        >>> str(RunDirectoryInUse("runs/a", "4242"))[:54]
-        'runs/a is in use by another process (pid 4242): it wa'
+        >>> str(RunDirectoryInUse("runs/a", "4242")).split(":")[0]
+        'runs/a is in use by another process (pid 4242)'
     """
 
     def __init__(self, path: str | os.PathLike, holder: str) -> None:

@@ -66,7 +66,13 @@ def metric_rows(
 
 def csv_lines(rows: Sequence[dict[str, Any]]) -> list[bytes]:
     """The lines of a ``metrics.csv`` holding ``rows``, header first, byte for byte as
-    :class:`MetricsFile` writes them."""
+    :class:`MetricsFile` writes them.
+
+    Examples:
+        >>> lines = csv_lines(metric_rows(0, 3, 40, torch.tensor([-1.0]), torch.tensor([-0.5]), torch.tensor([2.0])))
+        >>> [line.decode().rstrip() for line in lines]
+        ['run,update,episodes,return_mean,eval_return,grad_norm', '0,3,40,-1.0,-0.5,2.0']
+    """
     text = io.StringIO(newline="")
     writer = csv.DictWriter(text, fieldnames=METRIC_FIELDS)
     writer.writeheader()
