@@ -151,7 +151,8 @@ class RunDirectory:
         if problem is None and len(lines) < len(expected):
             problem = f"it holds {max(len(lines) - 1, 0)} of the {len(rows)} rows {CHECKPOINT} recorded"
         if problem is None and finished and len(lines) > len(expected):
-            problem = f"it holds {len(lines) - len(expected)} lines after the job's last update"
+            extra = len(lines) - len(expected)
+            problem = f"it holds {extra} line{'s' if extra > 1 else ''} after the job's last update"
         if problem is not None:
             raise DamagedFileError(self.metrics, problem, (
                 f"delete it and run the job again: its {len(rows)} rows (every update up to the "
