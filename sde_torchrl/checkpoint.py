@@ -34,6 +34,9 @@ from sde_torchrl.rng import RunStreams
 log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.pt"
+#: The checkpoint before the last one, kept by :func:`save_job`: a damaged ``checkpoint.pt``
+#: then costs the updates since it, not the whole job.
+PREVIOUS = "checkpoint.prev.pt"
 #: Bumped when the checkpoint layout changes; older checkpoints are refused.
 FORMAT = 2
 #: Config keys that do not change the numbers a job produces: they may differ on resume.
@@ -205,7 +208,11 @@ def save_job(
         policy: the policy whose state dict is saved.
         optimizer: the optimiser whose state dict is saved.
         streams: the job's per-run streams (:func:`job_streams`).
+
+    The checkpoint it replaces is kept as :data:`PREVIOUS` beside it (a hard link, or a copy).
     """
+    if path.exists():
+        keep_previous(path, path.with_name(PREVIOUS))
     save_checkpoint(path, {
         "format": FORMAT,
         "config": config,
@@ -216,6 +223,29 @@ def save_job(
         "random": global_random_state(),
         "loop": loop,
     })
+
+
+def keep_previous(path: Path, previous: Path) -> None:
+    """Makes ``previous`` a durable copy of ``path`` (a hard link where the filesystem allows),
+    replacing it atomically: at every moment one of the two is a complete checkpoint."""
+    tmp = previous.with_name(previous.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    try:
+        os.link(path, tmp)
+    except OSError:  # no hard links here: copy
+        write_atomically(tmp, lambda f: f.write(path.read_bytes()))
+    os.replace(tmp, previous)
+
+
+def _pointing_to_previous(error: DamagedFileError, previous: Path) -> DamagedFileError:
+    """``error``, its remedy pointing to ``previous`` if that checkpoint is intact."""
+    try:
+        updates = load_checkpoint(previous)["updates"]
+    except (OSError, DamagedFileError, CheckpointMismatchError, KeyError):
+        return error
+    return DamagedFileError(error.path, error.problem, (
+        f"nothing was resumed from it; {previous.name} (after update {updates}) is intact: replace "
+        f"{error.path.name} with it (mv {previous} {error.path}) to resume from there"))
 
 
 def restore_job(
@@ -230,7 +260,10 @@ def restore_job(
         CheckpointMismatchError: the checkpoint was written under another config, or holds
             streams this job does not have.
     """
-    saved = load_checkpoint(path)
+    try:
+        saved = load_checkpoint(path)
+    except DamagedFileError as error:
+        raise _pointing_to_previous(error, path.with_name(PREVIOUS)) from error
     if config is not None and saved.get("config") is not None:
         diff = config_differences(saved["config"], config)
         if diff:

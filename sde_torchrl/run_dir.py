@@ -5,7 +5,7 @@
   resume, its rows up to the checkpoint must be exactly those the checkpoint recorded
   (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
 - ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
-- ``checkpoint.pt``: see :mod:`sde_torchrl.checkpoint`;
+- ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.checkpoint`;
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
 
@@ -29,7 +29,7 @@ from typing import Any
 
 import torch
 
-from sde_torchrl.checkpoint import CHECKPOINT
+from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS
 from sde_torchrl.files import DamagedFileError, write_atomically, write_json_atomic
 from sde_torchrl.lock import hold_run_directory
 
@@ -115,7 +115,8 @@ class RunDirectory:
     def start_new_job(self) -> None:
         """Removes an earlier job's metrics, summary, error file and TorchRL CSV logger files
         (no checkpoint: nothing resumes; the logger would otherwise append to the old rows)."""
-        for stale in (self.metrics, self.summary, self.error, *self._logger_csv_files()):
+        previous = self.path / PREVIOUS  # another job's: never a remedy for this one
+        for stale in (self.metrics, self.summary, self.error, previous, *self._logger_csv_files()):
             stale.unlink(missing_ok=True)
 
     def clear_error(self) -> None:

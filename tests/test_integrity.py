@@ -231,6 +231,25 @@ def test_resume_refuses_a_damaged_checkpoint_and_changes_nothing(crashed, refere
         assert (crashed / "metrics.csv").read_bytes() == (reference / "metrics.csv").read_bytes()
 
 
+def test_damaged_checkpoint_points_to_the_previous_one(crashed, reference):
+    path, previous = crashed / "checkpoint.pt", crashed / "checkpoint.prev.pt"
+    assert load_checkpoint(previous)["updates"] == 4  # the one before the checkpoint after update 8
+    path.write_bytes(path.read_bytes()[:-100])
+    with pytest.raises(DamagedFileError) as info:
+        build(*BUDGET).train(crashed, checkpoint_period=4)
+    assert str(info.value) == (
+        f"{path} is damaged: it cannot be read (RuntimeError: PytorchStreamReader failed reading zip archive: "
+        f"failed finding central directory); nothing was resumed from it; checkpoint.prev.pt (after update 4) is "
+        f"intact: replace checkpoint.pt with it (mv {previous} {path}) to resume from there")
+    previous.replace(path)  # the remedy: updates 4 to 9 are done again, identically
+    resumed = build(*BUDGET).train(crashed, checkpoint_period=4)
+    assert (crashed / "metrics.csv").read_bytes() == (reference / "metrics.csv").read_bytes()
+    assert resumed["final_parameters"] == json.loads((reference / "summary.json").read_text())["final_parameters"]
+    (crashed / "checkpoint.pt").unlink()  # starting over: the previous job's checkpoints go
+    build("updates=1").train(crashed)
+    assert not previous.exists()
+
+
 def test_damaged_checkpoint_on_the_command_line(tmp_path):
     cli = ("+experiment=minimize", "runs=2", "updates=3", "logger=none")
     assert run_cli(*cli, run_dir=tmp_path).returncode == 0
