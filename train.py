@@ -5,11 +5,23 @@ Hydra composes ``conf/config.yaml`` with the groups ``env``, ``actor``, ``explor
 ``summary.json`` and ``checkpoint.pt`` into its run directory, and resumes from the checkpoint
 when started again in the same directory (``hydra.run.dir=...``).
 
-Errors are reported in one line on stderr (``error: <key>=<value>: <what is allowed>`` for a
-config error, exit code 2; exit code 1 for a failed job; 130 after Ctrl-C, with a checkpoint).
-A failed job also leaves ``error.txt`` (message and traceback) in its run directory; in a
-multirun the other jobs go on. ``SDE_TORCHRL_DEBUG=1`` (or ``HYDRA_FULL_ERROR=1``) shows full
-tracebacks instead.
+Errors are reported in one line on stderr, and the exit code says which kind:
+
+- 1: the job failed (a non-finite value, any exception);
+- 2: a config error (``error: <key>=<value>: <what is allowed>``), or a checkpoint written
+  under another config;
+- 3: the run directory is in use by another live process (``<dir> is in use by another process
+  (pid N)``); nothing in it was changed;
+- 4: a file of the run directory is damaged (``checkpoint.pt``, ``metrics.csv``,
+  ``summary.json``): the line names the file, what is wrong and the least destructive remedy;
+  nothing was resumed from it;
+- 130: interrupted (Ctrl-C), with a checkpoint.
+
+A job holds its run directory (:mod:`sde_torchrl.lock`) from before anything is written there
+(Hydra's ``.hydra/`` files included, which is why this script writes them) to its end. A failed
+job also leaves ``error.txt`` (message and traceback) in its run directory; in a multirun the
+other jobs go on, and the exit code is the failures' common code (1 if they differ).
+``SDE_TORCHRL_DEBUG=1`` (or ``HYDRA_FULL_ERROR=1``) shows full tracebacks instead.
 """
 
 from __future__ import annotations
@@ -18,35 +30,38 @@ import logging
 import os
 import sys
 import traceback
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from sde_torchrl.build import register_resolvers, run_job
-from sde_torchrl.checkpoint import CheckpointMismatchError
-from sde_torchrl.config import describe_error
+# Light imports only (no torch): a job locks its run directory before importing torch.
+from sde_torchrl.config import describe_error, register_resolvers
+from sde_torchrl.files import DamagedFileError, write_atomically
 from sde_torchrl.interrupt import TrainingInterrupted
+from sde_torchrl.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.progress import progress_wanted
 
 log = logging.getLogger("train")
 register_resolvers()
 
-EXIT_FAILED, EXIT_CONFIG, EXIT_INTERRUPTED = 1, 2, 130
+EXIT_FAILED, EXIT_CONFIG, EXIT_IN_USE, EXIT_DAMAGED, EXIT_INTERRUPTED = 1, 2, 3, 4, 130
 
 
 @dataclass
 class JobFailure:
-    """A job that raised: where, with which overrides, and the one-line message."""
+    """A job that raised: where, with which overrides, the one-line message and its exit code."""
 
     out_dir: str
     overrides: list[str]
     message: str
-    config_error: bool
+    code: int
     multirun: bool
+    error_file: bool = True
 
 
 #: Failures of this process's jobs, reported once the (multi)run is over.
@@ -60,15 +75,30 @@ def debug_mode() -> bool:
     return any(os.environ.get(name, "") not in ("", "0") for name in ("SDE_TORCHRL_DEBUG", "HYDRA_FULL_ERROR"))
 
 
-def one_line(error: BaseException) -> tuple[str, bool]:
-    """The error as one line, and whether it is a config error."""
+def one_line(error: BaseException) -> tuple[str, int]:
+    """The error as one line, and its exit code."""
     described = describe_error(error)
     if described is not None:
-        return described, True
-    if isinstance(error, CheckpointMismatchError):
-        return str(error), True
+        return described, EXIT_CONFIG
+    checkpoint = sys.modules.get("sde_torchrl.checkpoint")  # not imported: not its error
+    if checkpoint is not None and isinstance(error, checkpoint.CheckpointMismatchError):
+        return str(error), EXIT_CONFIG
+    if isinstance(error, (RunDirectoryInUse, DamagedFileError)):
+        return str(error), EXIT_IN_USE if isinstance(error, RunDirectoryInUse) else EXIT_DAMAGED
     text = " ".join(str(error).split()) or type(error).__name__
-    return (text if type(error).__name__ in text else f"{type(error).__name__}: {text}"), False
+    return (text if type(error).__name__ in text else f"{type(error).__name__}: {text}"), EXIT_FAILED
+
+
+def save_hydra_config(cfg: DictConfig, out_dir: str) -> None:
+    """Writes what Hydra writes into ``<run dir>/.hydra`` (``config.yaml``, ``hydra.yaml``,
+    ``overrides.yaml``): ``conf/config.yaml`` sets ``hydra.output_subdir`` to null so that they
+    are written here, by the process that holds the run directory."""
+    hydra_node = HydraConfig.instance().cfg
+    target = Path(out_dir, ".hydra")
+    target.mkdir(exist_ok=True)
+    for name, node in (("config.yaml", cfg), ("hydra.yaml", hydra_node),
+                       ("overrides.yaml", hydra_node.hydra.overrides.task)):
+        write_atomically(target / name, lambda f, node=node: f.write(OmegaConf.to_yaml(node).encode()))
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
@@ -78,17 +108,28 @@ def main(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     out_dir = hydra_cfg.runtime.output_dir
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
-    try:
-        summary = run_job(cfg, out_dir, dict(hydra_cfg.runtime.choices),
-                          progress=progress_wanted(cfg.get("progress"), multirun))
-    except Exception as error:  # noqa: BLE001 - every failure is recorded, then reported
-        message, config_error = one_line(error)
-        Path(out_dir, "error.txt").write_text(f"{message}\n\n{traceback.format_exc()}")
-        FAILURES.append(JobFailure(out_dir, list(hydra_cfg.overrides.task), message, config_error, multirun))
-        log.error("job failed: %s (details in %s)", message, Path(out_dir, "error.txt"))
-        if DEBUG and not multirun:
-            raise
-        return
+    overrides = list(hydra_cfg.overrides.task)
+    with ExitStack() as stack:
+        try:
+            stack.enter_context(hold_run_directory(out_dir))
+        except Exception as error:  # noqa: BLE001 - in use (or not writable): nothing is written there
+            message, code = one_line(error)
+            FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
+            return
+        save_hydra_config(cfg, out_dir)
+        try:
+            from sde_torchrl.build import run_job  # torch: imported once the run directory is ours
+
+            summary = run_job(cfg, out_dir, dict(hydra_cfg.runtime.choices),
+                              progress=progress_wanted(cfg.get("progress"), multirun))
+        except Exception as error:  # noqa: BLE001 - every failure is recorded, then reported
+            message, code = one_line(error)
+            Path(out_dir, "error.txt").write_text(f"{message}\n\n{traceback.format_exc()}")
+            FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun))
+            log.error("job failed: %s (details in %s)", message, Path(out_dir, "error.txt"))
+            if DEBUG and not multirun:
+                raise
+            return
     log.info("final return per run: %s", [round(r, 3) for r in summary["final_return"]])
 
 
@@ -110,18 +151,20 @@ def cli() -> int:
     except Exception as error:  # noqa: BLE001 - composition errors (bad group option, type)
         if debug:
             raise
-        message, config_error = one_line(error)
+        message, code = one_line(error)
         sys.stderr.write(f"error: {message}\n")
-        return EXIT_CONFIG if config_error else EXIT_FAILED
+        return code
     finally:
         if previous is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
     if not FAILURES:
         return 0
     for failure in FAILURES:
-        where = f" (job {' '.join(failure.overrides)}, see {failure.out_dir}/error.txt)" if failure.multirun else ""
+        see = f", see {failure.out_dir}/error.txt" if failure.error_file else ""
+        where = f" (job {' '.join(failure.overrides)}{see})" if failure.multirun else ""
         sys.stderr.write(f"error: {failure.message}{where}\n")
-    return EXIT_CONFIG if all(f.config_error for f in FAILURES) else EXIT_FAILED
+    codes = {failure.code for failure in FAILURES}
+    return codes.pop() if len(codes) == 1 else EXIT_FAILED
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import numpy as np
 
 from sde_torchrl.envs.ballcatch import BallCatchEnv, episode_return
 from sde_torchrl.envs.ballcatch.demo import write_gif
+from sde_torchrl.run_dir import read_summary
 
 WEIGHT = "module.0.module.weight"
 """The linear controller's ``Θ`` in the policy's state dict (``summary.json: final_parameters``)."""
@@ -30,7 +31,7 @@ def best_run(directories: list[Path], explorer: str, estimator: str) -> tuple[in
     best: tuple[int, float, np.ndarray] | None = None
     for directory in directories:
         for path in sorted(directory.rglob("summary.json")):
-            summary = json.loads(path.read_text())
+            summary = read_summary(path)
             if (summary.get("explorer"), summary.get("estimator"), summary.get("env")) != (
                     explorer, estimator, "ballcatch"):
                 continue

@@ -45,7 +45,9 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     length = f"env.episode_length={args.length}"
-    plain = steps_per_second(["runs=1", "episodes_per_update=1", length, "tensor_rollout=false"],
+    # episode_queue=2 only passes the config check (REINFORCE on one episode learns nothing, so
+    # a job is refused): steps_per_second calls collect and update itself, one episode at a time.
+    plain = steps_per_second(["runs=1", "episodes_per_update=1", "episode_queue=2", length, "tensor_rollout=false"],
                              args.seconds)
     batched = steps_per_second([f"runs={args.runs}", f"episodes_per_update={args.episodes}", length],
                                args.seconds)

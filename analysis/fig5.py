@@ -36,10 +36,12 @@ FIGURE = {"reinforce": "fig5", "enac": "fig6"}
 
 def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, dict]]:
     """``explorer → global run index → {"evals": [(update, return)], "final": R}``."""
+    from sde_torchrl.run_dir import read_summary  # names a damaged summary.json and the remedy
+
     runs: dict[str, dict[int, dict]] = {}
     for directory in directories:
         for summary_path in sorted(directory.rglob("summary.json")):
-            summary = json.loads(summary_path.read_text())
+            summary = read_summary(summary_path)
             if summary.get("estimator") != estimator:
                 continue
             explorer = summary["explorer"]

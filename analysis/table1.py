@@ -100,9 +100,11 @@ def _expected_cost(job: tuple[str, list[str], str]) -> float:
 
 def load_runs(directory: Path) -> list[dict]:
     """Every finished run under ``directory``: its summary and per-update mean returns."""
+    from sde_torchrl.run_dir import read_summary  # names a damaged summary.json and the remedy
+
     runs = []
     for summary_path in sorted(directory.rglob("summary.json")):
-        summary = json.loads(summary_path.read_text())
+        summary = read_summary(summary_path)
         if summary.get("experiment") not in EXPERIMENTS:
             continue
         with open(summary_path.parent / "metrics.csv") as f:

@@ -2,19 +2,24 @@
 
 from __future__ import annotations
 
-from sde_torchrl.actors import LinearActor, MLPActor
-from sde_torchrl.distribution import SDENormal, TanhSDENormal
-from sde_torchrl.envs import MinimizeEnv, make_minimize_env
 from sde_torchrl.envs.registration import register_ballcatch
-from sde_torchrl.estimators import ENACEstimator, ReinforceEstimator, episode_returns, episode_scores
-from sde_torchrl.exploration import StateDependentExplorer, expln, expln_inverse
-from sde_torchrl.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
 
 register_ballcatch()  # gymnasium.make("sde_torchrl/BallCatch-v0"); pybullet loads on first use
 
-#: Public names whose modules import pybullet: loaded on first access (PEP 562).
-_LAZY = {"BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
-         "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched"}
+#: Public names, each loaded from its module on first access (PEP 562): ``import sde_torchrl``
+#: does not import torch, so that ``train.py`` can lock its run directory first
+#: (:mod:`sde_torchrl.lock`), and the ball-catching modules do not import pybullet before use.
+_LAZY = {
+    **dict.fromkeys(("LinearActor", "MLPActor"), "sde_torchrl.actors"),
+    **dict.fromkeys(("SDENormal", "TanhSDENormal"), "sde_torchrl.distribution"),
+    **dict.fromkeys(("MinimizeEnv", "make_minimize_env"), "sde_torchrl.envs.minimize"),
+    **dict.fromkeys(("ENACEstimator", "ReinforceEstimator", "episode_returns", "episode_scores"),
+                    "sde_torchrl.estimators"),
+    **dict.fromkeys(("StateDependentExplorer", "expln", "expln_inverse"), "sde_torchrl.exploration"),
+    **dict.fromkeys(("SDENoisePrimer", "SDEParams", "action_bounds", "make_sde_actor"), "sde_torchrl.sde_actor"),
+    "BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
+    "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched",
+}
 
 
 def __getattr__(name: str):

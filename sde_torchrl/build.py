@@ -8,6 +8,7 @@ off the env, per-run random streams) and wires the pieces.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import fields
 from typing import Any
 
@@ -16,26 +17,17 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 
-from sde_torchrl.config import TrainConf, register_configs, validate
+from sde_torchrl.config import TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
-from sde_torchrl.envs.minimize import midway_threshold
+from sde_torchrl.estimators import ENACEstimator
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.trainer import Trainer
 
+log = logging.getLogger(__name__)
+
 #: Config groups whose chosen option labels a run's summary.
 LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator")
-
-
-def register_resolvers() -> None:
-    """Config resolvers (``${midway_r_lim:T,x0,s,noise_std,theta0}``, see ``midway_threshold``)
-    and the config schemas of :mod:`sde_torchrl.config`: call before composing a config."""
-    register_configs()
-    OmegaConf.register_new_resolver(
-        "midway_r_lim",
-        lambda T, x0, s, noise, theta0: midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0)),
-        replace=True,
-    )
 
 
 def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
@@ -87,11 +79,40 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     policy = TensorDictSequential(actor, explorer)
 
     estimator = instantiate(conf.estimator, policy=policy)
+    warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
     optimizer = torch.optim.SGD(policy.parameters(), lr=conf.lr)
     logger = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
     return Trainer(env, eval_env, policy, estimator, optimizer, training_settings(conf), logger)
+
+
+def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
+    """Warns when ENAC's regression on ``[ψ, 1]`` has fewer episodes than unknowns.
+
+    Not refused, unlike REINFORCE on one episode (:class:`~sde_torchrl.config.TrainConf`): the
+    minimum-norm solution ENAC then takes interpolates the returns and is not zero, only noisy,
+    and the parameter count is known only once the policy is built.
+
+    Args:
+        estimator: the job's estimator.
+        episodes: episodes per run in each regression (``N``, or the queue's ``Q``).
+        runs: the job's runs (the leading dimension of run-stacked parameters).
+
+    Examples:
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import ENACEstimator, LinearActor, StateDependentExplorer
+        >>> estimator = ENACEstimator(TensorDictSequential(LinearActor(1, 1), StateDependentExplorer(1, 1)))
+        >>> warn_if_rank_deficient(estimator, episodes=10, runs=1)  # 3 unknowns: nothing to say
+    """
+    if not isinstance(estimator, ENACEstimator):
+        return
+    unknowns = 1 + sum(p[0].numel() if p.dim() and p.shape[0] == runs else p.numel()
+                       for p in estimator.learnable_parameters().values())
+    if episodes < unknowns:
+        log.warning("estimator=enac with %d episodes per update for %d unknowns ([ψ, 1]): the regression is "
+                    "rank-deficient and its gradient noisy; use episodes_per_update (or episode_queue) >= %d",
+                    episodes, unknowns, unknowns)
 
 
 def run_job(

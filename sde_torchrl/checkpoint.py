@@ -8,10 +8,16 @@ the numbers an uninterrupted job produces (on CPU).
 
 :func:`save_job` and :func:`restore_job` write and read that whole state; the checkpoint file is
 replaced atomically, so a reader (or a resumed job) sees the previous complete file or the new one.
+Its content carries a checksum (:func:`content_digest`, key ``sha256``), verified on load: a
+damaged file raises :class:`~sde_torchrl.files.DamagedFileError` rather than resuming from
+wrong numbers. The checksum covers the loaded content (every tensor's bytes, dtype and shape,
+every plain value), not the zip container, so what it accepts is exactly what was saved, and
+``torch.load("checkpoint.pt", weights_only=True)`` still reads the file.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import random
@@ -22,14 +28,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from sde_torchrl.files import write_atomically
+from sde_torchrl.files import DamagedFileError, write_atomically
 from sde_torchrl.rng import RunStreams
 
 log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.pt"
+#: The checkpoint before the last one, kept by :func:`save_job`: a damaged ``checkpoint.pt``
+#: then costs the updates since it, not the whole job.
+PREVIOUS = "checkpoint.prev.pt"
 #: Bumped when the checkpoint layout changes; older checkpoints are refused.
-FORMAT = 1
+FORMAT = 2
 #: Config keys that do not change the numbers a job produces: they may differ on resume.
 NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress")
 
@@ -39,19 +48,88 @@ class CheckpointMismatchError(ValueError):
 
 
 def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
-    """``torch.save`` of ``state``, atomically (:func:`~sde_torchrl.files.write_atomically`)."""
+    """``torch.save`` of ``state`` with its :func:`content_digest` under ``sha256``, atomically
+    (:func:`~sde_torchrl.files.write_atomically`)."""
+    state = {**state, "sha256": content_digest(state)}
     write_atomically(path, lambda f: torch.save(state, f))
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Loads a checkpoint written by :func:`save_checkpoint` (tensors and plain data only)."""
-    state = torch.load(path, weights_only=True)
-    if state.get("format") != FORMAT:
+    """Loads a checkpoint written by :func:`save_checkpoint` (tensors and plain data only) and
+    verifies its checksum.
+
+    Raises:
+        DamagedFileError: the file cannot be read, or its content does not match its checksum.
+        CheckpointMismatchError: it was written by a version with another checkpoint format.
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "checkpoint.pt"
+        >>> save_checkpoint(path, {"format": FORMAT, "updates": 3})
+        >>> load_checkpoint(path)
+        {'format': 2, 'updates': 3}
+    """
+    path = Path(path)
+    remedy = (f"nothing was resumed from it; to train the job again from the start, delete {path.name} "
+              f"(copy {path.parent / 'metrics.csv'} elsewhere first to keep the updates done so far)")
+    if path.stat().st_size == 0:
+        raise DamagedFileError(path, "it is empty", remedy)
+    try:
+        state = torch.load(path, weights_only=True)
+    except FileNotFoundError:
+        raise
+    except Exception as error:  # noqa: BLE001 - whatever the damage, the file cannot be used
+        reason = " ".join(str(error).split()).split(". ")[0][:200] or "no detail"  # torch's first sentence
+        raise DamagedFileError(path, f"it cannot be read ({type(error).__name__}: {reason})", remedy) from error
+    if not isinstance(state, dict):
+        raise DamagedFileError(path, f"it holds a {type(state).__name__}, not a checkpoint", remedy)
+    digest = state.pop("sha256", None)
+    if digest is None and state.get("format") != FORMAT:
         raise CheckpointMismatchError(
             f"{path} has checkpoint format {state.get('format')!r}, this version reads {FORMAT}; "
-            "delete it or use another run directory"
+            "finish the job with the version that wrote it, or delete it to start over"
         )
+    if digest != content_digest(state):
+        problem = "its checksum is missing" if digest is None else "its content does not match its checksum"
+        raise DamagedFileError(path, problem, remedy)
+    if state.get("format") != FORMAT:
+        raise CheckpointMismatchError(f"{path} has checkpoint format {state.get('format')!r}, this version "
+                                      f"reads {FORMAT}; delete it to start over")
     return state
+
+
+def content_digest(state: Any) -> str:
+    """SHA-256 of a checkpoint's content: every tensor's dtype, shape and bytes, every plain
+    value, in order, so that equal digests mean equal content.
+
+    Examples:
+        >>> content_digest({"a": torch.zeros(2)}) == content_digest({"a": torch.zeros(2)})
+        True
+        >>> content_digest({"a": torch.zeros(2)}) == content_digest({"a": torch.zeros(3)})
+        False
+    """
+    digest = hashlib.sha256()
+    _feed(digest, state)
+    return digest.hexdigest()
+
+
+def _feed(digest: Any, value: Any) -> None:
+    if isinstance(value, torch.Tensor):
+        tensor = value.detach().cpu().contiguous().reshape(-1)
+        digest.update(f"T{tensor.dtype}{tuple(value.shape)}".encode())
+        digest.update(tensor.view(torch.uint8).numpy().tobytes())
+    elif isinstance(value, dict):
+        digest.update(f"D{len(value)}".encode())
+        for key, item in value.items():
+            _feed(digest, key)
+            _feed(digest, item)
+    elif isinstance(value, (list, tuple)):
+        digest.update(f"{type(value).__name__}{len(value)}".encode())
+        for item in value:
+            _feed(digest, item)
+    else:
+        text = f"{type(value).__name__}:{value!r}"
+        digest.update(f"S{len(text)}:{text}".encode())
 
 
 def result_config(config: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -130,7 +208,11 @@ def save_job(
         policy: the policy whose state dict is saved.
         optimizer: the optimiser whose state dict is saved.
         streams: the job's per-run streams (:func:`job_streams`).
+
+    The checkpoint it replaces is kept as :data:`PREVIOUS` beside it (a hard link, or a copy).
     """
+    if path.exists():
+        keep_previous(path, path.with_name(PREVIOUS))
     save_checkpoint(path, {
         "format": FORMAT,
         "config": config,
@@ -141,6 +223,29 @@ def save_job(
         "random": global_random_state(),
         "loop": loop,
     })
+
+
+def keep_previous(path: Path, previous: Path) -> None:
+    """Makes ``previous`` a durable copy of ``path`` (a hard link where the filesystem allows),
+    replacing it atomically: at every moment one of the two is a complete checkpoint."""
+    tmp = previous.with_name(previous.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    try:
+        os.link(path, tmp)
+    except OSError:  # no hard links here: copy
+        write_atomically(tmp, lambda f: f.write(path.read_bytes()))
+    os.replace(tmp, previous)
+
+
+def _pointing_to_previous(error: DamagedFileError, previous: Path) -> DamagedFileError:
+    """``error``, its remedy pointing to ``previous`` if that checkpoint is intact."""
+    try:
+        updates = load_checkpoint(previous)["updates"]
+    except (OSError, DamagedFileError, CheckpointMismatchError, KeyError):
+        return error
+    return DamagedFileError(error.path, error.problem, (
+        f"nothing was resumed from it; {previous.name} (after update {updates}) is intact: replace "
+        f"{error.path.name} with it (mv {previous} {error.path}) to resume from there"))
 
 
 def restore_job(
@@ -155,7 +260,10 @@ def restore_job(
         CheckpointMismatchError: the checkpoint was written under another config, or holds
             streams this job does not have.
     """
-    saved = load_checkpoint(path)
+    try:
+        saved = load_checkpoint(path)
+    except DamagedFileError as error:
+        raise _pointing_to_previous(error, path.with_name(PREVIOUS)) from error
     if config is not None and saved.get("config") is not None:
         diff = config_differences(saved["config"], config)
         if diff:

@@ -413,6 +413,24 @@ class TrainConf:
             raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
         if self.stop_at_threshold and self.r_lim is None:
             raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
+        _check_can_learn(self)
+
+
+def _check_can_learn(conf: TrainConf) -> None:
+    """Refuses settings under which no update can change the policy (hours of compute for nothing).
+
+    REINFORCE's optimal baseline over a single episode equals that episode's return: with one
+    episode per update and no queue, every gradient is exactly 0. ENAC with fewer episodes than
+    parameters + 1 is not refused: its regression is rank-deficient, but the minimum-norm
+    solution it then takes is not zero, only noisy: a warning once the parameters are counted
+    (:func:`sde_torchrl.build.warn_if_rank_deficient`).
+    """
+    target = getattr(conf.estimator, "_target_", "") or ""
+    if target.endswith("ReinforceEstimator") and max(conf.episodes_per_update, conf.episode_queue) < 2:
+        raise ArgumentError(
+            "episodes_per_update", conf.episodes_per_update,
+            "at least 2 with estimator=reinforce (or an episode_queue of 2 or more): over a single "
+            "episode the optimal baseline equals its return, so every gradient is exactly 0")
 
 
 #: ``schema/<name>`` → dataclass; YAML files name these first in their defaults list.
@@ -437,6 +455,21 @@ def register_configs() -> None:
     for path, node in SCHEMAS.items():
         group, _, name = f"schema/{path}".rpartition("/")
         store.store(group=group, name=name, node=node)
+
+
+def register_resolvers() -> None:
+    """Config resolvers (``${midway_r_lim:T,x0,s,noise_std,theta0}``, see ``midway_threshold``)
+    and the config schemas (:func:`register_configs`): call before composing a config. Light:
+    torch is imported when a value is resolved, not here (``train.py`` locks its run directory
+    before importing torch)."""
+    register_configs()
+
+    def midway_r_lim(T, x0, s, noise, theta0):  # noqa: N803 - the paper's symbols
+        from sde_torchrl.envs.minimize import midway_threshold
+
+        return midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0))
+
+    OmegaConf.register_new_resolver("midway_r_lim", midway_r_lim, replace=True)
 
 
 def validate(cfg: DictConfig) -> TrainConf:

@@ -15,6 +15,24 @@ from pathlib import Path
 from typing import IO, Any
 
 
+class DamagedFileError(RuntimeError):
+    """A file of a run directory is damaged or unreadable: nothing is resumed from it.
+
+    Args:
+        path: the file.
+        problem: what is wrong with it.
+        remedy: the least destructive way out.
+
+    Examples:
+        >>> str(DamagedFileError("run/metrics.csv", "row 3 is cut short", "delete it"))
+        'run/metrics.csv is damaged: row 3 is cut short; delete it'
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str, remedy: str) -> None:
+        self.path, self.problem, self.remedy = Path(path), problem, remedy
+        super().__init__(f"{path} is damaged: {problem}; {remedy}")
+
+
 def tmp_path(path: Path) -> Path:
     """The temporary name ``path`` is written under before being renamed."""
     return path.with_name(path.name + ".tmp")
@@ -36,20 +54,24 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], Any])
     """
     path = Path(path)
     tmp = tmp_path(path)
-    with open(tmp, "wb") as f:
-        write(f)
-        f.flush()
-        os.fsync(f.fileno())
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # the old file stays as it was; no half-written leftover
+        raise
     os.replace(tmp, path)
     _sync_directory(path.parent)
 
 
 def write_json_atomic(path: str | os.PathLike, data: dict) -> None:
-    """Writes ``data`` as indented JSON, atomically."""
+    """Writes ``data`` as indented, strict JSON (NaN and infinity raise ``ValueError``), atomically."""
 
     def write(f: IO[bytes]) -> None:
         text = io.TextIOWrapper(f, encoding="utf-8")
-        json.dump(data, text, indent=2)
+        json.dump(data, text, indent=2, allow_nan=False)
         text.flush()
         text.detach()  # leave the binary file open for write_atomically to sync
 

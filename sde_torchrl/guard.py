@@ -1,8 +1,8 @@
 """The non-finite guard: stops a job at the first NaN or infinity, naming where it came from.
 
 A diverging run is the most common SDE failure (DESIGN.md section 5). The guard checks each
-update's episode returns, the estimator's scores and gradient, and the parameters after the
-step, and raises :class:`NonFiniteError` naming the update, the runs (global indices) and the
+update's episode returns, the estimator's scores and gradient, the parameters after the step
+and the evaluation returns, and raises :class:`NonFiniteError` naming the update, the runs (global indices) and the
 parameter as it is named in the policy's state dict.
 """
 
@@ -20,7 +20,7 @@ class NonFiniteError(RuntimeError):
 
     Attributes:
         update: index of the update (0-based) where it happened.
-        what: ``"return"``, ``"score"``, ``"gradient"`` or ``"parameter"``.
+        what: ``"return"``, ``"score"``, ``"gradient"``, ``"parameter"`` or ``"evaluation return"``.
         parameter: the parameter's name in the policy's state dict, or ``None``.
         runs: global indices of the runs concerned.
 
@@ -70,6 +70,14 @@ class FiniteGuard:
             name, largest = self._largest_parameter()
             raise NonFiniteError(update, "return", self._bad_runs(returns), values=returns,
                                  detail=f"; largest parameter entry: {name} = {largest:.3g}")
+
+    def check_evaluation(self, update: int, returns: torch.Tensor) -> torch.Tensor:
+        """Mean evaluation returns ``[runs]`` after update ``update``; returns them if finite."""
+        if not _finite(returns):
+            name, largest = self._largest_parameter()
+            raise NonFiniteError(update, "evaluation return", self._bad_runs(returns), values=returns,
+                                 detail=f"; largest parameter entry: {name} = {largest:.3g}")
+        return returns
 
     def check_estimate(self, update: int, out: TensorDictBase, episodes: TensorDictBase) -> None:
         """The estimator's output: per-run score norms and the gradient ``[runs, K]``."""

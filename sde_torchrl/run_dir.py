@@ -1,8 +1,11 @@
-"""A job's run directory: which files it holds, and how each is written.
+"""A job's run directory: which files it holds, and how each is written and checked.
 
-- ``metrics.csv``: one row per (run, update), flushed as written (:class:`MetricsFile`);
-- ``summary.json``: written atomically at the end;
-- ``checkpoint.pt``: see :mod:`sde_torchrl.checkpoint`;
+- ``.lock``: held by the one process working in the directory (:mod:`sde_torchrl.lock`);
+- ``metrics.csv``: one row per (run, update), flushed as written (:class:`MetricsFile`); on
+  resume, its rows up to the checkpoint must be exactly those the checkpoint recorded
+  (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
+- ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
+- ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.checkpoint`;
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
 
@@ -14,14 +17,67 @@ for this job's.
 from __future__ import annotations
 
 import csv
+import io
+import json
+import logging
+import math
 import os
+from collections.abc import Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
-from sde_torchrl.checkpoint import CHECKPOINT, CheckpointMismatchError
-from sde_torchrl.files import write_atomically, write_json_atomic
+import torch
+
+from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS
+from sde_torchrl.files import DamagedFileError, write_atomically, write_json_atomic
+from sde_torchrl.lock import hold_run_directory
+
+log = logging.getLogger(__name__)
 
 METRIC_FIELDS = ("run", "update", "episodes", "return_mean", "eval_return", "grad_norm")
+
+
+def metric_rows(
+    first_run: int, update: int, episodes: int, return_mean: torch.Tensor,
+    eval_return: torch.Tensor | None, grad_norm: torch.Tensor,
+) -> list[dict[str, Any]]:
+    """The ``metrics.csv`` rows of one update, one per run.
+
+    Args:
+        first_run: global index of the job's first run.
+        update: the update (0-based).
+        episodes: episodes each run has collected by its end.
+        return_mean: mean exploratory return per run ``[runs]``.
+        eval_return: mean deterministic return per run, or ``None`` (not evaluated).
+        grad_norm: gradient norm per run ``[runs]``.
+
+    Examples:
+        >>> metric_rows(2, 0, 10, torch.tensor([-1.5]), None, torch.tensor([0.25]))
+        [{'run': 2, 'update': 0, 'episodes': 10, 'return_mean': -1.5, 'eval_return': '', 'grad_norm': 0.25}]
+    """
+    return [{
+        "run": first_run + r, "update": update, "episodes": episodes,
+        "return_mean": float(return_mean[r]),
+        "eval_return": "" if eval_return is None else float(eval_return[r]),
+        "grad_norm": float(grad_norm[r]),
+    } for r in range(len(return_mean))]
+
+
+def csv_lines(rows: Sequence[dict[str, Any]]) -> list[bytes]:
+    """The lines of a ``metrics.csv`` holding ``rows``, header first, byte for byte as
+    :class:`MetricsFile` writes them.
+
+    Examples:
+        >>> lines = csv_lines(metric_rows(0, 3, 40, torch.tensor([-1.0]), torch.tensor([-0.5]), torch.tensor([2.0])))
+        >>> [line.decode().rstrip() for line in lines]
+        ['run,update,episodes,return_mean,eval_return,grad_norm', '0,3,40,-1.0,-0.5,2.0']
+    """
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=METRIC_FIELDS)
+    writer.writeheader()
+    writer.writerows(rows)
+    return text.getvalue().encode().splitlines(keepends=True)
 
 
 class RunDirectory:
@@ -48,9 +104,19 @@ class RunDirectory:
     def has_checkpoint(self) -> bool:
         return self.checkpoint.exists()
 
+    def lock(self) -> AbstractContextManager[None]:
+        """Holds the directory for this process (:func:`~sde_torchrl.lock.hold_run_directory`).
+
+        Raises:
+            RunDirectoryInUse: another live process holds it.
+        """
+        return hold_run_directory(self.path)
+
     def start_new_job(self) -> None:
-        """Removes an earlier job's metrics, summary and error file (no checkpoint: nothing resumes)."""
-        for stale in (self.metrics, self.summary, self.error):
+        """Removes an earlier job's metrics, summary, error file and TorchRL CSV logger files
+        (no checkpoint: nothing resumes; the logger would otherwise append to the old rows)."""
+        previous = self.path / PREVIOUS  # another job's: never a remedy for this one
+        for stale in (self.metrics, self.summary, self.error, previous, *self._logger_csv_files()):
             stale.unlink(missing_ok=True)
 
     def clear_error(self) -> None:
@@ -58,19 +124,110 @@ class RunDirectory:
         self.error.unlink(missing_ok=True)
 
     def write_summary(self, summary: dict[str, Any]) -> None:
+        """Writes ``summary.json`` atomically.
+
+        Raises:
+            ValueError: a value is NaN or infinite (JSON has neither): nothing is written.
+        """
+        where = _non_finite(summary)
+        if where is not None:
+            raise ValueError(f"{self.summary} not written: {where} is not a finite number")
         write_json_atomic(self.summary, summary)
 
-    def open_metrics(self, keep_rows: int) -> MetricsFile:
-        """``metrics.csv`` continued after its first ``keep_rows`` data rows (0: a new file)."""
-        return MetricsFile(self.metrics, keep_rows)
+    def check_metrics(self, rows: Sequence[dict[str, Any]], finished: bool) -> None:
+        """Checks that ``metrics.csv`` begins with exactly ``rows`` (what the checkpoint recorded)
+        and, for a finished job, holds nothing more; a missing file is rebuilt from ``rows``.
+
+        Raises:
+            DamagedFileError: a row differs or is cut short, rows are missing, or a finished job's
+                file holds more (nothing is changed).
+        """
+        expected = csv_lines(rows)
+        if not self.metrics.exists():
+            log.warning("%s is missing: its %d rows are rebuilt from %s", self.metrics, len(rows), CHECKPOINT)
+            write_atomically(self.metrics, lambda f: f.writelines(expected))
+            return
+        lines = self.metrics.read_bytes().splitlines(keepends=True)
+        problem = _first_difference(lines, expected, rows)
+        if problem is None and len(lines) < len(expected):
+            problem = f"it holds {max(len(lines) - 1, 0)} of the {len(rows)} rows {CHECKPOINT} recorded"
+        if problem is None and finished and len(lines) > len(expected):
+            extra = len(lines) - len(expected)
+            problem = f"it holds {extra} line{'s' if extra > 1 else ''} after the job's last update"
+        if problem is not None:
+            raise DamagedFileError(self.metrics, problem, (
+                f"delete it and run the job again: its {len(rows)} rows (every update up to the "
+                f"checkpoint) are rebuilt from {CHECKPOINT}, nothing is lost"))
+
+    def open_metrics(self, rows: Sequence[dict[str, Any]]) -> MetricsFile:
+        """``metrics.csv`` cut back to ``rows`` (checked by :meth:`check_metrics`) and continued."""
+        return MetricsFile(self.metrics, csv_lines(rows))
 
     def truncate_logger_csv(self, max_step: int) -> None:
         """Drops the TorchRL CSV logger's rows logged after ``max_step`` (a resumed job logs them again)."""
-        for path in self.path.glob("*/scalars/*.csv"):
+        for path in self._logger_csv_files():
             lines = path.read_bytes().splitlines(keepends=True)
             kept = [line for line in lines if line.endswith(b"\n") and _step_of(line) <= max_step]
             if len(kept) != len(lines):
                 write_atomically(path, lambda f, kept=kept: f.writelines(kept))
+
+    def _logger_csv_files(self) -> list[Path]:
+        return sorted(self.path.glob("*/scalars/*.csv"))
+
+
+def read_summary(path: str | os.PathLike) -> dict[str, Any]:
+    """Reads a job's ``summary.json`` as strict JSON.
+
+    Raises:
+        DamagedFileError: it is not a JSON object (cut short, overwritten, NaN or infinity in
+            it); the remedy is to run the job again, which rewrites it from the checkpoint.
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "summary.json"
+        >>> write_json_atomic(path, {"runs": 2})
+        >>> read_summary(path)
+        {'runs': 2}
+    """
+    path = Path(path)
+    remedy = f"run the job's command again: a finished job rewrites {path.name} from its {CHECKPOINT}"
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"{constant} is not JSON")
+
+    try:
+        summary = json.loads(path.read_bytes(), parse_constant=refuse)
+    except ValueError as error:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise DamagedFileError(path, f"it is not valid JSON ({error})", remedy) from None
+    if not isinstance(summary, dict):
+        raise DamagedFileError(path, f"it holds a JSON {type(summary).__name__}, not an object", remedy)
+    return summary
+
+
+def _first_difference(lines: list[bytes], expected: list[bytes], rows: Sequence[dict[str, Any]]) -> str | None:
+    """What is wrong with the first line of ``lines`` that differs from ``expected``, if any."""
+    for i, (have, want) in enumerate(zip(lines, expected, strict=False)):
+        if have == want:
+            continue
+        if i == 0:
+            return f"its header is not {','.join(METRIC_FIELDS)}"
+        row = f"row {i} (run {rows[i - 1]['run']}, update {rows[i - 1]['update']})"
+        if want.startswith(have):
+            return f"{row} is cut short"
+        return f"{row} differs from what {CHECKPOINT} recorded"
+    return None
+
+
+def _non_finite(value: Any, where: str = "") -> str | None:
+    """The key path of the first NaN or infinite float in ``value`` (nested dicts and lists)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"{where} = {value}"
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for key, item in items:
+        found = _non_finite(item, f"{where}.{key}" if isinstance(key, str) else f"{where}[{key}]")
+        if found is not None:
+            return found.lstrip(".")
+    return None
 
 
 def _step_of(line: bytes) -> float:
@@ -81,40 +238,36 @@ def _step_of(line: bytes) -> float:
 
 
 class MetricsFile:
-    """``metrics.csv``, opened to continue after its first ``keep_rows`` data rows.
+    """``metrics.csv``, opened to continue after the lines ``kept`` (header first).
 
-    Rows are flushed as they are written (a crash keeps every finished update); rows beyond
-    ``keep_rows`` (written after the checkpoint a job resumes from) are dropped first, by
-    rewriting the kept lines byte for byte, atomically.
+    Rows are flushed as they are written (a crash keeps every finished update); lines beyond
+    ``kept`` (written after the checkpoint a job resumes from) are dropped first, by rewriting
+    the kept lines byte for byte, atomically.
 
     Args:
         path: the CSV file.
-        keep_rows: data rows to keep from an existing file (0 starts a new file).
+        kept: its lines to keep (:func:`csv_lines`; a new job keeps just the header).
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "metrics.csv"
+        >>> with MetricsFile(path, csv_lines([])) as metrics:
+        ...     metrics.write(metric_rows(0, 0, 5, torch.tensor([-1.0]), None, torch.tensor([2.0])))
+        >>> path.read_text().splitlines()[1]
+        '0,0,5,-1.0,,2.0'
     """
 
-    def __init__(self, path: Path, keep_rows: int = 0) -> None:
-        self.path, self.keep_rows = path, keep_rows
+    def __init__(self, path: Path, kept: list[bytes]) -> None:
+        self.path, self.kept = path, kept
         self._file: Any = None
         self._writer: csv.DictWriter | None = None
 
     def __enter__(self) -> MetricsFile:
-        if self.keep_rows:
-            self._cut()
-        self._file = open(self.path, "a" if self.keep_rows else "w", newline="")
+        if not self.path.exists() or self.path.stat().st_size != sum(map(len, self.kept)):
+            write_atomically(self.path, lambda f: f.writelines(self.kept))
+        self._file = open(self.path, "a", newline="")
         self._writer = csv.DictWriter(self._file, fieldnames=METRIC_FIELDS)
-        if not self.keep_rows:
-            self._writer.writeheader()
         return self
-
-    def _cut(self) -> None:
-        lines = self.path.read_bytes().splitlines(keepends=True) if self.path.exists() else []
-        kept = lines[: 1 + self.keep_rows]
-        if len(kept) < 1 + self.keep_rows or not all(line.endswith(b"\n") for line in kept):
-            raise CheckpointMismatchError(
-                f"{self.path} holds fewer rows ({max(len(lines) - 1, 0)}) than the checkpoint "
-                f"needs ({self.keep_rows}); delete the checkpoint to start over"
-            )
-        write_atomically(self.path, lambda f: f.writelines(kept))
 
     def write(self, rows: list[dict[str, Any]]) -> None:
         """Appends rows and flushes them to the OS."""

@@ -18,6 +18,8 @@ class LoopState:
         update: updates done.
         reached: per run, whether an update's mean return exceeded ``r_lim``.
         returns: per update, the mean exploratory return of each run ``[runs]``.
+        grad_norms: per update, each run's gradient norm ``[runs]`` (with ``returns`` and
+            ``evals``, what ``metrics.csv`` is verified against, and rebuilt from).
         evals: update index → mean deterministic return of each run ``[runs]``.
         wall_s: training time of earlier sessions of this job (resumed jobs).
         finished: the job ran to its end.
@@ -32,20 +34,26 @@ class LoopState:
     update: int
     reached: torch.Tensor
     returns: list[torch.Tensor] = field(default_factory=list)
+    grad_norms: list[torch.Tensor] = field(default_factory=list)
     evals: dict[int, torch.Tensor] = field(default_factory=dict)
     wall_s: float = 0.0
     finished: bool = False
     queue: dict[str, Any] | None = None
 
     def state_dict(self) -> dict[str, Any]:
+        """The state as tensors and plain data; the per-update records stacked, ``[updates, runs]``
+        (one tensor each: a checkpoint stays small and quick to write after thousands of updates)."""
+        empty = self.reached.new_zeros((0, len(self.reached)), dtype=torch.float32)
         return {"update": self.update, "reached": self.reached.clone(),
-                "returns": [r.clone() for r in self.returns],
+                "returns": torch.stack(self.returns) if self.returns else empty,
+                "grad_norms": torch.stack(self.grad_norms) if self.grad_norms else empty,
                 "evals": {k: v.clone() for k, v in self.evals.items()},
                 "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue}
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any]) -> LoopState:
-        return cls(**state)
+        records = {key: list(state[key].unbind(0)) for key in ("returns", "grad_norms")}
+        return cls(**{**state, **records})
 
 
 def summarize(

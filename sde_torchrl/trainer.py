@@ -30,7 +30,7 @@ from sde_torchrl.guard import FiniteGuard
 from sde_torchrl.interrupt import DeferredInterrupt, TrainingInterrupted
 from sde_torchrl.report import Reporter, close_logger
 from sde_torchrl.rollout import collect_episodes
-from sde_torchrl.run_dir import RunDirectory
+from sde_torchrl.run_dir import RunDirectory, metric_rows
 from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.summary import LoopState, summarize
 
@@ -115,10 +115,11 @@ class Trainer:
         """Runs the job (or resumes it) and writes ``metrics.csv``, ``checkpoint.pt``,
         ``summary.json``.
 
-        If ``out_dir`` holds a checkpoint, the job resumes from it: ``metrics.csv`` is cut back
-        to the checkpointed update and continued, and every random stream continues where it
-        was, so the outputs equal those of an uninterrupted job. A checkpoint of a finished job
-        only (re)writes the summary.
+        The job holds ``out_dir`` (:meth:`RunDirectory.lock`) until it returns. If ``out_dir``
+        holds a checkpoint, the job resumes from it: ``metrics.csv`` is checked against it, cut
+        back to the checkpointed update and continued, and every random stream continues where
+        it was, so the outputs equal those of an uninterrupted job. A checkpoint of a finished
+        job only (re)writes the summary, once ``metrics.csv`` is checked.
 
         Args:
             out_dir: the run directory (Hydra's output directory in ``train.py``).
@@ -137,18 +138,21 @@ class Trainer:
             NonFiniteError: a non-finite value; ``metrics.csv`` keeps the updates before it.
             TrainingInterrupted: on Ctrl-C, after saving a checkpoint.
             CheckpointMismatchError: ``out_dir`` holds another job's checkpoint.
+            RunDirectoryInUse: another process holds ``out_dir`` (nothing is changed).
+            DamagedFileError: ``checkpoint.pt`` or ``metrics.csv`` is damaged (nothing is resumed).
         """
         run_dir = RunDirectory(out_dir)
         config = result_config(config)
-        state = self._resume(run_dir, config)
-        try:
-            if not state.finished:
-                self._loop(run_dir, state, config, checkpoint_period, progress)
-        finally:
-            close_logger(self.logger)
-        summary = {**(labels or {}), **summarize(state, self.settings, self.policy, self.episodes_after),
-                   "episode_return": self.estimator.episode_return}
-        run_dir.write_summary(summary)
+        with run_dir.lock():
+            state = self._resume(run_dir, config)
+            try:
+                if not state.finished:
+                    self._loop(run_dir, state, config, checkpoint_period, progress)
+            finally:
+                close_logger(self.logger)
+            summary = {**(labels or {}), **summarize(state, self.settings, self.policy, self.episodes_after),
+                       "episode_return": self.estimator.episode_return}
+            run_dir.write_summary(summary)
         log.info("results in %s", run_dir.path.resolve())
         return summary
 
@@ -159,19 +163,20 @@ class Trainer:
         session_start, session_wall = time.perf_counter(), state.wall_s
         reporter = Reporter(self.logger, s.updates, state.update,
                             self.runs * s.episodes_per_update * s.episode_length, progress)
-        with run_dir.open_metrics(keep_rows=state.update * self.runs) as metrics, DeferredInterrupt() as interrupt:
+        with run_dir.open_metrics(self._recorded_rows(state)) as metrics, DeferredInterrupt() as interrupt:
             try:
                 for k in range(state.update, s.updates):
                     episodes = self.queue.next_batch(self.collect) if self.queue else self.collect()
                     stats = self.update(episodes, k)
                     state.returns.append(stats["return_mean"])
+                    state.grad_norms.append(stats["grad_norm"])
                     if s.r_lim is not None:
                         state.reached |= stats["return_mean"] > s.r_lim
                     is_last = k == s.updates - 1 or (s.stop_at_threshold and bool(state.reached.all()))
                     eval_return = None
                     if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
-                        eval_return = state.evals[k] = self.evaluate()
-                    metrics.write(self._rows(k, stats, eval_return))
+                        eval_return = state.evals[k] = self.guard.check_evaluation(k, self.evaluate())
+                    metrics.write(self._rows(k, stats["return_mean"], eval_return, stats["grad_norm"]))
                     state.update, state.finished = k + 1, is_last
                     state.wall_s = session_wall + time.perf_counter() - session_start
                     reporter.update(k, self.episodes_after(k), stats["return_mean"], eval_return)
@@ -187,15 +192,15 @@ class Trainer:
             metrics.sync()
         self._save(run_dir, state, config)
 
-    def _rows(self, k: int, stats: dict, eval_return: torch.Tensor | None) -> list[dict[str, Any]]:
+    def _rows(self, k: int, return_mean: torch.Tensor, eval_return: torch.Tensor | None,
+              grad_norm: torch.Tensor) -> list[dict[str, Any]]:
         """The ``metrics.csv`` rows of update ``k``, one per run."""
-        s = self.settings
-        return [{
-            "run": s.first_run + r, "update": k, "episodes": self.episodes_after(k),
-            "return_mean": float(stats["return_mean"][r]),
-            "eval_return": "" if eval_return is None else float(eval_return[r]),
-            "grad_norm": float(stats["grad_norm"][r]),
-        } for r in range(self.runs)]
+        return metric_rows(self.settings.first_run, k, self.episodes_after(k), return_mean, eval_return, grad_norm)
+
+    def _recorded_rows(self, state: LoopState) -> list[dict[str, Any]]:
+        """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
+        return [row for k in range(state.update)
+                for row in self._rows(k, state.returns[k], state.evals.get(k), state.grad_norms[k])]
 
     def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
         if self.queue is not None:
@@ -211,6 +216,7 @@ class Trainer:
         loop = restore_job(run_dir.checkpoint, config=config, policy=self.policy, optimizer=self.optimizer,
                            streams=job_streams(self.policy, self.env, self.eval_env))
         state = LoopState.from_state_dict(loop)
+        run_dir.check_metrics(self._recorded_rows(state), state.finished)
         if self.queue is not None:
             s = self.settings
             self.queue.load_state_dict(state.queue, [self.runs, s.episode_queue, s.episode_length])

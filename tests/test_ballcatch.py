@@ -321,7 +321,7 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     built = []
     original = build.build_trainer
     monkeypatch.setattr(build, "build_trainer", lambda *a, **k: built.append(original(*a, **k)) or built[-1])
-    cfg = compose_config("+experiment=ballcatch", "runs=2", "updates=1", "episode_queue=1",
+    cfg = compose_config("+experiment=ballcatch", "runs=2", "updates=1", "episode_queue=2",
                          "env.episode_length=5", "eval_episodes=1", "logger=none")
     build.run_job(cfg, str(tmp_path), {})
     worlds = [w for env in (built[0].env, built[0].eval_env) for w in env.base_env.worlds]

@@ -1,0 +1,426 @@
+"""Nothing lost, nothing silently wrong (issue 15): the run-directory lock, damaged files, the
+evaluation guard, strict summaries, logger CSV files and configurations that cannot learn."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from _helpers import (
+    REPO,
+    build,
+    compose_config,
+    own_stderr_lines,
+    read_rows,
+    run_cli,
+    summary_without_wall,
+    train_command,
+)
+
+from sde_torchrl.build import build_trainer
+from sde_torchrl.checkpoint import content_digest, load_checkpoint
+from sde_torchrl.checks import ArgumentError
+from sde_torchrl.config import validate
+from sde_torchrl.files import DamagedFileError
+from sde_torchrl.guard import NonFiniteError
+from sde_torchrl.lock import RunDirectoryInUse, hold_run_directory
+from sde_torchrl.run_dir import RunDirectory, read_summary
+
+BUDGET = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5")
+
+
+class Crash(RuntimeError):
+    """Stands in for a kill: raised from inside the training loop."""
+
+
+def crash_at(trainer, at: int) -> None:
+    original = trainer.update
+
+    def crashing_update(episodes, k):
+        if k == at:
+            raise Crash(f"crash at {k}")
+        return original(episodes, k)
+
+    trainer.update = crashing_update
+
+
+def snapshot(directory: Path, skip: tuple[str, ...] = ()) -> dict[str, tuple[bytes, int]]:
+    """Every file under ``directory`` but ``skip``: content and modification time (ns)."""
+    return {str(p.relative_to(directory)): (p.read_bytes(), p.stat().st_mtime_ns)
+            for p in sorted(directory.rglob("*")) if p.is_file() and p.name not in skip}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted job of :data:`BUDGET` (checkpoint every 4 updates)."""
+    out = tmp_path_factory.mktemp("reference")
+    build(*BUDGET).train(out, checkpoint_period=4)
+    return out
+
+
+@pytest.fixture
+def crashed(tmp_path) -> Path:
+    """The job of :data:`BUDGET` killed at update 10 (checkpoint after update 8)."""
+    trainer = build(*BUDGET)
+    crash_at(trainer, 10)
+    with pytest.raises(Crash):
+        trainer.train(tmp_path, checkpoint_period=4)
+    return tmp_path
+
+
+# --------------------------------------------------------------------------- run-directory lock
+
+
+def test_lock_is_held_for_the_job_and_nested_in_one_process(tmp_path):
+    with hold_run_directory(tmp_path):
+        assert (tmp_path / ".lock").read_text() == f"{os.getpid()}\n"
+        with hold_run_directory(tmp_path):  # train.py around Trainer.train: one lock
+            pass
+        build("updates=2").train(tmp_path)  # the trainer's own hold nests too
+        assert (tmp_path / ".lock").read_text() == f"{os.getpid()}\n"
+    assert (tmp_path / ".lock").read_text() == ""  # released: no pid left
+
+
+HOLD = "import sys, time; from sde_torchrl.lock import hold_run_directory\n" \
+       "with hold_run_directory(sys.argv[1]):\n    print('held', flush=True); time.sleep(120)\n"
+
+
+def start_holder(directory: Path) -> subprocess.Popen:
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(directory)], cwd=REPO, stdout=subprocess.PIPE,
+                              text=True)
+    assert holder.stdout.readline().strip() == "held"
+    return holder
+
+
+def test_in_use_directory_is_refused_without_changing_anything(tmp_path):
+    cli = ("+experiment=minimize", "runs=2", "updates=4")
+    assert run_cli(*cli, run_dir=tmp_path).returncode == 0
+    holder = start_holder(tmp_path)  # it writes its pid into .lock
+    before = snapshot(tmp_path)
+    try:
+        with pytest.raises(RunDirectoryInUse, match=rf"pid {holder.pid}"):
+            build("runs=2", "updates=4").train(tmp_path)
+        started = time.monotonic()
+        refused = run_cli(*cli, run_dir=tmp_path)
+        took = time.monotonic() - started
+    finally:
+        holder.kill()
+        holder.wait()
+    assert refused.returncode == 3, refused.stderr[-2000:]
+    assert own_stderr_lines(refused.stderr) == [
+        f"error: {tmp_path} is in use by another process (pid {holder.pid}): it was left unchanged; wait for "
+        "that process to end, or give this job another run directory"]
+    assert took < 5
+    assert snapshot(tmp_path) == before  # not one byte, not one modification time
+    # kill -9 left no stale lock: the next run goes ahead.
+    assert run_cli(*cli, run_dir=tmp_path).returncode == 0
+
+
+def test_sweep_job_in_use_is_refused_and_the_others_run(tmp_path):
+    holder = start_holder(tmp_path / "0")
+    try:
+        result = run_cli("+experiment=minimize", "updates=3", "runs=1", "logger=none", "seed=0,1",
+                         run_dir=tmp_path, multirun=True)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert result.returncode == 3, result.stderr[-2000:]
+    lines = own_stderr_lines(result.stderr)
+    assert len(lines) == 1 and "is in use by another process" in lines[0] and lines[0].endswith(" seed=0)"), lines
+    assert sorted(p.name for p in (tmp_path / "0").iterdir()) == [".lock"]
+    assert json.loads((tmp_path / "1" / "summary.json").read_text())["seed"] == 1
+
+
+def without_timestamps(path: Path, run_dir: Path) -> list[str]:
+    """A log or YAML file's lines without time stamps and speeds, the run directory neutral."""
+    return [re.sub(r"\d+ env steps/s", "", line.split(" - ", 1)[-1]).replace(str(run_dir), "RUN")
+            for line in path.read_text().splitlines()]
+
+
+def checkpoint_without_wall(path: Path) -> str:
+    """A checkpoint's digest without the wall time and NumPy's and Python's global generators
+    (a job does not seed them: they differ between any two processes)."""
+    state = load_checkpoint(path)
+    assert isinstance(state["loop"].pop("wall_s"), float)
+    del state["random"]["numpy"], state["random"]["python"]
+    return content_digest(state)
+
+
+def test_two_commands_on_one_run_directory(tmp_path):
+    cli = ("+experiment=minimize", "runs=2", "updates=400", "checkpoint_period=50")
+    run_dir = tmp_path / "both"
+    commands = [subprocess.Popen(train_command(*cli, run_dir=run_dir), cwd=REPO, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    started = time.monotonic()
+    ended = {}
+    while len(ended) < 2:
+        for i, proc in enumerate(commands):
+            if i not in ended and proc.poll() is not None:
+                ended[i] = time.monotonic() - started
+        time.sleep(0.02)
+    results = [(proc.returncode, *proc.communicate()) for proc in commands]
+    assert sorted(code for code, _, _ in results) == [0, 3], [r[2][-2000:] for r in results]
+    loser = next(i for i, (code, _, _) in enumerate(results) if code == 3)
+    assert ended[loser] < 5
+    lines = own_stderr_lines(results[loser][2])
+    assert len(lines) == 1 and lines[0].startswith(f"error: {run_dir} is in use by another process (pid "), lines
+
+    single = tmp_path / "single"
+    assert run_cli(*cli, run_dir=single).returncode == 0
+    files = sorted(str(p.relative_to(single)) for p in single.rglob("*") if p.is_file())
+    assert sorted(str(p.relative_to(run_dir)) for p in run_dir.rglob("*") if p.is_file()) == files
+    for name in files:
+        if name in ("train.log", ".hydra/hydra.yaml"):
+            assert without_timestamps(run_dir / name, run_dir) == without_timestamps(single / name, single), name
+        elif name == "summary.json":
+            assert summary_without_wall(run_dir) == summary_without_wall(single)
+        elif name.endswith(".pt"):  # the same content but the wall time
+            assert checkpoint_without_wall(run_dir / name) == checkpoint_without_wall(single / name), name
+        else:
+            assert (run_dir / name).read_bytes() == (single / name).read_bytes(), name
+
+
+# --------------------------------------------------------------------------- damaged checkpoint
+
+
+def damaged_variants(data: bytes, seed: int = 0) -> dict[str, bytes]:
+    """Truncated, random bytes at a few offsets, garbage, empty."""
+    rng = random.Random(seed)
+    variants = {"truncated": data[: len(data) // 2], "garbage": rng.randbytes(4096), "empty": b""}
+    for i in range(12):
+        damaged = bytearray(data)
+        for offset in rng.sample(range(len(data) - 8), 3):
+            damaged[offset:offset + 8] = rng.randbytes(8)
+        variants[f"random bytes {i}"] = bytes(damaged)
+    return variants
+
+
+def test_damaged_checkpoint_never_loads_other_content(crashed):
+    path = crashed / "checkpoint.pt"
+    data = path.read_bytes()
+    original = content_digest(load_checkpoint(path))
+    detected = 0
+    for name, damaged in damaged_variants(data).items():
+        path.write_bytes(damaged)
+        try:
+            state = load_checkpoint(path)
+        except DamagedFileError as error:
+            detected += 1
+            assert str(error).startswith(f"{path} is damaged: "), name
+            assert "delete checkpoint.pt" in str(error), name
+        else:  # the damage missed the content (zip padding): exactly what was saved
+            assert content_digest(state) == original, name
+    assert detected >= 12
+
+
+@pytest.mark.parametrize("kind", ["truncated", "garbage", "empty", "random bytes 0", "random bytes 1"])
+def test_resume_refuses_a_damaged_checkpoint_and_changes_nothing(crashed, reference, kind):
+    path = crashed / "checkpoint.pt"
+    original = path.read_bytes()
+    path.write_bytes(damaged_variants(original)[kind])
+    before = snapshot(crashed, skip=(".lock",))  # the job's own lock: written to hold the directory
+    try:
+        build(*BUDGET).train(crashed, checkpoint_period=4)
+    except DamagedFileError as error:
+        assert error.path == path
+        assert snapshot(crashed, skip=(".lock",)) == before
+    else:  # damage outside the content: the run is the uninterrupted one
+        assert (crashed / "metrics.csv").read_bytes() == (reference / "metrics.csv").read_bytes()
+
+
+def test_damaged_checkpoint_points_to_the_previous_one(crashed, reference):
+    path, previous = crashed / "checkpoint.pt", crashed / "checkpoint.prev.pt"
+    assert load_checkpoint(previous)["updates"] == 4  # the one before the checkpoint after update 8
+    path.write_bytes(path.read_bytes()[:-100])
+    with pytest.raises(DamagedFileError) as info:
+        build(*BUDGET).train(crashed, checkpoint_period=4)
+    assert str(info.value) == (
+        f"{path} is damaged: it cannot be read (RuntimeError: PytorchStreamReader failed reading zip archive: "
+        f"failed finding central directory); nothing was resumed from it; checkpoint.prev.pt (after update 4) is "
+        f"intact: replace checkpoint.pt with it (mv {previous} {path}) to resume from there")
+    previous.replace(path)  # the remedy: updates 4 to 9 are done again, identically
+    resumed = build(*BUDGET).train(crashed, checkpoint_period=4)
+    assert (crashed / "metrics.csv").read_bytes() == (reference / "metrics.csv").read_bytes()
+    assert resumed["final_parameters"] == json.loads((reference / "summary.json").read_text())["final_parameters"]
+    (crashed / "checkpoint.pt").unlink()  # starting over: the previous job's checkpoints go
+    build("updates=1").train(crashed)
+    assert not previous.exists()
+
+
+def test_damaged_checkpoint_on_the_command_line(tmp_path):
+    cli = ("+experiment=minimize", "runs=2", "updates=3", "logger=none")
+    assert run_cli(*cli, run_dir=tmp_path).returncode == 0
+    path = tmp_path / "checkpoint.pt"
+    path.write_bytes(path.read_bytes()[:1000])
+    result = run_cli(*cli, run_dir=tmp_path)
+    assert result.returncode == 4, result.stderr[-2000:]
+    lines = own_stderr_lines(result.stderr)
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path} is damaged: it cannot be read ("), lines
+
+
+# --------------------------------------------------------------------------- metrics.csv
+
+
+def test_finished_job_rerun_detects_a_truncated_last_row(tmp_path):
+    cli = ("+experiment=minimize", "runs=2", "updates=5", "logger=none")
+    assert run_cli(*cli, run_dir=tmp_path).returncode == 0
+    metrics = tmp_path / "metrics.csv"
+    complete = metrics.read_bytes()
+    metrics.write_bytes(complete[:-7])
+    result = run_cli(*cli, run_dir=tmp_path)
+    assert result.returncode == 4, result.stderr[-2000:]
+    lines = own_stderr_lines(result.stderr)
+    assert lines == [f"error: {metrics} is damaged: row 10 (run 1, update 4) is cut short; delete it and run the "
+                     "job again: its 10 rows (every update up to the checkpoint) are rebuilt from checkpoint.pt, "
+                     "nothing is lost"]
+    assert metrics.read_bytes() == complete[:-7]  # left as it was
+    metrics.unlink()  # the remedy
+    assert run_cli(*cli, run_dir=tmp_path).returncode == 0
+    assert metrics.read_bytes() == complete
+
+
+@pytest.mark.parametrize("damage", ["short", "changed row", "extra lines"])
+def test_metrics_that_disagree_with_the_checkpoint_are_refused(tmp_path, damage):
+    build("updates=4").train(tmp_path)
+    metrics = tmp_path / "metrics.csv"
+    lines = metrics.read_bytes().splitlines(keepends=True)
+    edited = {"short": lines[:-2], "changed row": [*lines[:2], lines[2].replace(b",", b",9", 1), *lines[3:]],
+              "extra lines": [*lines, lines[-1]]}[damage]
+    metrics.write_bytes(b"".join(edited))
+    with pytest.raises(DamagedFileError, match="rebuilt from checkpoint.pt, nothing is lost"):
+        build("updates=4").train(tmp_path)
+    assert metrics.read_bytes() == b"".join(edited)
+
+
+def test_short_metrics_on_resume_costs_no_progress(crashed, reference):
+    metrics = crashed / "metrics.csv"
+    metrics.write_bytes(b"".join(metrics.read_bytes().splitlines(keepends=True)[:7]))  # 6 of 16 rows
+    with pytest.raises(DamagedFileError, match=r"holds 6 of the 16 rows checkpoint.pt recorded"):
+        build(*BUDGET).train(crashed, checkpoint_period=4)
+    metrics.unlink()  # the remedy: rebuilt from the checkpoint, then the job goes on
+    resumed = build(*BUDGET).train(crashed, checkpoint_period=4)
+    assert metrics.read_bytes() == (reference / "metrics.csv").read_bytes()
+    assert resumed["final_parameters"] == json.loads((reference / "summary.json").read_text())["final_parameters"]
+
+
+def test_short_metrics_is_not_a_config_error_on_the_command_line(tmp_path):
+    cli = ("+experiment=minimize", "runs=2", "updates=3", "logger=none")
+    assert run_cli(*cli, run_dir=tmp_path).returncode == 0
+    (tmp_path / "metrics.csv").write_text("run,update\n")
+    result = run_cli(*cli, run_dir=tmp_path)
+    assert result.returncode == 4, result.stderr[-2000:]
+    assert "is damaged: its header is not run,update,episodes" in result.stderr
+
+
+# --------------------------------------------------------------------------- summary.json
+
+
+def test_damaged_summary_is_named_and_rewritten_by_a_rerun(tmp_path):
+    build("updates=3").train(tmp_path)
+    good = json.loads((tmp_path / "summary.json").read_text())
+    for damaged in (b"", b'{"runs": 1, "final_ret', bytes(range(256))):
+        (tmp_path / "summary.json").write_bytes(damaged)
+        with pytest.raises(DamagedFileError, match=r"summary.json is damaged: .*run the job's command again"):
+            read_summary(tmp_path / "summary.json")
+    again = build("updates=3").train(tmp_path)  # a finished job rewrites it from the checkpoint
+    assert read_summary(tmp_path / "summary.json")["final_parameters"] == good["final_parameters"] \
+        == again["final_parameters"]
+
+
+def test_summary_with_a_non_finite_value_is_not_written(tmp_path):
+    run_dir = RunDirectory(tmp_path)
+    with pytest.raises(ValueError, match=r"not written: final_return\[1\] = nan is not a finite number"):
+        run_dir.write_summary({"runs": 2, "final_return": [0.5, float("nan")]})
+    assert not list(tmp_path.iterdir())
+
+
+# --------------------------------------------------------------------------- evaluation guard
+
+
+def test_non_finite_evaluation_names_update_and_runs(tmp_path):
+    trainer = build("runs=3", "updates=4", "eval_period=2", "first_run=5")
+    evaluate = trainer.evaluate
+    trainer.evaluate = lambda: evaluate() * torch.tensor([1.0, float("inf"), 1.0])
+    with pytest.raises(NonFiniteError) as info:
+        trainer.train(tmp_path)
+    assert (info.value.update, info.value.what, info.value.runs) == (1, "evaluation return", [6])
+    assert [int(r["update"]) for r in read_rows(tmp_path)] == [0, 0, 0]  # the update before it
+    assert not (tmp_path / "summary.json").exists()
+
+
+def test_divergence_at_the_last_update_fails_by_name(tmp_path):
+    result = run_cli("+experiment=minimize", "updates=1", "lr=1e6", "logger=none", run_dir=tmp_path)
+    assert result.returncode == 1, result.stderr[-2000:]
+    lines = own_stderr_lines(result.stderr)
+    assert len(lines) == 1 and lines[0].startswith("error: NonFiniteError: non-finite evaluation return at update 0"), \
+        lines
+    assert not (tmp_path / "summary.json").exists()
+    assert read_rows(tmp_path) == []
+
+
+# --------------------------------------------------------------------------- TorchRL CSV logger
+
+
+def csv_logged(out_dir: Path):
+    """A trainer of :data:`BUDGET` whose TorchRL CSV logger writes under ``out_dir``."""
+    return build_trainer(compose_config("+experiment=minimize", "logger=csv", *BUDGET), str(out_dir))
+
+
+@pytest.mark.parametrize("checkpoint_period", [0, 4])  # killed before the first checkpoint, after one
+def test_logger_csv_has_no_duplicate_rows_after_a_kill(tmp_path, checkpoint_period):
+    csv_logged(tmp_path / "ref").train(tmp_path / "ref", checkpoint_period=checkpoint_period)
+    trainer = csv_logged(tmp_path / "run")
+    crash_at(trainer, 6)
+    with pytest.raises(Crash):
+        trainer.train(tmp_path / "run", checkpoint_period=checkpoint_period)
+    csv_logged(tmp_path / "run").train(tmp_path / "run", checkpoint_period=checkpoint_period)
+    scalars = sorted((tmp_path / "ref").glob("*/scalars/*.csv"))
+    assert len(scalars) == 2
+    for ref in scalars:
+        resumed = tmp_path / "run" / ref.relative_to(tmp_path / "ref")
+        assert resumed.read_bytes() == ref.read_bytes(), ref.name
+
+
+# --------------------------------------------------------------------------- cannot learn
+
+
+def test_reinforce_on_a_single_episode_is_refused():
+    with pytest.raises(ArgumentError, match=r"^episodes_per_update=1: at least 2 with estimator=reinforce"):
+        validate(compose_config("+experiment=minimize", "episodes_per_update=1"))
+    validate(compose_config("+experiment=minimize", "episodes_per_update=1", "episode_queue=4"))
+    validate(compose_config("+experiment=minimize", "episodes_per_update=1", "estimator=enac"))
+
+
+def test_rank_deficient_enac_warns(caplog):
+    with caplog.at_level(logging.WARNING, logger="sde_torchrl.build"):
+        build("estimator=enac", "episodes_per_update=2").close()
+    assert "rank-deficient" in caplog.text and "for 3 unknowns" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="sde_torchrl.build"):
+        build("estimator=enac", "episodes_per_update=3").close()
+    assert "rank-deficient" not in caplog.text
+
+
+def test_kill_during_a_run_leaves_no_stale_lock(tmp_path):
+    proc = subprocess.Popen(train_command("+experiment=minimize", "runs=2", "updates=2000", "logger=none",
+                                          run_dir=tmp_path), cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "metrics.csv").exists() or len((tmp_path / "metrics.csv").read_bytes()) < 200:
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert (tmp_path / ".lock").read_text().strip() == str(proc.pid)  # the pid stays, the lock does not
+    with hold_run_directory(tmp_path):
+        pass
