@@ -514,7 +514,7 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     from sde_torchrl import build, config
 
     assert config.ARM_MODELS == tuple(ARM_MODELS)
-    cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=1",
+    cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=2",
                          "env.episode_length=5", "eval_episodes=1", "logger=none")
     trainer = build.build_trainer(cfg)
     try:
