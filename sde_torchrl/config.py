@@ -12,6 +12,7 @@ allowed>``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, List, Optional
 
@@ -123,14 +124,19 @@ class GymEnvConf:
     (``env=gym env.id=Pendulum-v1``; README, "Any gymnasium env").
 
     Attributes:
-        id: a registered gymnasium id (``"module:Env-v0"`` imports ``module`` first).
-        episode_length: ``T``, at most the env's time limit; episodes that end earlier are held
-            absorbing until ``T``.
+        id: a registered gymnasium id whose env has a continuous (1-D ``Box``) action space and a
+            flat ``Box`` observation, checked here by making the env once (a few ms for the
+            classic-control envs); ``"module:Env-v0"`` imports ``module`` first and is checked
+            when built.
+        episode_length: ``T``, at most the env's time limit (``gym_kwargs.max_episode_steps``
+            raises it); episodes that end earlier are held absorbing until ``T``.
         normalize_obs: ``null``, ``bounds`` (a bounded space mapped to ``[-1, 1]``) or ``stats``
             (mean and standard deviation of random steps).
         norm_init_steps: random steps for ``normalize_obs=stats``.
         constant_feature: append 1 to the explorer's features (noise where the observation is ~0).
-        gym_kwargs: passed to ``gymnasium.make``, e.g. ``{max_episode_steps: 500}``.
+        gym_kwargs: passed to ``gymnasium.make``; holds ``max_episode_steps`` (``null``: the env's
+            own time limit), so ``env.gym_kwargs.max_episode_steps=500`` needs no ``+`` (other
+            keys do: ``+env.gym_kwargs.KEY=VALUE``).
         reset_options: passed to every ``reset(options=...)``, e.g. ``{x_init: 0.3, y_init: 0.3}``.
 
     Examples:
@@ -144,18 +150,29 @@ class GymEnvConf:
     normalize_obs: Optional[str] = None
     norm_init_steps: int = 1000
     constant_feature: bool = False
-    gym_kwargs: Any = field(default_factory=dict)
+    gym_kwargs: Any = field(default_factory=lambda: {"max_episode_steps": None})
     reset_options: Any = None
 
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
-        _check_gym_id(self.id)
         if self.normalize_obs is not None and self.normalize_obs not in NORMALIZATIONS:
             raise ArgumentError("env.normalize_obs", self.normalize_obs, f"null or one of {', '.join(NORMALIZATIONS)}")
         positive_int("env.norm_init_steps", self.norm_init_steps)
+        _check_gym_kwargs(self.gym_kwargs)
+        _check_gym_env(self.id, self.episode_length, self.gym_kwargs or {})
 
 
-def _check_gym_id(env_id: Any) -> None:
+def _check_gym_kwargs(gym_kwargs: Any) -> None:
+    if gym_kwargs is not None and not isinstance(gym_kwargs, Mapping):
+        raise ArgumentError("env.gym_kwargs", gym_kwargs, "null or a mapping of keyword arguments for gymnasium.make")
+    steps = (gym_kwargs or {}).get("max_episode_steps")
+    if steps is not None and (not is_int(steps) or steps < 1):
+        raise ArgumentError("env.gym_kwargs.max_episode_steps", steps,
+                            "a positive integer, or null (the env's own time limit)")
+
+
+def _check_gym_env(env_id: Any, episode_length: int, gym_kwargs: Mapping[str, Any]) -> None:
+    """A registered id whose env SDE can drive (spaces, time limit), made once to find out."""
     allowed = "a registered gymnasium env id such as Pendulum-v1"
     if not isinstance(env_id, str) or not env_id:
         raise ArgumentError("env.id", env_id, allowed)
@@ -163,10 +180,13 @@ def _check_gym_id(env_id: Any) -> None:
         return
     import gymnasium
 
+    from sde_torchrl.envs.gym_checks import check_gym_env
+
     if env_id not in gymnasium.envs.registry:
         close = sorted(k for k in gymnasium.envs.registry if k.lower().startswith(env_id.lower()[:4]))
         hint = f" (close: {', '.join(close[:5])})" if close else ""
         raise ArgumentError("env.id", env_id, allowed + hint)
+    check_gym_env(env_id, episode_length, gym_kwargs)
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-from _helpers import compose_config, own_stderr_lines, run_cli
+from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
 
 from sde_torchrl import actors, estimators, exploration
 from sde_torchrl.checks import ArgumentError
@@ -85,6 +85,30 @@ def test_gym_normalisation_must_be_known():
     assert line == "env.normalize_obs=running: null or one of bounds, stats"
 
 
+@pytest.mark.parametrize("overrides, expected", [
+    (("env.id=CartPole-v1",),
+     "env.id=CartPole-v1: an env with a continuous (Box) action space; CartPole-v1 has Discrete(2)"),
+    (("env.episode_length=201",),
+     "env.episode_length=201: at most 200 (Pendulum-v1's time limit; raise it with "
+     "env.gym_kwargs.max_episode_steps=201)"),
+    (("env.gym_kwargs.max_episode_steps=0",),
+     "env.gym_kwargs.max_episode_steps=0: a positive integer, or null (the env's own time limit)"),
+    (("+env.gym_kwargs.foo=1",),
+     "env.gym_kwargs={'foo': 1}: keyword arguments Pendulum-v1 takes "
+     "(PendulumEnv.__init__() got an unexpected keyword argument 'foo')"),
+])
+def test_unusable_gym_env_is_rejected_before_building(overrides, expected):
+    assert config_error_line(*overrides, experiment="pendulum") == expected
+
+
+def test_gym_time_limit_raised_without_plus():
+    """The advice of the time-limit error, typed as printed (no ``+``), validates."""
+    conf = validate(compose_config("env=gym", "env.episode_length=300", "env.gym_kwargs.max_episode_steps=300"))
+    assert conf.env.gym_kwargs == {"max_episode_steps": 300}
+    assert validate(compose_config("env=gym")).env.gym_kwargs == {"max_episode_steps": None}
+    assert validate(compose_config("env=gym", "+env.gym_kwargs.g=9.81")).env.gym_kwargs["g"] == 9.81
+
+
 @pytest.mark.parametrize("experiment", ["minimize", "minimize_guessed", "noise_sweep", "episode_length_sweep",
                                         "minimize2d_mlp", "pendulum"])
 def test_experiments_validate(experiment):
@@ -127,3 +151,41 @@ def test_bad_configs_on_the_command_line_fail_in_one_line(tmp_path):
         assert lines[0].startswith(expected), (name, lines[0])
         assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
         assert not (tmp_path / name / "metrics.csv").exists(), name  # failed before any work
+
+
+def test_module_gym_id_is_refused_when_built_as_a_config_error():
+    """A ``module:Env-v0`` id registers on import: the schema leaves it to the build, whose error
+    (through Hydra's ``InstantiationException``) is still a one-line config error."""
+    from sde_torchrl.build import build_trainer
+
+    with pytest.raises(Exception) as info:
+        build_trainer(compose_config("env=gym", "env.id=gymnasium.envs.classic_control:CartPole-v1"))
+    assert type(info.value).__name__ == "InstantiationException"
+    assert describe_error(info.value) == (
+        "env.id=gymnasium.envs.classic_control:CartPole-v1: an env with a continuous (Box) action space; "
+        "gymnasium.envs.classic_control:CartPole-v1 has Discrete(2)")
+
+
+def test_gym_env_errors_on_the_command_line_fail_in_one_line(tmp_path):
+    """Discrete actions and a too-long episode give one line and exit 2, refused by the schema
+    before any env is built; the time-limit advice, run as printed, starts the job."""
+    cases = {"discrete": "env.id=CartPole-v1", "too_long": "env.episode_length=201"}
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        futures = {name: pool.submit(run_cli, "env=gym", override, run_dir=tmp_path / name)
+                   for name, override in cases.items()}
+        results = {name: future.result() for name, future in futures.items()}
+    lines = {}
+    for name, result in results.items():
+        assert result.returncode == 2, (name, result.returncode, result.stderr[-2000:])
+        assert len(own_stderr_lines(result.stderr)) == 1, (name, result.stderr)
+        assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+        assert "make_gym_env" not in (tmp_path / name / "error.txt").read_text(), name  # not built
+        lines[name] = own_stderr_lines(result.stderr)[0]
+    assert lines["discrete"] == ("error: env.id=CartPole-v1: an env with a continuous (Box) action space; "
+                                 "CartPole-v1 has Discrete(2)")
+    advice = lines["too_long"].rsplit("raise it with ", 1)[1].removesuffix(")")
+    assert advice == "env.gym_kwargs.max_episode_steps=201"
+    started = run_cli("env=gym", "env.episode_length=201", advice, "updates=1", "episodes_per_update=2",
+                      "eval_episodes=1", "logger=none", run_dir=tmp_path / "advised")
+    assert started.returncode == 0, started.stderr[-2000:]
+    assert len(read_rows(tmp_path / "advised")) == 1

@@ -5,10 +5,13 @@ from __future__ import annotations
 import pytest
 import torch
 from _helpers import compose_config, read_rows
+from gymnasium.spaces import Box, Dict, Discrete, Tuple
 from torchrl.envs.utils import check_env_specs
 
 from sde_torchrl.build import build_trainer
+from sde_torchrl.checks import ArgumentError
 from sde_torchrl.envs.gym import FEATURES_KEY, GymRunsEnv, make_gym_env
+from sde_torchrl.envs.gym_checks import check_spaces
 from sde_torchrl.rollout import tensor_step_env
 
 SMALL = ("runs=2", "episodes_per_update=3", "eval_episodes=2", "env.episode_length=20", "eval_period=0")
@@ -104,3 +107,25 @@ def test_pendulum_return_rises(tmp_path):
     print(f"pendulum: mean return {first:.3f} (first 5 updates) -> {last:.3f} (last 5)")
     assert last > first + 1.0, (first, last)
     assert summary["final_eval_return"][0] > -2.0
+
+
+@pytest.mark.parametrize("action, observation, expected", [
+    (Discrete(2), Box(-1, 1, (4,)), "an env with a continuous (Box) action space; X-v0 has Discrete(2)"),
+    (Tuple((Discrete(2), Box(-1, 1, (1,)))), Box(-1, 1, (4,)),
+     "an env with a continuous (Box) action space; X-v0 has Tuple(Discrete(2), Box(-1.0, 1.0, (1,), float32))"),
+    (Box(-1, 1, (2, 2)), Box(-1, 1, (4,)),
+     "an env with a flat (1-D Box) action space; X-v0 has Box(-1.0, 1.0, (2, 2), float32)"),
+    (Box(-1, 1, (1,)), Dict({"a": Box(-1, 1, (2,))}),
+     "an env with a flat (1-D Box) observation space; X-v0 has Dict('a': Box(-1.0, 1.0, (2,), float32))"),
+])
+def test_unsupported_spaces_are_named(action, observation, expected):
+    with pytest.raises(ArgumentError) as info:
+        check_spaces("X-v0", action, observation)
+    assert str(info.value) == f"env.id=X-v0: {expected}"
+
+
+def test_discrete_env_is_refused_when_built():
+    """Python callers (and ``module:Env-v0`` ids, which the schema leaves to the build) get the
+    schema's error."""
+    with pytest.raises(ArgumentError, match="^env.id=CartPole-v1: an env with a continuous"):
+        GymRunsEnv("CartPole-v1", episodes=1)

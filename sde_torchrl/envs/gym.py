@@ -35,7 +35,8 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, ObservationNorm, StepCounter, Transform, TransformedEnv
 from torchrl.envs.libs.gym import GymEnv
 
-from sde_torchrl.checks import ArgumentError, positive_int
+from sde_torchrl.checks import positive_int
+from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
 from sde_torchrl.rng import RunStreams
 
 #: Key of the explorer's features when ``constant_feature`` is set.
@@ -58,6 +59,10 @@ class GymRunsEnv(EnvBase):
         reset_options: passed to every ``reset`` (``options=``), e.g. Pendulum's start range
             ``{"x_init": 0.3, "y_init": 0.3}``.
 
+    Raises:
+        ArgumentError: for an env whose action or observation space SDE cannot use (a discrete
+            action space, a ``Dict`` observation: see :func:`~sde_torchrl.envs.gym_checks.check_spaces`).
+
     Examples:
         >>> env = GymRunsEnv("Pendulum-v1", episodes=2, runs=1)
         >>> env.rollout(3)["next", "reward"].shape
@@ -77,12 +82,7 @@ class GymRunsEnv(EnvBase):
         self.reset_options = dict(reset_options) if reset_options else None
         self.envs = [GymEnv(env_id, **(gym_kwargs or {})) for _ in range(runs * episodes)]
         proto = self.envs[0]
-        if proto.action_spec.domain != "continuous":
-            raise ValueError(f"{env_id} has a {proto.action_spec.domain} action space; SDE needs a "
-                             "continuous (Box) one")
-        if list(proto.observation_spec.keys()) != ["observation"]:
-            raise ValueError(f"{env_id} has observations {list(proto.observation_spec.keys())}; "
-                             "only flat Box observations are supported")
+        check_spaces(env_id, proto._env.action_space, proto._env.observation_space)
         self.max_episode_steps = getattr(proto._env.spec, "max_episode_steps", None)
         self.observation_spec = proto.observation_spec.expand(batch).clone()
         self.action_spec = proto.action_spec.expand(*batch, *proto.action_spec.shape).clone()
@@ -237,6 +237,10 @@ def make_gym_env(
     Returns:
         ``GymRunsEnv`` with ``[ObservationNorm,] [ConstantFeature,] StepCounter, InitTracker``.
 
+    Raises:
+        ArgumentError: for unusable spaces (see :class:`GymRunsEnv`), or an ``episode_length``
+            beyond the env's time limit (the message gives the override that raises it).
+
     Examples:
         >>> env = make_gym_env("Pendulum-v1", 50, episodes=3, runs=2, normalize_obs="bounds")
         >>> env.rollout(50, break_when_any_done=False).batch_size
@@ -245,9 +249,7 @@ def make_gym_env(
     positive_int("episode_length", episode_length)
     base = GymRunsEnv(id, episodes, runs, first_run=first_run, stream=stream, seed=seed,
                       gym_kwargs=dict(gym_kwargs or {}), reset_options=reset_options)
-    if base.max_episode_steps is not None and episode_length > base.max_episode_steps:
-        raise ArgumentError("env.episode_length", episode_length, f"at most {base.max_episode_steps} "
-                            f"({id}'s time limit; raise it with env.gym_kwargs.max_episode_steps)")
+    check_time_limit(id, episode_length, base.max_episode_steps)
     transforms: list[Transform] = []
     if normalize_obs is not None:
         transforms.append(observation_norm(base, normalize_obs, norm_init_steps))
