@@ -40,7 +40,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 # Light imports only (no torch): a job locks its run directory before importing torch.
-from sde_torchrl.config import describe_error, register_resolvers
+from sde_torchrl.config import describe_error, register_resolvers, validate
 from sde_torchrl.files import DamagedFileError, write_atomically
 from sde_torchrl.interrupt import TrainingInterrupted
 from sde_torchrl.lock import RunDirectoryInUse, hold_run_directory
@@ -118,10 +118,11 @@ def main(cfg: DictConfig) -> None:
             return
         save_hydra_config(cfg, out_dir)
         try:
+            conf = validate(cfg)  # a bad value fails here, before the seconds of importing torch
             from sde_torchrl.build import run_job  # torch: imported once the run directory is ours
 
             summary = run_job(cfg, out_dir, dict(hydra_cfg.runtime.choices),
-                              progress=progress_wanted(cfg.get("progress"), multirun))
+                              progress=progress_wanted(cfg.get("progress"), multirun), conf=conf)
         except Exception as error:  # noqa: BLE001 - every failure is recorded, then reported
             message, code = one_line(error)
             Path(out_dir, "error.txt").write_text(f"{message}\n\n{traceback.format_exc()}")

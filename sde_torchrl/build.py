@@ -117,6 +117,7 @@ def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
 
 def run_job(
     cfg: DictConfig, out_dir: str, choices: dict[str, str | None], progress: bool = False,
+    conf: TrainConf | None = None,
 ) -> dict[str, Any]:
     """Builds and trains (or resumes) one job; its summary is labelled with the chosen config
     options, the seed and the whole resolved config, so that a run directory describes itself.
@@ -126,6 +127,8 @@ def run_job(
         out_dir: the run directory; a checkpoint there from the same config is resumed.
         choices: group → chosen option (Hydra's ``runtime.choices``).
         progress: show a progress bar.
+        conf: ``validate(cfg)`` if the caller has it already (``train.py`` checks the config
+            before importing torch); ``None``: checked here.
 
     Returns:
         The summary written to ``summary.json``.
@@ -133,7 +136,7 @@ def run_job(
     Raises:
         ArgumentError: for a config value that is not allowed (before anything is built).
     """
-    conf = validate(cfg)
+    conf = validate(cfg) if conf is None else conf
     torch.set_num_threads(conf.threads)
     config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
