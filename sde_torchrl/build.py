@@ -78,7 +78,9 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     eval_env.append_transform(explorer.make_tensordict_primer())
     policy = TensorDictSequential(actor, explorer)
 
-    estimator = instantiate(conf.estimator, policy=policy)
+    # The trainer's FiniteGuard checks returns, scores and gradients itself and names the update:
+    # the estimator's own non-finite checks (for direct Python use) would only pre-empt it.
+    estimator = instantiate(conf.estimator, policy=policy, allow_nonfinite=True)
     warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
     optimizer = torch.optim.SGD(policy.parameters(), lr=conf.lr)
     logger = None
