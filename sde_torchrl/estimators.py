@@ -355,7 +355,8 @@ class EpisodicEstimator(LossModule):
             :class:`~sde_torchrl.guard.FiniteGuard` checks the same values and names the update.
 
     Input contract (:meth:`check_episodes`, at every forward pass): episodes shaped
-    ``[*runs, N, T]`` with ``N, T >= 1``, one whole episode per row (``is_init`` only at step 0,
+    ``[*runs, N, T]`` with ``N, T >= 1``, features ``[*runs, N, T, S]`` and action samples
+    ``[*runs, N, T, A]`` for the explorer's ``S`` and ``A``, one whole episode per row (``is_init`` only at step 0,
     ``("next", "done")`` only at the last step, where the episodes carry them), the actor's
     floating-point inputs in the dtype of the policy's parameters, and finite values in every key
     the estimator reads. Rows holding several episodes are refused, not split: split episodes
@@ -460,9 +461,9 @@ class EpisodicEstimator(LossModule):
 
         Raises:
             TypeError: ``episodes`` is not a TensorDict.
-            EpisodesError: an empty batch, a missing key (:class:`MissingEpisodesKeyError`), an
-                actor input in another dtype than the policy's parameters, or a row holding more
-                than one episode.
+            EpisodesError: an empty batch, a missing key (:class:`MissingEpisodesKeyError`),
+                features or action samples not shaped for the explorer, an actor input in another
+                dtype than the policy's parameters, or a row holding more than one episode.
             NonFiniteEpisodesError: NaN or infinity in a key the estimator reads (unless
                 ``allow_nonfinite``).
         """
@@ -479,6 +480,13 @@ class EpisodicEstimator(LossModule):
                 raise MissingEpisodesKeyError(
                     f"episodes lack key {key!r}; the estimator reads {self.in_keys}: collect them with the policy "
                     "being trained, or name the keys they use with set_keys(...)", key)
+        explorer = self.log_likelihood.explorer
+        for key, size, name in ((keys.features, explorer.feature_dim, "feature_dim"),
+                                (keys.action_sample, explorer.action_dim, "action_dim")):
+            if tuple(episodes.get(key).shape) != (*shape, size):  # a size-1 dimension would broadcast
+                raise EpisodesError(
+                    f"episodes key {key!r} has shape {tuple(episodes.get(key).shape)}, expected {(*shape, size)}: "
+                    f"the batch [*runs, N, T] then the explorer's {name}={size}", key)
         parameter = next(iter(self.learnable_parameters().values()), None)
         for key in self.log_likelihood.actor.in_keys if parameter is not None else ():
             value, dtype = episodes.get(key), parameter.dtype

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, StepCounter, TransformedEnv
 
@@ -291,3 +292,25 @@ def test_minimize_env_refuses_non_finite_actions_naming_runs_and_episodes(runs, 
         env.transition(td["observation"], td["action"])
     env.allow_nonfinite = True
     assert not torch.isfinite(env.step(td)["next", "observation"]).all()
+
+
+
+@pytest.mark.parametrize("key, shape, expected", [
+    ("action_sample", (2, 6, 4), r"'action_sample' has shape \(2, 6, 4\), expected \(2, 6, 4, 1\): .*action_dim=1"),
+    ("observation", (2, 6, 4, 2), r"'observation' has shape \(2, 6, 4, 2\), expected \(2, 6, 4, 1\): .*feature_dim=1"),
+])
+def test_features_and_action_samples_must_fit_the_explorer(key, shape, expected):
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes.set(key, torch.zeros(shape))
+    with pytest.raises(EpisodesError, match=expected):
+        ReinforceEstimator(policy)(episodes)
+
+
+def test_an_action_sample_that_would_broadcast_is_refused():
+    """A size-1 action dimension against action_dim=2 broadcast silently before the guard."""
+    policy = TensorDictSequential(LinearActor(1, 2), StateDependentExplorer(2, 1))
+    episodes = TensorDict({"observation": torch.randn(4, 5, 1), "action_sample": torch.randn(4, 5, 1),
+                           ("next", "reward"): torch.randn(4, 5, 1)}, [4, 5])
+    with pytest.raises(EpisodesError, match=r"'action_sample' has shape \(4, 5, 1\), expected \(4, 5, 2\)"):
+        ReinforceEstimator(policy)(episodes)
