@@ -16,6 +16,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
+from torchrl.envs import TransformedEnv
 
 from sde_torchrl.config import TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
@@ -34,6 +35,9 @@ def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
     """Instantiates ``conf.env`` with a ``[runs, episodes]`` batch and the run streams."""
     env = instantiate(conf.env, episodes=episodes, runs=conf.runs, first_run=conf.first_run, stream=stream)
     env.set_seed(conf.seed)
+    base = env.base_env if isinstance(env, TransformedEnv) else env
+    if hasattr(base, "allow_nonfinite"):  # MinimizeEnv: the trainer's FiniteGuard names a diverged run
+        base.allow_nonfinite = True
     return env
 
 
@@ -78,7 +82,9 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     eval_env.append_transform(explorer.make_tensordict_primer())
     policy = TensorDictSequential(actor, explorer)
 
-    estimator = instantiate(conf.estimator, policy=policy)
+    # The trainer's FiniteGuard checks returns, scores and gradients itself and names the update:
+    # the estimator's own non-finite checks (for direct Python use) would only pre-empt it.
+    estimator = instantiate(conf.estimator, policy=policy, allow_nonfinite=True)
     warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
     optimizer = torch.optim.SGD(policy.parameters(), lr=conf.lr)
     logger = None

@@ -3,13 +3,17 @@
 Every failed check raises :class:`ArgumentError`, whose message is one line
 ``<name>=<value>: <what is allowed>``, the same whether the value came from a Hydra override
 (``env.episode_length=-3: a positive integer``) or from Python (``episodes=0: a positive
-integer``).
+integer``). Batched tensor inputs (actions, episodes) that hold NaN or infinity raise
+:class:`NonFiniteInputError`, naming the input, the batch entries concerned and the fix.
+
+This module does not import torch (``train.py`` checks its config before torch is imported):
+the tensor checks only call the tensors' own methods.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 
@@ -29,6 +33,71 @@ class ArgumentError(ValueError):
     def __init__(self, name: str, value: Any, allowed: str) -> None:
         self.key, self.value, self.allowed = name, value, allowed
         super().__init__(f"{name}={show(value)}: {allowed}")
+
+
+class NonFiniteInputError(ValueError):
+    """A batched tensor input that holds NaN or infinity.
+
+    Args:
+        name: the input (``action``, ``episodes key 'observation'``).
+        where: the batch entries concerned, in words (:func:`batch_entries`).
+        fix: what to do about it.
+
+    Examples:
+        >>> str(NonFiniteInputError("action", "run 1 episode 0", "check the policy"))
+        'action: NaN/inf in run 1 episode 0; check the policy'
+    """
+
+    def __init__(self, name: str, where: str, fix: str) -> None:
+        self.key, self.where, self.fix = name, where, fix
+        super().__init__(f"{name}: NaN/inf in {where}; {fix}")
+
+
+def batch_entries(mask: Any, labels: Sequence[str], limit: int = 4) -> str:
+    """The batch entries where a boolean tensor is true, in words (the first ``limit``).
+
+    Args:
+        mask: boolean tensor with one dimension per label.
+        labels: the name of each dimension (``("run", "episode")``).
+        limit: entries shown; the others are counted.
+
+    Examples:
+        >>> import torch
+        >>> batch_entries(torch.tensor([[False, True], [True, True]]), ("run", "episode"), limit=2)
+        'run 0 episode 1, run 1 episode 0 (and 1 more)'
+    """
+    hits = mask.nonzero().tolist()
+    shown = ", ".join(" ".join(f"{label} {i}" for label, i in zip(labels, index, strict=True))
+                      for index in hits[:limit])
+    return shown + (f" (and {len(hits) - limit} more)" if len(hits) > limit else "")
+
+
+def finite_entries(name: str, value: Any, labels: Sequence[str], fix: str) -> None:
+    """Raises :class:`NonFiniteInputError` if a tensor holds NaN or infinity.
+
+    One fused check over the whole tensor; the entries are located only on failure.
+
+    Args:
+        name: the input, as the message names it.
+        value: a floating-point tensor whose leading dimensions are the batch, one per label.
+        labels: the name of each batch dimension (``("run", "episode")``).
+        fix: what to do about it.
+
+    Raises:
+        NonFiniteInputError: naming the batch entries that hold a NaN or an infinity.
+
+    Examples:
+        >>> import torch
+        >>> finite_entries("action", torch.tensor([[0.0], [float("nan")]]), ("episode",), "check the policy")
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.checks.NonFiniteInputError: action: NaN/inf in episode 1; check the policy
+    """
+    finite = value.isfinite()
+    if bool(finite.all()):
+        return
+    bad = ~finite.reshape(*value.shape[:len(labels)], -1).all(-1)
+    raise NonFiniteInputError(name, batch_entries(bad, labels), fix)
 
 
 def show(value: Any) -> str:

@@ -5,6 +5,11 @@ per-episode score vectors ``ψ_n = Σ_t ∇_θ log π(u_t | x_t)`` (eq. 9) over 
 parameter of the policy, controller and exploration alike, computed for all episodes at once
 with ``torch.func``. The returned ``loss_objective`` is the surrogate ``-g·θ`` whose gradient is
 ``-g``: one step of ``torch.optim.SGD(lr=α)`` is the paper's update ``θ ← θ + α g`` (eq. 1).
+
+The estimators check their input before estimating (:meth:`EpisodicEstimator.check_episodes`):
+an empty batch, a missing key, an actor input whose dtype is not the policy's, a row that holds
+more than one episode, or NaN/infinity in what they read raise :class:`EpisodesError` naming the
+key and the fix, instead of a reshape error or a NaN gradient.
 """
 
 from __future__ import annotations
@@ -19,8 +24,83 @@ from torch import nn
 from torch.func import functional_call, grad, vmap
 from torchrl.objectives import LossModule
 
-from sde_torchrl.checks import one_of
+from sde_torchrl.checks import NonFiniteInputError, batch_entries, one_of
 from sde_torchrl.exploration import StateDependentExplorer
+
+
+class EpisodesError(ValueError):
+    """Episodes the estimators cannot use: the message names the key (or the shape) and the fix.
+
+    Attributes:
+        key: the TensorDict key concerned, or ``None`` for the batch shape.
+
+    Examples:
+        >>> str(EpisodesError("episodes lack key 'observation'", "observation"))
+        "episodes lack key 'observation'"
+    """
+
+    def __init__(self, message: str, key: NestedKey | None = None) -> None:
+        self.key = key
+        super().__init__(message)
+
+
+class MissingEpisodesKeyError(EpisodesError, KeyError):
+    """Episodes that lack a key the estimator reads (a ``KeyError`` too, as TensorDict's own).
+
+    Examples:
+        >>> str(MissingEpisodesKeyError("episodes lack key 'loc'", "loc"))
+        "episodes lack key 'loc'"
+    """
+
+    def __str__(self) -> str:
+        return str(self.args[0])  # as ValueError does: KeyError would quote the message
+
+
+class NonFiniteEpisodesError(EpisodesError, NonFiniteInputError):
+    """Episodes holding NaN or infinity in a key the estimator reads (or scores or a gradient
+    that overflowed): the estimate would be NaN.
+
+    Attributes:
+        key: the key (``"observation"``, ``("next", "reward")``) or ``"scores"``/``"gradient"``.
+        where: the runs and episodes concerned, in words.
+
+    Examples:
+        >>> str(NonFiniteEpisodesError("'observation'", "run 1 episode 0", "re-collect them"))
+        "'observation': NaN/inf in run 1 episode 0; re-collect them"
+    """
+
+    def __init__(self, name: str, where: str, fix: str, key: NestedKey | None = None) -> None:
+        NonFiniteInputError.__init__(self, name, where, fix)
+        self.key = name if key is None else key
+
+
+#: The expected policy, as the errors name it.
+POLICY_FORM = "TensorDictSequential(actor, explorer): an actor writing 'loc', then a StateDependentExplorer"
+
+
+def check_policy(policy: object) -> None:
+    """Raises a ``TypeError`` naming what was given unless ``policy`` is a
+    ``TensorDictSequential`` of at least one actor module followed by a
+    :class:`~sde_torchrl.exploration.StateDependentExplorer`.
+
+    Examples:
+        >>> from sde_torchrl import StateDependentExplorer
+        >>> check_policy(StateDependentExplorer(1, 1))
+        Traceback (most recent call last):
+        ...
+        TypeError: policy: got a StateDependentExplorer alone; expected TensorDictSequential(actor, explorer): ...
+    """
+    if isinstance(policy, StateDependentExplorer):
+        raise TypeError(f"policy: got a StateDependentExplorer alone; expected {POLICY_FORM}")
+    if not isinstance(policy, TensorDictSequential):
+        raise TypeError(f"policy: got {type(policy).__name__}; expected {POLICY_FORM}")
+    modules = [type(m).__name__ for m in policy.module]
+    if not modules or not isinstance(policy.module[-1], StateDependentExplorer):
+        raise TypeError(f"policy: the last module must be a StateDependentExplorer, got "
+                        f"TensorDictSequential({', '.join(modules)}); expected {POLICY_FORM}")
+    if len(modules) < 2:
+        raise TypeError(f"policy: TensorDictSequential({modules[0]}) has no actor before the explorer; "
+                        f"expected {POLICY_FORM}")
 
 
 class EpisodeLogLikelihood(nn.Module):
@@ -41,6 +121,9 @@ class EpisodeLogLikelihood(nn.Module):
         policy: the policy that collected the episodes.
         variance_weighted: weight each action element's log-likelihood by its constant ``σ_j²``.
 
+    Raises:
+        TypeError: ``policy`` is not of that form (:func:`check_policy`).
+
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
@@ -56,13 +139,9 @@ class EpisodeLogLikelihood(nn.Module):
 
     def __init__(self, policy: TensorDictSequential, variance_weighted: bool = False) -> None:
         super().__init__()
+        check_policy(policy)
         self.variance_weighted = variance_weighted
         explorer = policy.module[-1]
-        if not isinstance(explorer, StateDependentExplorer):
-            raise TypeError(
-                "the policy's last module must be a StateDependentExplorer, got "
-                f"{type(explorer).__name__}"
-            )
         # No reference to `policy` itself: its parameters would be reachable under two names,
         # which torch.func.functional_call does not restore correctly.
         self.actor = TensorDictSequential(*policy.module[:-1])
@@ -193,7 +272,9 @@ def enac_gradient(
 
     Solved with an SVD-based least-squares driver in float64, which returns the minimum-norm
     solution when the system is rank deficient (fewer episodes than parameters, or constant
-    scores) instead of failing.
+    scores) instead of failing. A run whose scores or returns hold NaN or infinity is not handed
+    to the solver (LAPACK fails on them): its ``w``, ``J`` and condition number are NaN and its
+    rank 0.
 
     Args:
         scores: ``ψ``, shaped ``[*runs, N, K]``.
@@ -205,14 +286,25 @@ def enac_gradient(
         unknowns), ``[*runs]``.
     """
     design = torch.cat([scores, torch.ones_like(scores[..., :1])], dim=-1).double()
-    solution = torch.linalg.lstsq(design, returns.double().unsqueeze(-1), driver="gelsd")
+    target = returns.double().unsqueeze(-1)
+    finite = torch.isfinite(design).all((-2, -1)) & torch.isfinite(target).all((-2, -1))  # [*runs]
+    all_finite = bool(finite.all())
+    if not all_finite:  # LAPACK fails on NaN/inf (an MKL "INTERNAL ASSERT"): solve zeros instead
+        design = torch.where(finite[..., None, None], design, 0.0)
+        target = torch.where(finite[..., None, None], target, 0.0)
+    solution = torch.linalg.lstsq(design, target, driver="gelsd")
     coefficients = solution.solution.squeeze(-1).to(scores.dtype)
     singular = solution.singular_values
     if singular.shape[-1] < design.shape[-1]:  # fewer episodes than unknowns: singular
         condition = torch.full(singular.shape[:-1], torch.inf, dtype=singular.dtype)
     else:
         condition = singular[..., 0] / singular[..., -1]
-    return coefficients[..., :-1], coefficients[..., -1], solution.rank, condition.to(scores.dtype)
+    rank = solution.rank
+    if not all_finite:
+        coefficients = torch.where(finite[..., None], coefficients, torch.nan)
+        condition = torch.where(finite, condition, torch.nan)
+        rank = torch.where(finite, rank, 0)
+    return coefficients[..., :-1], coefficients[..., -1], rank, condition.to(scores.dtype)
 
 
 def clip_per_run(gradient: torch.Tensor, max_norm: float) -> torch.Tensor:
@@ -257,6 +349,40 @@ class EpisodicEstimator(LossModule):
         variance_weighted: the authors' "auto-alpha" scores: each action element's
             log-likelihood weighted by its constant variance ``σ_j²`` (see
             :class:`EpisodeLogLikelihood`).
+        allow_nonfinite: let NaN/infinity in the episodes, scores and gradient through (the
+            estimate is then NaN for the runs concerned) instead of raising
+            :class:`NonFiniteEpisodesError`. The trainer sets it: its
+            :class:`~sde_torchrl.guard.FiniteGuard` checks the same values and names the update.
+
+    Input contract (:meth:`check_episodes`, at every forward pass): episodes shaped
+    ``[*runs, N, T]`` with ``N, T >= 1``, features ``[*runs, N, T, S]`` and action samples
+    ``[*runs, N, T, A]`` for the explorer's ``S`` and ``A``, one whole episode per row (``is_init`` only at step 0,
+    ``("next", "done")`` only at the last step, where the episodes carry them), the actor's
+    floating-point inputs in the dtype of the policy's parameters, and finite values in every key
+    the estimator reads. Rows holding several episodes are refused, not split: split episodes
+    have different lengths, which neither the ``[*runs, N, T]`` batch nor the per-run ``N`` of
+    the estimates can hold. The actor's inputs are not converted to the policy's dtype (the
+    actor that collected the episodes would have refused them too); the exploration features
+    are, to the dtype of the actor's ``loc``, as the explorer does when it acts.
+
+    Raises:
+        TypeError: ``policy`` is not ``TensorDictSequential(actor, explorer)``.
+        ValueError: an option is not allowed.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
+        >>> from sde_torchrl.rollout import collect_episodes
+        >>> explorer = StateDependentExplorer(1, 1)
+        >>> env = make_minimize_env(5, episodes=4).append_transform(explorer.make_tensordict_primer())
+        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> episodes = collect_episodes(env, policy, 5)
+        >>> episodes["observation"][2, 3] = float("nan")
+        >>> ReinforceEstimator(policy)(episodes)
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.estimators.NonFiniteEpisodesError: episodes key 'observation': NaN/inf in episode 2; ...
     """
 
     @dataclass
@@ -271,18 +397,25 @@ class EpisodicEstimator(LossModule):
                 ``feature_key``.
             loc: where the actor writes the controller's mean ``μ``. Defaults to the
                 explorer's ``loc_key``.
+            is_init: episode-start flags; checked where present (a reset inside a row is
+                refused). Defaults to the explorer's ``is_init_key``.
+            done: episode-end flags; checked where present (an end before the last step is
+                refused). Defaults to ``("next", "done")``.
         """
 
         reward: NestedKey = ("next", "reward")
         action_sample: NestedKey = StateDependentExplorer.sample_key
         features: NestedKey = StateDependentExplorer.feature_key
         loc: NestedKey = StateDependentExplorer.loc_key
+        is_init: NestedKey = StateDependentExplorer.is_init_key
+        done: NestedKey = ("next", "done")
 
     tensor_keys: _AcceptedKeys
 
     def __init__(
         self, policy: TensorDictSequential, max_grad_norm: float | None = None, *,
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
+        allow_nonfinite: bool = False,
     ) -> None:
         super().__init__()
         for name, bound in (("max_grad_norm", max_grad_norm), ("max_grad_entry", max_grad_entry)):
@@ -290,6 +423,7 @@ class EpisodicEstimator(LossModule):
                 raise ValueError(f"{name} must be > 0 or None, got {bound!r}")
         one_of("episode_return", episode_return, EPISODE_RETURNS)
         self.max_grad_norm, self.max_grad_entry, self.episode_return = max_grad_norm, max_grad_entry, episode_return
+        self.allow_nonfinite = allow_nonfinite
         self.log_likelihood = EpisodeLogLikelihood(policy, variance_weighted)
         self._tensor_keys = self.default_keys()
         self._set_in_keys()
@@ -298,7 +432,7 @@ class EpisodicEstimator(LossModule):
         """The default keys: the policy's explorer's for the likelihood, ``("next", "reward")``."""
         explorer = self.log_likelihood.explorer
         return self._AcceptedKeys(action_sample=explorer.sample_key, features=explorer.feature_key,
-                                  loc=explorer.loc_key)
+                                  loc=explorer.loc_key, is_init=explorer.is_init_key)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         """Called by ``set_keys``: hands the likelihood its keys and refreshes ``in_keys``."""
@@ -322,11 +456,122 @@ class EpisodicEstimator(LossModule):
         """Gradient ``[*runs, K]`` and diagnostics from scores ``[*runs, N, K]``, returns ``[*runs, N]``."""
         raise NotImplementedError
 
+    def check_episodes(self, episodes: TensorDictBase) -> None:
+        """Checks the input contract (see the class docstring); cheap: one fused check per key.
+
+        Raises:
+            TypeError: ``episodes`` is not a TensorDict.
+            EpisodesError: an empty batch, a missing key (:class:`MissingEpisodesKeyError`),
+                features or action samples not shaped for the explorer, an actor input in another
+                dtype than the policy's parameters, or a row holding more than one episode.
+            NonFiniteEpisodesError: NaN or infinity in a key the estimator reads (unless
+                ``allow_nonfinite``).
+        """
+        if not isinstance(episodes, TensorDictBase):
+            raise TypeError(f"episodes: got {type(episodes).__name__}; expected a TensorDict shaped [*runs, N, T]")
+        shape = tuple(episodes.batch_size)
+        if len(shape) < 2 or 0 in shape:
+            raise EpisodesError(
+                f"episodes have batch shape {shape}; the estimators need [*runs, N, T] with N >= 1 episodes "
+                "of T >= 1 steps (sde_torchrl.rollout.collect_episodes(env, policy, T) gives [*env.batch_size, T])")
+        keys = self.tensor_keys
+        for key in self.in_keys:
+            if episodes.get(key, None) is None:
+                raise MissingEpisodesKeyError(
+                    f"episodes lack key {key!r}; the estimator reads {self.in_keys}: collect them with the policy "
+                    "being trained, or name the keys they use with set_keys(...)", key)
+        explorer = self.log_likelihood.explorer
+        for key, size, name in ((keys.features, explorer.feature_dim, "feature_dim"),
+                                (keys.action_sample, explorer.action_dim, "action_dim")):
+            if tuple(episodes.get(key).shape) != (*shape, size):  # a size-1 dimension would broadcast
+                raise EpisodesError(
+                    f"episodes key {key!r} has shape {tuple(episodes.get(key).shape)}, expected {(*shape, size)}: "
+                    f"the batch [*runs, N, T] then the explorer's {name}={size}", key)
+        parameter = next(iter(self.learnable_parameters().values()), None)
+        for key in self.log_likelihood.actor.in_keys if parameter is not None else ():
+            value, dtype = episodes.get(key), parameter.dtype
+            if value.is_floating_point() and value.dtype != dtype:
+                raise EpisodesError(
+                    f"episodes key {key!r} is {value.dtype} but the policy's parameters are {dtype}; convert "
+                    f"the episodes: episodes.set({key!r}, episodes.get({key!r}).to({dtype})) (or collect them "
+                    f"through TorchRL's DoubleToFloat transform), or the policy: policy.to({value.dtype})", key)
+        self._check_one_episode_per_row(episodes, keys.is_init, slice(1, None), "a new episode starts")
+        self._check_one_episode_per_row(episodes, keys.done, slice(None, -1), "an episode ends")
+        if not self.allow_nonfinite:
+            labels = self._labels(episodes.batch_dims - 2)
+            for key in self.in_keys:
+                value = episodes.get(key)
+                if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                    bad = ~torch.isfinite(value).reshape(*shape[:-1], -1).all(-1)
+                    raise NonFiniteEpisodesError(
+                        f"episodes key {key!r}", batch_entries(bad, labels),
+                        "the estimate would be NaN for those runs. Find what produced it (a diverged env or "
+                        "policy: lower the learning rate or bound the gradient with max_grad_norm), drop or "
+                        "re-collect those episodes, or pass allow_nonfinite=True to get NaN estimates", key)
+
+    def _check_one_episode_per_row(self, episodes: TensorDictBase, key: NestedKey, steps: slice, what: str) -> None:
+        """Refuses rows where the flags under ``key`` (if present) are set at ``steps``."""
+        flags = episodes.get(key, None)
+        if flags is None or not bool(flags[(*[slice(None)] * (episodes.batch_dims - 1), steps)].any()):
+            return
+        inner = flags.reshape(*episodes.batch_size, -1).any(-1).clone()
+        inner[..., 0 if steps.start else -1] = False
+        first = inner.nonzero()[0].tolist()
+        row = " ".join(f"{label} {i}" for label, i in zip(self._labels(episodes.batch_dims - 2), first, strict=False))
+        raise EpisodesError(
+            f"episodes row {row} holds more than one episode: {what} at step {first[-1]} of "
+            f"{episodes.batch_size[-1]} ({key!r} is set there); the estimators take each row of [*runs, N, T] as "
+            "one whole episode. Collect whole episodes of T steps: sde_torchrl.rollout.collect_episodes(env, "
+            "policy, T), or "
+            "env.rollout(T, policy, break_when_any_done=False) on an env with StepCounter(T)", key)
+
+    @staticmethod
+    def _labels(run_dims: int) -> list[str]:
+        """Names of the ``[*runs, N]`` dimensions in messages."""
+        return ["run" if run_dims == 1 else f"run[{d}]" for d in range(run_dims)] + ["episode"]
+
+    def _check_finite(self, what: str, values: dict[str, torch.Tensor], run_dims: int, per_episode: bool) -> None:
+        """Raises :class:`NonFiniteEpisodesError` for the first parameter whose scores
+        (``[*runs, N, ...]``) or gradient (``[*runs, ...]``) hold NaN or infinity."""
+        for name, value in values.items():
+            if not bool(torch.isfinite(value).all()):
+                kept = run_dims + per_episode
+                bad = ~torch.isfinite(value).reshape(*value.shape[:kept], -1).all(-1)
+                labels = self._labels(run_dims) if per_episode else self._labels(run_dims)[:-1]
+                where = batch_entries(bad, labels) if kept else "the batch"
+                raise NonFiniteEpisodesError(
+                    f"{what} of parameter {name}", where,
+                    "the episodes are finite but too large for the policy's dtype (the likelihood overflowed): "
+                    "scale the observations or rewards, lower the learning rate or bound the gradient with "
+                    "max_grad_norm, or pass allow_nonfinite=True to get NaN estimates", what)
+
     def forward(self, episodes: TensorDictBase) -> TensorDictBase:
+        """Estimates one gradient per run from the episodes.
+
+        Args:
+            episodes: TensorDict shaped ``[*runs, N, T]``, one whole episode per row.
+
+        Returns:
+            TensorDict with ``loss_objective``, ``return_mean``, ``gradient``, ``score_norm``,
+            ``gradient_norm`` and the estimator's diagnostics.
+
+        Raises:
+            EpisodesError: the episodes break the input contract (:meth:`check_episodes`).
+            NonFiniteEpisodesError: NaN or infinity in the episodes, the scores or the gradient
+                (unless ``allow_nonfinite``).
+        """
+        self.check_episodes(episodes)
         returns = self.returns(episodes)
         run_dims = episodes.batch_dims - 2
-        scores = flatten_scores(episode_scores(self.log_likelihood, episodes), run_dims)
+        per_parameter = episode_scores(self.log_likelihood, episodes)
+        scores = flatten_scores(per_parameter, run_dims)
+        if not self.allow_nonfinite and not bool(torch.isfinite(scores).all()):
+            self._check_finite("scores", per_parameter, run_dims, per_episode=True)
         gradient, diagnostics = self.estimate(scores, returns)
+        if not self.allow_nonfinite and not bool(torch.isfinite(gradient).all()):
+            sizes = [s[(0,) * (run_dims + 1)].numel() for s in per_parameter.values()]
+            self._check_finite("gradient", dict(zip(per_parameter, gradient.split(sizes, -1), strict=True)),
+                               run_dims, per_episode=False)
         diagnostics["gradient_norm"] = gradient.norm(dim=-1)
         if self.max_grad_entry is not None:
             gradient = rescale_largest_entry(gradient, self.max_grad_entry)

@@ -15,7 +15,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
-from sde_torchrl.checks import finite, one_of, positive_int
+from sde_torchrl.checks import ArgumentError, finite, finite_entries, one_of, positive_int
 from sde_torchrl.rng import RunStreams
 
 #: Which state the reward scores: ``noise_free`` (``x_t + s u_t``) or ``noisy`` (``x_{t+1}``).
@@ -47,6 +47,14 @@ class MinimizeEnv(EnvBase):
         first_run: global index of the first run (for seeding shards of a sweep).
         stream: random stream name, ``"env"`` for training or ``"eval_env"`` for evaluation.
         seed: seed applied at construction (``None``: seed 0; call :meth:`set_seed` to change).
+        allow_nonfinite: step NaN/infinite actions through (the states and rewards become
+            non-finite) instead of raising :class:`~sde_torchrl.checks.NonFiniteInputError`.
+            The trainer sets it: its :class:`~sde_torchrl.guard.FiniteGuard` checks the
+            returns and names the update.
+
+    Raises:
+        ArgumentError: a parameter is not allowed (``x0``, ``step_size`` and ``noise_std`` must
+            be finite).
 
     Examples:
         >>> from torchrl.envs.utils import check_env_specs
@@ -59,16 +67,22 @@ class MinimizeEnv(EnvBase):
         self, episodes: int = 10, *, dim: int = 1, x0: float | Sequence[float] = 5.0,
         x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5, reward_state: str = "noisy",
         runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
+        allow_nonfinite: bool = False,
     ) -> None:
         positive_int("episodes", episodes)
         positive_int("dim", dim)
+        start = torch.as_tensor(x0, dtype=torch.float64)
+        if start.numel() not in (1, dim) or start.dim() > 1 or not bool(torch.isfinite(start).all()):
+            raise ArgumentError("x0", x0, f"a finite number or a list of dim={dim} finite numbers")
         finite("x0_spread", x0_spread, minimum=0)
+        finite("step_size", step_size)
         finite("noise_std", noise_std, minimum=0)
         one_of("reward_state", reward_state, REWARD_STATES)
         self.reward_state = reward_state
         batch = (episodes,) if runs is None else (runs, episodes)
         super().__init__(batch_size=torch.Size(batch))
         self.dim, self.runs, self.first_run, self.stream = dim, runs, first_run, stream
+        self.allow_nonfinite = allow_nonfinite
         self.x0 = torch.as_tensor(x0, dtype=torch.float32).expand(dim).clone()
         self.x0_spread, self.step_size, self.noise_std = float(x0_spread), float(step_size), float(noise_std)
         self.observation_spec = Composite(
@@ -104,9 +118,18 @@ class MinimizeEnv(EnvBase):
 
         Returns:
             ``(x_next, reward)`` with ``reward`` shaped ``[*batch, 1]``.
+
+        Raises:
+            ValueError: ``u`` is not shaped like ``x``.
+            NonFiniteInputError: ``u`` holds NaN or infinity (unless ``allow_nonfinite``),
+                naming the runs and episodes.
         """
         if u.shape != x.shape:
             raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
+        if not self.allow_nonfinite:
+            finite_entries("action", u, ("episode",) if self.runs is None else ("run", "episode"),
+                           "the policy produced them (a diverged policy: lower the learning rate or bound the "
+                           "gradient with max_grad_norm); pass allow_nonfinite=True to step them through")
         successor = x + self.step_size * u
         x_next = successor + self.noise_std * self._draw("normal", tuple(x.shape))
         scored = successor if self.reward_state == "noise_free" else x_next

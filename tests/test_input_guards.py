@@ -1,0 +1,316 @@
+"""Input guards of the Python API: the estimators and MinimizeEnv refuse what would give a NaN
+gradient, a cryptic torch error or a silently wrong estimate, naming the key and the fix."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictSequential
+from torchrl.envs import Compose, InitTracker, StepCounter, TransformedEnv
+
+from sde_torchrl import (
+    ENACEstimator,
+    LinearActor,
+    MinimizeEnv,
+    ReinforceEstimator,
+    StateDependentExplorer,
+    make_minimize_env,
+)
+from sde_torchrl.checks import ArgumentError, NonFiniteInputError
+from sde_torchrl.estimators import (
+    EpisodesError,
+    MissingEpisodesKeyError,
+    NonFiniteEpisodesError,
+    enac_gradient,
+)
+from sde_torchrl.rollout import collect_episodes
+
+ESTIMATORS = [ReinforceEstimator, ENACEstimator]
+RUNS, EPISODES, LENGTH = 2, 6, 4
+
+
+def _policy(runs=RUNS):
+    explorer = StateDependentExplorer(1, 1, runs=runs)
+    return TensorDictSequential(LinearActor(1, 1, init=-2.0, runs=runs), explorer)
+
+
+def _env(policy, length=LENGTH, runs=RUNS, episodes=EPISODES):
+    env = make_minimize_env(length, episodes=episodes, runs=runs, x0=2.0, x0_spread=1.0)
+    return env.append_transform(policy.module[-1].make_tensordict_primer())
+
+
+def _episodes(policy, fast=True):
+    torch.manual_seed(0)
+    return collect_episodes(_env(policy), policy, LENGTH, fast=fast)
+
+
+# ------------------------------------------------------------------------------ non-finite input
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+@pytest.mark.parametrize("key", ["observation", "action_sample", ("next", "reward")])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_input_names_the_key_the_episodes_and_the_fix(estimator_cls, key, bad, capfd):
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes.get(key)[1, 2, 3] = bad
+    episodes.get(key)[1, 4, 0] = bad
+    with pytest.raises(NonFiniteEpisodesError) as info:
+        estimator_cls(policy)(episodes)
+    message = str(info.value)
+    assert message.startswith(f"episodes key {key!r}: NaN/inf in run 1 episode 2, run 1 episode 4;"), message
+    assert "allow_nonfinite=True" in message and info.value.key == key
+    assert isinstance(info.value, NonFiniteInputError) and isinstance(info.value, ValueError)
+    assert "MKL" not in capfd.readouterr().out  # ENAC never reached lstsq
+
+
+def test_non_finite_features_are_named_by_their_key():
+    policy = _policy()
+    estimator = ReinforceEstimator(policy)
+    estimator.set_keys(features="my_features")
+    episodes = _episodes(policy)
+    episodes["my_features"] = episodes["observation"].clone()
+    episodes["my_features"][0, 5, 1] = float("-inf")
+    with pytest.raises(NonFiniteEpisodesError, match=r"^episodes key 'my_features': NaN/inf in run 0 episode 5;"):
+        estimator(episodes)
+
+
+def test_without_runs_the_message_names_episodes_only():
+    policy = _policy(runs=None)
+    torch.manual_seed(0)
+    episodes = collect_episodes(_env(policy, runs=None), policy, LENGTH)
+    episodes["observation"][3, 1] = float("nan")
+    with pytest.raises(NonFiniteEpisodesError, match=r"^episodes key 'observation': NaN/inf in episode 3;"):
+        ReinforceEstimator(policy)(episodes)
+
+
+def test_finite_input_whose_scores_overflow_names_the_parameter():
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes["action_sample"][0, 1, 2] = 3e38  # finite, but its squared deviation is not
+    with pytest.raises(NonFiniteEpisodesError) as info:
+        ReinforceEstimator(policy)(episodes)
+    assert str(info.value).startswith("scores of parameter ") and "run 0 episode 1;" in str(info.value)
+    assert "max_grad_norm" in str(info.value) and info.value.key == "scores"
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+def test_allow_nonfinite_gives_nan_for_the_runs_concerned_only(estimator_cls, capfd):
+    policy = _policy()
+    episodes = _episodes(policy)
+    clean = estimator_cls(policy)(episodes)["gradient"]
+    episodes["observation"][1, 2, 3] = float("nan")
+    gradient = estimator_cls(policy, allow_nonfinite=True)(episodes)["gradient"]
+    assert torch.isnan(gradient[1]).all()
+    if estimator_cls is ENACEstimator:  # runs are solved independently
+        torch.testing.assert_close(gradient[0], clean[0], rtol=0, atol=0)
+    else:  # REINFORCE's scores of run 0 do not see run 1
+        assert torch.isfinite(gradient[0]).all()
+    captured = capfd.readouterr()
+    assert "MKL" not in captured.out + captured.err and "INTERNAL ASSERT" not in captured.out + captured.err
+
+
+def test_enac_gradient_never_hands_nan_to_lstsq(capfd):
+    scores = torch.randn(3, 8, 2)
+    returns = torch.randn(3, 8)
+    reference = enac_gradient(scores, returns)
+    scores[1, 4, 0] = float("nan")
+    returns[2, 0] = float("inf")
+    w, average, rank, condition = enac_gradient(scores, returns)
+    assert torch.isnan(w[1:]).all() and torch.isnan(average[1:]).all() and torch.isnan(condition[1:]).all()
+    assert rank.tolist() == [3, 0, 0]
+    torch.testing.assert_close(w[0], reference[0][0], rtol=0, atol=0)
+    captured = capfd.readouterr()
+    assert "MKL" not in captured.out + captured.err
+
+
+# ------------------------------------------------------------------------------ shapes, keys, dtypes
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+@pytest.mark.parametrize("index, shape", [((slice(None), slice(0, 0)), (2, 0, 4)),
+                                          ((Ellipsis, slice(0, 0)), (2, 6, 0)),
+                                          ((0, 0), (4,))])
+def test_empty_or_flat_batch_names_the_shape_and_what_is_expected(estimator_cls, index, shape):
+    policy = _policy()
+    episodes = _episodes(policy)[index]
+    with pytest.raises(EpisodesError, match=rf"batch shape \({', '.join(map(str, shape))},?\); the estimators need "
+                                            r"\[\*runs, N, T\] with N >= 1 episodes of T >= 1 steps"):
+        estimator_cls(policy)(episodes)
+
+
+def test_a_tensor_instead_of_episodes_is_named():
+    policy = _policy()
+    with pytest.raises(TypeError, match=r"episodes: got Tensor; expected a TensorDict shaped \[\*runs, N, T\]"):
+        ReinforceEstimator(policy)(torch.zeros(2, 6, 4))
+
+
+def test_missing_key_names_the_key_and_set_keys():
+    policy = _policy()
+    with pytest.raises(MissingEpisodesKeyError) as info:
+        ReinforceEstimator(policy)(_episodes(policy).exclude("action_sample"))
+    assert str(info.value).startswith("episodes lack key 'action_sample'; the estimator reads ")
+    assert "set_keys" in str(info.value) and isinstance(info.value, KeyError)
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+def test_float64_observation_with_a_float32_policy_names_both_dtypes_and_the_fix(estimator_cls):
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes["observation"] = episodes["observation"].double()
+    with pytest.raises(EpisodesError) as info:
+        estimator_cls(policy)(episodes)
+    message = str(info.value)
+    assert message.startswith("episodes key 'observation' is torch.float64 but the policy's parameters are "
+                              "torch.float32;"), message
+    assert "DoubleToFloat" in message and "policy.to(torch.float64)" in message and info.value.key == "observation"
+
+
+def test_features_beyond_the_actor_inputs_are_converted_like_the_explorer_does():
+    policy = _policy()
+    episodes = _episodes(policy)
+    expected = ReinforceEstimator(policy)(episodes)["gradient"]
+    estimator = ReinforceEstimator(policy)
+    estimator.set_keys(features="my_features")
+    episodes["my_features"] = episodes["observation"].double()
+    torch.testing.assert_close(estimator(episodes)["gradient"], expected, rtol=0, atol=0)
+
+
+def test_a_float64_policy_takes_float64_episodes():
+    policy = _policy()
+    episodes = _episodes(policy).apply(lambda t: t.double() if t.is_floating_point() else t)
+    gradient = ReinforceEstimator(policy.double())(episodes)["gradient"]
+    assert gradient.dtype == torch.float64 and torch.isfinite(gradient).all()
+
+
+# ------------------------------------------------------------------------------ one episode per row
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+def test_rows_holding_a_reset_are_refused_naming_row_and_step(estimator_cls):
+    policy = _policy()
+    torch.manual_seed(0)
+    episodes = _env(policy).rollout(2 * LENGTH, policy, break_when_any_done=False)  # two episodes per row
+    with pytest.raises(EpisodesError) as info:
+        estimator_cls(policy)(episodes)
+    message = str(info.value)
+    assert message.startswith("episodes row run 0 episode 0 holds more than one episode: a new episode starts at "
+                              f"step {LENGTH} of {2 * LENGTH} ('is_init' is set there)"), message
+    assert "break_when_any_done=False" in message and "StepCounter(T)" in message and "collect_episodes" in message
+    with pytest.raises(EpisodesError, match=rf"an episode ends at step {LENGTH - 1} of {2 * LENGTH} "
+                                            r"\(\('next', 'done'\) is set there\)"):
+        estimator_cls(policy)(episodes.exclude("is_init"))
+
+
+def test_a_reset_in_a_later_row_names_that_row():
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes["is_init"][1, 3, 2] = True
+    with pytest.raises(EpisodesError, match=r"row run 1 episode 3 holds more than one episode: a new episode starts "
+                                            r"at step 2 of 4"):
+        ReinforceEstimator(policy)(episodes)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_fixed_horizon_collections_pass(fast):
+    """What the trainer collects: ``is_init`` only at step 0, done/truncated only at the last step."""
+    policy = _policy()
+    episodes = _episodes(policy, fast=fast)
+    assert episodes["is_init"][..., 0, :].all() and not episodes["is_init"][..., 1:, :].any()
+    assert episodes["next", "done"][..., -1, :].all() and not episodes["next", "done"][..., :-1, :].any()
+    assert torch.isfinite(ReinforceEstimator(policy)(episodes)["gradient"]).all()
+
+
+def test_gym_episodes_held_absorbing_pass():
+    """An episode that ends early is held until T (sde_torchrl.envs.gym): not a reset inside the row."""
+    from sde_torchrl.envs.gym import GymRunsEnv
+
+    explorer = StateDependentExplorer(1, 2)
+    policy = TensorDictSequential(LinearActor(2, 1), explorer)
+    base = GymRunsEnv("MountainCarContinuous-v0", episodes=3, runs=1, gym_kwargs={"max_episode_steps": 5})
+    env = TransformedEnv(base, Compose(StepCounter(10), InitTracker(), explorer.make_tensordict_primer()))
+    with torch.no_grad():
+        episodes = env.rollout(10, policy, break_when_any_done=False)
+    assert bool((episodes["next", "reward"][..., 5:, :] == 0).all())  # held after the time limit
+    assert not episodes["next", "done"][..., :-1, :].any() and not episodes["is_init"][..., 1:, :].any()
+    ReinforceEstimator(policy)(episodes)
+
+
+# ------------------------------------------------------------------------------ wiring
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+def test_an_explorer_instead_of_the_policy_names_the_expected_form(estimator_cls):
+    with pytest.raises(TypeError, match=r"^policy: got a StateDependentExplorer alone; expected "
+                                        r"TensorDictSequential\(actor, explorer\)"):
+        estimator_cls(StateDependentExplorer(1, 1))
+
+
+@pytest.mark.parametrize("policy, given", [
+    (LinearActor(1, 1), "got LinearActor;"),
+    (TensorDictSequential(StateDependentExplorer(1, 1)), r"TensorDictSequential\(StateDependentExplorer\) has no "
+                                                         "actor before the explorer"),
+    (TensorDictSequential(StateDependentExplorer(1, 1), LinearActor(1, 1)),
+     r"the last module must be a StateDependentExplorer, got TensorDictSequential\(StateDependentExplorer, "
+     r"LinearActor\)"),
+])
+def test_other_wrong_policies_name_what_was_given(policy, given):
+    with pytest.raises(TypeError, match=rf"^policy: .*{given}.*expected TensorDictSequential\(actor, explorer\)"):
+        ReinforceEstimator(policy)
+
+
+# ------------------------------------------------------------------------------ MinimizeEnv
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"x0": float("nan")}, "x0=nan: a finite number or a list of dim=1 finite numbers"),
+    ({"x0": float("inf")}, "x0=inf: a finite number"),
+    ({"x0": [1.0, float("-inf")], "dim": 2}, r"x0=\[1.0, -inf\]: a finite number or a list of dim=2"),
+    ({"x0": [1.0, 2.0, 3.0], "dim": 2}, r"x0=\[1.0, 2.0, 3.0\]: a finite number or a list of dim=2"),
+    ({"step_size": float("nan")}, "step_size=nan: a finite number"),
+    ({"step_size": float("inf")}, "step_size=inf: a finite number"),
+    ({"noise_std": float("nan")}, "noise_std=nan: a finite number >= 0"),
+    ({"noise_std": float("inf")}, "noise_std=inf: a finite number >= 0"),
+])
+def test_minimize_env_refuses_non_finite_parameters(kwargs, message):
+    with pytest.raises(ArgumentError, match=f"^{message}"):
+        MinimizeEnv(**kwargs)
+
+
+@pytest.mark.parametrize("runs, entry", [(2, "run 1 episode 2"), (None, "episode 2")])
+def test_minimize_env_refuses_non_finite_actions_naming_runs_and_episodes(runs, entry):
+    env = MinimizeEnv(episodes=3, runs=runs)
+    td = env.reset()
+    td["action"] = torch.zeros(*env.batch_size, 1)
+    td["action"][..., 2, :] = float("nan") if runs is None else 0.0
+    if runs is not None:
+        td["action"][1, 2] = float("inf")
+    with pytest.raises(NonFiniteInputError, match=rf"^action: NaN/inf in {entry}; the policy produced them"):
+        env.step(td)
+    with pytest.raises(NonFiniteInputError, match=rf"^action: NaN/inf in {entry};"):
+        env.transition(td["observation"], td["action"])
+    env.allow_nonfinite = True
+    assert not torch.isfinite(env.step(td)["next", "observation"]).all()
+
+
+
+@pytest.mark.parametrize("key, shape, expected", [
+    ("action_sample", (2, 6, 4), r"'action_sample' has shape \(2, 6, 4\), expected \(2, 6, 4, 1\): .*action_dim=1"),
+    ("observation", (2, 6, 4, 2), r"'observation' has shape \(2, 6, 4, 2\), expected \(2, 6, 4, 1\): .*feature_dim=1"),
+])
+def test_features_and_action_samples_must_fit_the_explorer(key, shape, expected):
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes.set(key, torch.zeros(shape))
+    with pytest.raises(EpisodesError, match=expected):
+        ReinforceEstimator(policy)(episodes)
+
+
+def test_an_action_sample_that_would_broadcast_is_refused():
+    """A size-1 action dimension against action_dim=2 broadcast silently before the guard."""
+    policy = TensorDictSequential(LinearActor(1, 2), StateDependentExplorer(2, 1))
+    episodes = TensorDict({"observation": torch.randn(4, 5, 1), "action_sample": torch.randn(4, 5, 1),
+                           ("next", "reward"): torch.randn(4, 5, 1)}, [4, 5])
+    with pytest.raises(EpisodesError, match=r"'action_sample' has shape \(4, 5, 1\), expected \(4, 5, 2\)"):
+        ReinforceEstimator(policy)(episodes)
