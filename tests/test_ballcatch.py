@@ -526,3 +526,24 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     bad = run_cli("+experiment=ballcatch", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
     assert bad.returncode != 0 and "env.model=ode: one of cup, pybrain" in bad.stderr
+
+
+def test_reset_after_close_names_the_problem():
+    env = BallCatchEnv()
+    env.reset(seed=0)
+    env.close()
+    with pytest.raises(RuntimeError, match="is closed .*make a new env"):
+        env.reset(seed=0)
+
+
+def test_a_dropped_world_frees_its_physics_client():
+    import gc
+
+    from sde_torchrl.envs.ballcatch.world import BallCatchWorld
+
+    world = BallCatchWorld()
+    client = world.client
+    assert pybullet.isConnected(physicsClientId=client)
+    del world
+    gc.collect()
+    assert not pybullet.isConnected(physicsClientId=client)

@@ -9,6 +9,7 @@ or episode length (:mod:`~sde_torchrl.envs.ballcatch.task`).
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,6 +121,8 @@ class BallCatchWorld:
         self.client = pybullet.connect(pybullet.DIRECT)
         if self.client < 0:
             raise RuntimeError(f"BallCatch {name}: could not start a pybullet DIRECT client")
+        # A world dropped without close() still frees its physics client (~29 MB) when collected.
+        self._disconnect = weakref.finalize(self, _disconnect, self.client)
         try:
             self._build()
         except pybullet.error as err:
@@ -201,6 +204,8 @@ class BallCatchWorld:
     # ------------------------------------------------------------------ per-episode / per-step
     def reset(self, offset_xy: Sequence[float]) -> None:
         """Restore the initial pose and put the ball above the palm, shifted by ``offset_xy``."""
+        if self.client < 0:
+            raise RuntimeError(f"BallCatch {self.name} is closed (close() ended its physics client): make a new env")
         cid = self.client
         try:
             pybullet.restoreState(self._state_id, physicsClientId=cid)
@@ -289,7 +294,12 @@ class BallCatchWorld:
     def close(self) -> None:
         """Disconnect the physics client (idempotent)."""
         if self.client >= 0:
-            if pybullet.isConnected(physicsClientId=self.client):
-                pybullet.disconnect(physicsClientId=self.client)
+            self._disconnect()
             self.client = -1
+
+
+def _disconnect(client: int) -> None:
+    """Ends a pybullet client if it is still connected."""
+    if pybullet.isConnected(physicsClientId=client):
+        pybullet.disconnect(physicsClientId=client)
 
