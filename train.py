@@ -80,13 +80,18 @@ def one_line(error: BaseException) -> tuple[str, int]:
     described = describe_error(error)
     if described is not None:
         return described, EXIT_CONFIG
-    checkpoint = sys.modules.get("sde_torchrl.checkpoint")  # not imported: not its error
-    if checkpoint is not None and isinstance(error, checkpoint.CheckpointMismatchError):
+    if _is_foreign_checkpoint(error):
         return str(error), EXIT_CONFIG
     if isinstance(error, (RunDirectoryInUse, DamagedFileError)):
         return str(error), EXIT_IN_USE if isinstance(error, RunDirectoryInUse) else EXIT_DAMAGED
     text = " ".join(str(error).split()) or type(error).__name__
     return (text if type(error).__name__ in text else f"{type(error).__name__}: {text}"), EXIT_FAILED
+
+
+def _is_foreign_checkpoint(error: BaseException) -> bool:
+    """The run directory holds another config's checkpoint (a sweep relaunched with other values)."""
+    checkpoint = sys.modules.get("sde_torchrl.checkpoint")  # not imported: not its error
+    return checkpoint is not None and isinstance(error, checkpoint.CheckpointMismatchError)
 
 
 def save_hydra_config(cfg: DictConfig, out_dir: str) -> None:
@@ -116,7 +121,8 @@ def main(cfg: DictConfig) -> None:
             message, code = one_line(error)
             FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
             return
-        save_hydra_config(cfg, out_dir)
+        if not Path(out_dir, "checkpoint.pt").exists():  # a resumed job keeps its first session's
+            save_hydra_config(cfg, out_dir)
         try:
             conf = validate(cfg)  # a bad value fails here, before the seconds of importing torch
             from sde_torchrl.build import run_job  # torch: imported once the run directory is ours
@@ -125,6 +131,9 @@ def main(cfg: DictConfig) -> None:
                               progress=progress_wanted(cfg.get("progress"), multirun), conf=conf)
         except Exception as error:  # noqa: BLE001 - every failure is recorded, then reported
             message, code = one_line(error)
+            if _is_foreign_checkpoint(error):  # the directory is another job's: leave it as it is
+                FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
+                return
             Path(out_dir, "error.txt").write_text(f"{message}\n\n{traceback.format_exc()}")
             FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun))
             log.error("job failed: %s (details in %s)", message, Path(out_dir, "error.txt"))

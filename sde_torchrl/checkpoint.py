@@ -268,8 +268,9 @@ def restore_job(
         diff = config_differences(saved["config"], config)
         if diff:
             raise CheckpointMismatchError(
-                f"{path} was written by another config ({'; '.join(diff[:5])}); resume with the "
-                "same overrides, or choose a new hydra.run.dir (or delete the checkpoint)"
+                f"{path} was written by another config ({'; '.join(diff[:5])}); it was left unchanged: "
+                "resume with the same overrides, or give this job another directory (hydra.run.dir, "
+                "or hydra.sweep.dir for a sweep), or delete the checkpoint"
             )
     policy.load_state_dict(saved["policy"])
     optimizer.load_state_dict(saved["optimizer"])

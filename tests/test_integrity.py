@@ -424,3 +424,22 @@ def test_kill_during_a_run_leaves_no_stale_lock(tmp_path):
     assert (tmp_path / ".lock").read_text().strip() == str(proc.pid)  # the pid stays, the lock does not
     with hold_run_directory(tmp_path):
         pass
+
+
+def test_a_sweep_relaunched_with_other_values_leaves_the_finished_jobs_alone(tmp_path):
+    """Relaunching a sweep into the same directory with another value: each finished job is
+    refused (exit 2) with advice naming hydra.sweep.dir, and its directory is not changed:
+    no error.txt beside its valid summary, no rewritten .hydra/ or log."""
+    sweep = ("+experiment=minimize", "updates=3", "runs=1", "seed=0,1", "logger=none")
+    assert run_cli(*sweep, run_dir=tmp_path, multirun=True).returncode == 0
+    def job_files() -> dict:  # the jobs' directories (Hydra rewrites the sweep's own multirun.yaml)
+        return {p: p.read_bytes() for job in ("0", "1") for p in (tmp_path / job).rglob("*")
+                if p.is_file() and p.name != ".lock"}
+
+    before = job_files()
+    result = run_cli(*sweep, "lr=0.01", run_dir=tmp_path, multirun=True)
+    assert result.returncode == 2
+    refusals = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(refusals) == 2 and all("hydra.sweep.dir" in line and "lr: 0.002 -> 0.01" in line for line in refusals)
+    assert job_files() == before
+    assert not list(tmp_path.rglob("error.txt"))
