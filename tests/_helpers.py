@@ -63,3 +63,19 @@ def summary_without_wall(run_dir: Path) -> dict:
     summary = json.loads((run_dir / "summary.json").read_text())
     assert isinstance(summary.pop("wall_s"), float)
     return summary
+
+
+class Crash(RuntimeError):
+    """Stands in for a kill: raised from inside the training loop."""
+
+
+def crash_at(trainer, at: int) -> None:
+    """Makes ``trainer`` raise :class:`Crash` when it starts update ``at``."""
+    original = trainer.update
+
+    def crashing_update(episodes, k):
+        if k == at:
+            raise Crash(f"crash at {k}")
+        return original(episodes, k)
+
+    trainer.update = crashing_update

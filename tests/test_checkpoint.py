@@ -11,27 +11,23 @@ from pathlib import Path
 
 import pytest
 import torch
-from _helpers import REPO, build, own_stderr_lines, read_rows, run_cli, summary_without_wall, train_command
+from _helpers import (
+    REPO,
+    Crash,
+    build,
+    crash_at,
+    own_stderr_lines,
+    read_rows,
+    run_cli,
+    summary_without_wall,
+    train_command,
+)
 
 from sde_torchrl.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
 from sde_torchrl.files import write_json_atomic
 
 # ------------------------------------------------------------------------------ in process
 
-class Crash(RuntimeError):
-    """Stands in for a kill: raised from inside the training loop."""
-
-
-def crash_at(trainer, at: int) -> None:
-    """Makes ``trainer`` raise :class:`Crash` when it starts update ``at``."""
-    original = trainer.update
-
-    def crashing_update(episodes, k):
-        if k == at:
-            raise Crash(f"crash at {k}")
-        return original(episodes, k)
-
-    trainer.update = crashing_update
 
 
 @pytest.mark.parametrize("overrides", [

@@ -18,8 +18,10 @@ import pytest
 import torch
 from _helpers import (
     REPO,
+    Crash,
     build,
     compose_config,
+    crash_at,
     own_stderr_lines,
     read_rows,
     run_cli,
@@ -39,19 +41,6 @@ from sde_torchrl.run_dir import RunDirectory, read_summary
 BUDGET = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5")
 
 
-class Crash(RuntimeError):
-    """Stands in for a kill: raised from inside the training loop."""
-
-
-def crash_at(trainer, at: int) -> None:
-    original = trainer.update
-
-    def crashing_update(episodes, k):
-        if k == at:
-            raise Crash(f"crash at {k}")
-        return original(episodes, k)
-
-    trainer.update = crashing_update
 
 
 def snapshot(directory: Path, skip: tuple[str, ...] = ()) -> dict[str, tuple[bytes, int]]:
