@@ -29,7 +29,6 @@ from sde_torchrl.files import write_json_atomic
 # ------------------------------------------------------------------------------ in process
 
 
-
 @pytest.mark.parametrize("overrides", [
     ("explorer=sde",), ("explorer=rex", "estimator=enac"), ("explorer=sde_gauss", "tensor_rollout=false"),
     ("episode_queue=8",),

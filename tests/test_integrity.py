@@ -41,8 +41,6 @@ from sde_torchrl.run_dir import RunDirectory, read_summary
 BUDGET = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5")
 
 
-
-
 def snapshot(directory: Path, skip: tuple[str, ...] = ()) -> dict[str, tuple[bytes, int]]:
     """Every file under ``directory`` but ``skip``: content and modification time (ns)."""
     return {str(p.relative_to(directory)): (p.read_bytes(), p.stat().st_mtime_ns)
