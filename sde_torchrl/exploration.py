@@ -10,6 +10,7 @@ with its own ``σ = expln(q)`` can be added on top (22).
 from __future__ import annotations
 
 import math
+import warnings
 
 import torch
 from tensordict import TensorDictBase
@@ -180,6 +181,7 @@ class StateDependentExplorer(TensorDictModuleBase):
         self.squash, self.runs = squash, runs
         self.run_dims = 0 if runs is None else 1
         self.streams: RunStreams | None = None
+        self._warned_no_init = False
 
         run_shape = () if runs is None else (runs,)
         self._register("sigma_param", torch.full(
@@ -264,10 +266,15 @@ class StateDependentExplorer(TensorDictModuleBase):
         loc = tensordict.get(self.loc_key)
         features = tensordict.get(self.feature_key).to(loc.dtype)
         is_init = tensordict.get(self.is_init_key, None)
-        sample, noise, age = self.act(
-            loc, features, tensordict.get(self.noise_key, None), is_init,
-            tensordict.get(self.age_key, None),
-        )
+        previous = tensordict.get(self.noise_key, None)
+        if previous is not None and is_init is None and self.schedule != "step" and not self._warned_no_init:
+            self._warned_no_init = True
+            warnings.warn(
+                f"StateDependentExplorer: the input carries {self.noise_key!r} but no {self.is_init_key!r}, so "
+                "the noise matrix is never redrawn when an episode starts; add torchrl.envs.InitTracker() "
+                f"and explorer.make_tensordict_primer() to the env, or use Collector(..., "
+                "auto_register_policy_transforms=True)", UserWarning, stacklevel=2)
+        sample, noise, age = self.act(loc, features, previous, is_init, tensordict.get(self.age_key, None))
         if noise is not None:
             tensordict.set(self.noise_key, noise)
         if age is not None:

@@ -5,6 +5,7 @@ noise schedule (episode / step / every_n) across full and partial resets."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import pytest
 import torch
@@ -341,3 +342,21 @@ def test_wrong_shapes_are_rejected_by_name():
         explorer(TensorDict({"loc": torch.zeros(4, 2), "observation": torch.ones(4, 5)}, [4]))
     with pytest.raises(ValueError, match="loc"):
         explorer(TensorDict({"loc": torch.zeros(4, 1), "observation": torch.ones(4, 3)}, [4]))
+
+
+def test_carried_noise_without_is_init_warns_once():
+    """A rollout that carries the noise but has no InitTracker would never redraw it: say so."""
+    from tensordict import TensorDict
+
+    explorer = StateDependentExplorer(action_dim=1, feature_dim=2)
+    td = TensorDict({"loc": torch.zeros(3, 1), "observation": torch.ones(3, 2)}, [3])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = explorer(td)  # a first call without noise: nothing to say
+    with pytest.warns(UserWarning, match="never redrawn.*InitTracker"):
+        explorer(out.clone())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        explorer(out.clone())  # once per explorer
+        out["is_init"] = torch.zeros(3, 1, dtype=torch.bool)
+        StateDependentExplorer(action_dim=1, feature_dim=2)(out.clone())  # with is_init: fine
