@@ -132,14 +132,16 @@ def test_batched_ground_contact_freezes_only_that_world():
         benv.close()
 
 
-def test_same_seed_same_episode(env):
-    def run(seed):
-        rng = np.random.default_rng(123)
-        obs = [env.reset(seed=seed)[0]]
-        obs += [env.step(rng.uniform(-1, 1, 4))[0] for _ in range(150)]
-        return np.array(obs)
+def seeded_observations(env, seed: int, action_seed: int, steps: int = 150) -> np.ndarray:
+    """Observations of an episode from ``reset(seed)`` under uniform random actions."""
+    rng = np.random.default_rng(action_seed)
+    obs = [env.reset(seed=seed)[0]]
+    obs += [env.step(rng.uniform(-1, 1, 4))[0] for _ in range(steps)]
+    return np.array(obs)
 
-    a, b, c = run(7), run(7), run(8)
+
+def test_same_seed_same_episode(env):
+    a, b, c = (seeded_observations(env, seed, 123) for seed in (7, 7, 8))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a[0], c[0])  # the seed moves the release point (jitter 0.05)
     assert np.abs(a[0, :2] - c[0, :2]).max() <= 0.1
@@ -392,13 +394,7 @@ def test_pybrain_pull_back_drops_the_ball(pybrain_env):
 
 
 def test_pybrain_same_seed_same_episode(pybrain_env):
-    def run(seed):
-        rng = np.random.default_rng(5)
-        obs = [pybrain_env.reset(seed=seed)[0]]
-        obs += [pybrain_env.step(rng.uniform(-1, 1, 4))[0] for _ in range(150)]
-        return np.array(obs)
-
-    a, b, c = run(4), run(4), run(9)
+    a, b, c = (seeded_observations(pybrain_env, seed, 5) for seed in (4, 4, 9))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a[0], c[0])
 
