@@ -35,8 +35,10 @@ FIGURE = {"reinforce": "fig5", "enac": "fig6"}
 
 
 def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, dict]]:
-    """``explorer → global run index → {"evals": [(update, return)], "final": R}``."""
+    """``explorer → global run index → {"evals": [(update, return)], "final": R}``, returns as
+    mean rewards per step (the paper's levels) whatever the job's ``episode_return``."""
     from sde_torchrl.run_dir import read_summary  # names a damaged summary.json and the remedy
+    from sde_torchrl.summary import mean_reward_factor
 
     runs: dict[str, dict[int, dict]] = {}
     for directory in directories:
@@ -44,16 +46,16 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
             summary = read_summary(summary_path)
             if summary.get("estimator") != estimator:
                 continue
-            explorer = summary["explorer"]
+            explorer, scale = summary["explorer"], mean_reward_factor(summary)
             evals: dict[int, list[tuple[int, float]]] = {}
             with open(summary_path.parent / "metrics.csv") as f:
                 for row in csv.DictReader(f):
                     if row["eval_return"]:
                         evals.setdefault(int(row["run"]), []).append(
-                            (int(row["update"]), float(row["eval_return"])))
+                            (int(row["update"]), scale * float(row["eval_return"])))
             for offset, final in enumerate(summary["final_eval_return"]):
                 index = summary["first_run"] + offset
-                run = {"evals": evals[index], "final": final}
+                run = {"evals": evals[index], "final": scale * final}
                 previous = runs.setdefault(explorer, {}).setdefault(index, run)
                 if previous != run:
                     raise ValueError(f"run {index} of {explorer} appears twice with different results "

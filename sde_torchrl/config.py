@@ -42,7 +42,7 @@ SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
 ACTIVATIONS = ("sigmoid", "tanh", "relu")
 NORMALIZATIONS = ("bounds", "stats")
-ARM_MODELS = ("cup", "pybrain")
+ARM_MODELS = ("pybrain", "cup")
 REWARD_STATES = ("noise_free", "noisy")
 EPISODE_RETURNS = ("sum", "mean")
 
@@ -97,19 +97,19 @@ class BallCatchEnvConf:
     Attributes:
         episode_length: steps of 0.01 s per episode.
         jitter: half-width of the uniform horizontal release offset, in ``[0, 0.4]``.
-        model: the arm, ``cup`` or ``pybrain`` (after PyBrain's ``arm.xode``).
+        model: the arm, ``pybrain`` (after PyBrain's ``arm.xode``, the authors' arm) or ``cup``.
 
     Examples:
         >>> BallCatchEnvConf().episode_length
         500
-        >>> BallCatchEnvConf(model="pybrain").model
+        >>> BallCatchEnvConf().model
         'pybrain'
     """
 
     _target_: str = "sde_torchrl.envs.ballcatch.batched.make_ballcatch_env"
     episode_length: int = 500
     jitter: float = 0.05
-    model: str = "cup"
+    model: str = "pybrain"
 
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)

@@ -88,3 +88,20 @@ def summarize(
         "env_steps": episodes_after(updates_done - 1) * settings.episode_length * runs,
         "wall_s": state.wall_s,
     }
+
+
+def mean_reward_factor(summary: dict[str, Any]) -> float:
+    """What turns the returns that ``summary.json`` and ``metrics.csv`` report into the paper's
+    mean reward per step: ``1 / episode_length`` for a job that regressed on summed rewards
+    (``estimator.episode_return=sum``, the authors' learner), else 1.
+
+    The paper's thresholds and curves (section 4.2: ``R ≥ -1.1``, ``-1.0``) are mean rewards,
+    whatever the learner regresses on.
+
+    Examples:
+        >>> mean_reward_factor({"episode_return": "sum", "settings": {"episode_length": 500}})
+        0.002
+        >>> mean_reward_factor({"episode_return": "mean", "settings": {"episode_length": 500}})
+        1.0
+    """
+    return 1.0 / summary["settings"]["episode_length"] if summary.get("episode_return") == "sum" else 1.0

@@ -19,6 +19,7 @@ from torchrl.envs.utils import check_env_specs
 from sde_torchrl.envs.ballcatch import (
     ARM_MODELS,
     BALLCATCH_ID,
+    DEFAULT_MODEL,
     EPISODE_STEPS,
     BallCatchConfig,
     BallCatchEnv,
@@ -32,34 +33,47 @@ from sde_torchrl.envs.ballcatch import (
 )
 from sde_torchrl.envs.ballcatch.demo import main
 from sde_torchrl.envs.ballcatch.models import PYBRAIN_SCRIPTED_WEIGHTS, SCRIPTED_WEIGHTS
-from sde_torchrl.envs.ballcatch.task import GROUND_Z
 
 SEEDS = range(5)
+CUP_GROUND_Z = ARM_MODELS["cup"].ground_z
 
 
 @pytest.fixture(scope="module")
 def env():
+    """The default arm's gymnasium env."""
     e = BallCatchEnv()
     yield e
     e.close()
 
 
+@pytest.fixture(scope="module")
+def cup_env():
+    e = BallCatchEnv(model="cup")
+    yield e
+    e.close()
+
+
 def scripted_policy(td):
-    """The scripted controller on a batch, computed exactly as for the gymnasium env."""
+    """The default arm's scripted controller on a batch, computed exactly as for the gymnasium env."""
     obs = td["observation"].reshape(-1, 3).numpy()
     action = np.stack([scripted_action(o).astype(np.float32) for o in obs])
     return td.set("action", torch.from_numpy(action).reshape(*td.batch_size, 4))
 
 
-# ---------------------------------------------------------------------------- the task itself
-def test_scripted_linear_controller_catches(env):
-    returns = [episode_return(env, "scripted", seed) for seed in SEEDS]
+def test_the_default_arm_is_the_authors():
+    assert DEFAULT_MODEL == "pybrain" and BallCatchConfig().model == "pybrain"
+    assert make_ballcatch_env(1).base_env.config.model == "pybrain"
+
+
+# ---------------------------------------------------------------------------- model "cup"
+def test_scripted_linear_controller_catches(cup_env):
+    returns = [episode_return(cup_env, "scripted", seed) for seed in SEEDS]
     assert np.mean(returns) >= -1.1
     assert min(returns) >= -1.0  # every one a "good catch" in the paper's terms
 
 
-def test_zero_torque_drops_the_ball(env):
-    returns = [episode_return(env, "zero", seed) for seed in SEEDS]
+def test_zero_torque_drops_the_ball(cup_env):
+    returns = [episode_return(cup_env, "zero", seed) for seed in SEEDS]
     assert np.mean(returns) <= -1.5
 
 
@@ -68,22 +82,22 @@ def test_zero_torque_drops_the_ball(env):
     [([-5.0, 0.0, 0.0], -1.5, -1.2), ([5.0, 0.0, 0.0], -1.0, -0.5)],
     ids=["always-open", "always-closed"],
 )
-def test_catch_needs_a_closed_hand(env, monkeypatch, finger_row, low, high):
+def test_catch_needs_a_closed_hand(cup_env, monkeypatch, finger_row, low, high):
     """Holding the arm up is not enough: an open hand keeps the ball on its outer finger (the
     paper's R ~ -1.5 regime, not a catch); a hand closed from the start holds the ball in its cup."""
     weights = SCRIPTED_WEIGHTS.copy()
     weights[3] = finger_row
     monkeypatch.setattr("sde_torchrl.envs.ballcatch.models.SCRIPTED_WEIGHTS", weights)
-    assert low <= episode_return(env, "scripted", 0) <= high
+    assert low <= episode_return(cup_env, "scripted", 0) <= high
 
 
-def test_rewards_info_and_truncation(env):
-    obs, info = env.reset(seed=3)
+def test_rewards_info_and_truncation(cup_env):
+    obs, info = cup_env.reset(seed=3)
     assert obs.dtype == np.float32 and obs.shape == (3,)
     assert info["distance"] == pytest.approx(5.0, abs=0.1)
     rewards, held = [], []
     for t in range(EPISODE_STEPS):
-        obs, reward, terminated, truncated, info = env.step(scripted_action(obs))
+        obs, reward, terminated, truncated, info = cup_env.step(scripted_action(obs, "cup"))
         rewards.append(reward)
         held.append(info["held"])
         assert not terminated
@@ -94,40 +108,40 @@ def test_rewards_info_and_truncation(env):
     assert all(held[200:]) and not any(held[:50])
     assert info["distance"] == pytest.approx(0.5, abs=0.05)
     with pytest.raises(RuntimeError, match="before reset"):
-        env.step(np.zeros(4))
+        cup_env.step(np.zeros(4))
 
 
-def test_ground_gives_minus_three_forever(env):
-    env.reset(seed=0)
-    rewards = [env.step(np.zeros(4))[1] for _ in range(300)]
+def test_ground_gives_minus_three_forever(cup_env):
+    cup_env.reset(seed=0)
+    rewards = [cup_env.step(np.zeros(4))[1] for _ in range(300)]
     first = rewards.index(-3.0, 100)
     assert all(r == -3.0 for r in rewards[first:])
 
 
-def test_ground_contact_freezes_the_world(env):
+def test_ground_contact_freezes_the_world(cup_env):
     """Ground contact is absorbing: no more physics, the observation stays put, rewards are -3."""
-    obs, _ = env.reset(seed=0)
+    obs, _ = cup_env.reset(seed=0)
     rewards, observations = [], []
     for _ in range(300):
-        obs, reward, *_ = env.step(np.zeros(4))
+        obs, reward, *_ = cup_env.step(np.zeros(4))
         rewards.append(reward)
         observations.append(obs)
-    first = next(t for t, o in enumerate(observations) if o[2] < GROUND_Z)
+    first = next(t for t, o in enumerate(observations) if o[2] < CUP_GROUND_Z)
     assert all(np.array_equal(o, observations[first]) for o in observations[first:])
     assert all(r == -3.0 for r in rewards[first:])
 
 
 def test_batched_ground_contact_freezes_only_that_world():
-    benv = BatchedBallCatchEnv(2, seed=0)
+    benv = BatchedBallCatchEnv(2, config=BallCatchConfig(model="cup"), seed=0)
     try:
         action = torch.tensor([[0.0] * 4, [1.0, 1.0, 1.0, -1.0]])  # world 0 drops, world 1 holds
         with torch.no_grad():
             td = benv.rollout(300, lambda td: td.set("action", action))
         height = td["next", "observation"][..., 2]
-        grounded = (height[0] < GROUND_Z).nonzero()[0, 0]
+        grounded = (height[0] < CUP_GROUND_Z).nonzero()[0, 0]
         assert (height[0, grounded:] == height[0, grounded]).all()
         assert (td["next", "reward"][0, grounded:] == -3.0).all()
-        assert (height[1] > GROUND_Z).all() and height[1, -1] != height[1, -2]  # still simulated
+        assert (height[1] > CUP_GROUND_Z).all() and height[1, -1] != height[1, -2]  # still simulated
     finally:
         benv.close()
 
@@ -189,7 +203,7 @@ def test_bad_config_raises():
 
 
 def test_cli_prints_one_json_line(capsys):
-    main(["--policy", "zero", "--episodes", "1", "--seed", "2"])
+    main(["--policy", "zero", "--episodes", "1", "--seed", "2", "--model", "cup"])
     out = capsys.readouterr().out.strip().splitlines()
     assert len(out) == 1
     result = json.loads(out[0])
@@ -496,10 +510,10 @@ def test_model_option_reaches_gymnasium_and_is_checked():
         assert e.unwrapped.config.max_torques == ARM_MODELS["pybrain"].max_torques
     finally:
         e.close()
-    with pytest.raises(ValueError, match="model must be one of cup, pybrain"):
+    with pytest.raises(ValueError, match="model must be one of pybrain, cup"):
         BallCatchConfig(model="ode")
     with pytest.raises(ValueError, match="contradicts"):
-        BallCatchEnv(config=BallCatchConfig(), model="pybrain")
+        BallCatchEnv(config=BallCatchConfig(), model="cup")
 
 
 def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
@@ -521,7 +535,7 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
                      "env.episode_length=20", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     bad = run_cli("+experiment=ballcatch", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
-    assert bad.returncode != 0 and "env.model=ode: one of cup, pybrain" in bad.stderr
+    assert bad.returncode != 0 and "env.model=ode: one of pybrain, cup" in bad.stderr
 
 
 def test_reset_after_close_names_the_problem():

@@ -14,8 +14,11 @@ from _helpers import REPO, load_script, run_cli
 fig5 = load_script("fig5")
 
 
-def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]]) -> None:
-    """A run directory as train.py writes it: evaluations every 20 updates."""
+def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]],
+               summed_over: int | None = None) -> None:
+    """A run directory as train.py writes it: evaluations every 20 updates; with ``summed_over=T``,
+    as a job with ``estimator.episode_return=sum`` over ``T`` steps reports the same returns."""
+    factor = summed_over or 1
     directory.mkdir(parents=True)
     with open(directory / "metrics.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=["run", "update", "episodes", "return_mean", "eval_return"])
@@ -25,9 +28,11 @@ def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[
                 for update in range(20 * i, 20 * i + 20):
                     writer.writerow({"run": first_run + offset, "update": update, "episodes": update + 20,
                                      "return_mean": -2.0,
-                                     "eval_return": value if update == 20 * i + 19 else ""})
+                                     "eval_return": factor * value if update == 20 * i + 19 else ""})
     summary = {"estimator": "reinforce", "explorer": explorer, "first_run": first_run,
-               "final_eval_return": [curve[-1] for curve in evals]}
+               "final_eval_return": [factor * curve[-1] for curve in evals]}
+    if summed_over:
+        summary |= {"episode_return": "sum", "settings": {"episode_length": summed_over}}
     (directory / "summary.json").write_text(json.dumps(summary))
 
 
@@ -47,6 +52,17 @@ def test_counts_best_and_final_levels(tmp_path):
     assert sde["paper"] == {"-1.0": 68, "-1.1": 98} and sde["runs"] == 4
     assert (tmp_path / "out" / "fig5.png").stat().st_size > 0
     assert "(paper 68)" in (tmp_path / "out" / "fig5.md").read_text()
+
+
+def test_summed_returns_are_counted_as_mean_rewards(tmp_path):
+    """The authors' learner regresses on summed rewards; the paper's levels are mean rewards."""
+    for explorer, curves in CURVES.items():
+        _write_job(tmp_path / "mean" / explorer, explorer, 0, curves)
+        _write_job(tmp_path / "sum" / explorer, explorer, 0, curves, summed_over=500)
+    fig5.main([str(tmp_path / "mean"), "--out", str(tmp_path / "a")])
+    fig5.main([str(tmp_path / "sum"), "--out", str(tmp_path / "b")])
+    a, b = (json.loads((tmp_path / d / "fig5.json").read_text()) for d in ("a", "b"))
+    assert a == b and a["explorers"]["sde"]["best"]["-1.0"] == 1
 
 
 def test_shards_merge_to_the_single_process_result(tmp_path):
@@ -91,6 +107,16 @@ def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
                            timeout=600)
     assert video.returncode == 0, video.stderr[-2000:]
     line = json.loads(video.stdout.strip().splitlines()[-1])
-    finals = json.loads((tmp_path / "one" / "summary.json").read_text())["final_eval_return"]
-    assert line["run"] == max(range(2), key=finals.__getitem__)
+    summary = json.loads((tmp_path / "one" / "summary.json").read_text())
+    finals = summary["final_eval_return"]
+    assert line["run"] == max(range(2), key=finals.__getitem__) and line["model"] == "pybrain"
+    assert line["final_eval_return"] == pytest.approx(max(finals) / 40, abs=1e-4)  # summed over 40 steps
     assert -3.0 <= line["filmed_return"] <= -0.5 and (tmp_path / "best.gif").stat().st_size > 0
+
+
+def test_video_picks_the_best_or_the_median_run():
+    video = load_script("ballcatch_video")
+    runs = [video.Run(index, final, None, "pybrain") for index, final in enumerate([-2.0, -1.0, -3.0, -1.5, -2.5])]
+    assert video.pick(runs, "best").index == 1
+    assert video.pick(runs, "median").index == 0  # -2.0, the middle of five
+    assert video.pick(runs + [video.Run(5, -1.0, None, "pybrain")], "best").index == 1  # ties: the lower index

@@ -40,6 +40,7 @@ def test_ballcatch_experiment_runs_end_to_end(tmp_path):
     summary = summary_without_wall(tmp_path)
     assert summary["experiment"] == "ballcatch" and summary["runs"] == 2
     assert summary["env_steps"] == (2 + 2) * 60 * 2  # queue of 2, then one new episode per update
-    assert all(-3.0 <= r <= -0.5 for r in summary["final_eval_return"])
+    assert summary["episode_return"] == "sum"  # the authors' learner: 60 rewards in [-3, -0.5] summed
+    assert all(-3.0 * 60 <= r <= -0.5 * 60 for r in summary["final_eval_return"])
     evals = [r["eval_return"] for r in read_rows(tmp_path)]
     assert [bool(e) for e in evals] == [False, False, True, True, True, True]

@@ -10,8 +10,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
 from sde_torchrl.envs.ballcatch import make_ballcatch_env
-from sde_torchrl.envs.ballcatch.models import SCRIPTED_WEIGHTS
-from sde_torchrl.envs.ballcatch.task import GROUND_Z
+from sde_torchrl.envs.ballcatch.models import ARM_MODELS, SCRIPTED_WEIGHTS
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.rollout import (
     collect_episodes,
@@ -101,8 +100,8 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
 
 # ---------------------------------------------- whole episodes of fixed linear maps (fast path)
 def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, worlds=2, steps=120, every_n=None):
-    """The paper's controller (scripted weights) with SDE (or REX, ``schedule="step"``) on
-    ``[runs, worlds]`` ball-catching worlds."""
+    """The paper's controller (the cup arm's scripted weights) with SDE (or REX, ``schedule="step"``)
+    on ``[runs, worlds]`` worlds of the cup arm, whose contact timings these tests know."""
 
     actor = LinearActor(3, 4, bias=bias, runs=runs)
     with torch.no_grad():
@@ -110,7 +109,7 @@ def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, world
     explorer = StateDependentExplorer(4, 3, schedule=schedule, every_n=every_n, squash=True, init_param=-2.0,
                                       runs=runs, gaussian_init_param=gaussian)
     explorer.streams = RunStreams(0, runs, "explore")
-    env = make_ballcatch_env(worlds, runs=runs, episode_length=steps)
+    env = make_ballcatch_env(worlds, runs=runs, episode_length=steps, model="cup")
     env.set_seed(3)
     env.append_transform(explorer.make_tensordict_primer())
     return env, TensorDictSequential(actor, explorer)
@@ -155,7 +154,7 @@ def test_linear_episodes_freeze_a_dropped_ball_as_the_step_path_does():
     assert samples.abs().max() == 0
     torch.testing.assert_close(observations[..., 1:, :], reference["next", "observation"])
     torch.testing.assert_close(rewards, reference["next", "reward"])
-    grounded = observations[..., 1:, 2] < GROUND_Z  # after step t
+    grounded = observations[..., 1:, 2] < ARM_MODELS["cup"].ground_z  # after step t
     assert grounded[..., -1].all()  # zero torques drop the ball
     first = grounded.float().argmax(-1)
     for r in range(2):

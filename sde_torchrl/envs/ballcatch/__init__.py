@@ -3,8 +3,8 @@
 An arm with a hand must catch a ball released above its palm; the agent observes the ball's
 xyz and outputs 4 torques (shoulder, elbow, wrist, all fingers). Each part has one module:
 
-* :mod:`~sde_torchrl.envs.ballcatch.models`: the arms (``"cup"``, ``"pybrain"`` after PyBrain's
-  ``arm.xode``), their figures and hand-written catching controllers (plain data);
+* :mod:`~sde_torchrl.envs.ballcatch.models`: the arms (``"pybrain"``, the default, after PyBrain's
+  ``arm.xode``; ``"cup"``), their figures and hand-written catching controllers (plain data);
 * :mod:`~sde_torchrl.envs.ballcatch.world`: the physics, one pybullet world per
   :class:`BallCatchWorld` built from a :class:`BallCatchConfig`;
 * :mod:`~sde_torchrl.envs.ballcatch.task`: the task rules (action clipping, ground contact,
@@ -13,20 +13,21 @@ xyz and outputs 4 torques (shoulder, elbow, wrist, all fingers). Each part has o
 * :mod:`~sde_torchrl.envs.ballcatch.batched`: the TorchRL env of N worlds;
 * :mod:`~sde_torchrl.envs.ballcatch.episodes`: whole episodes of linear controllers (fast path);
 * :mod:`~sde_torchrl.envs.ballcatch.demo`: the demo and GIF command line,
-  ``python -m sde_torchrl.envs.ballcatch --policy scripted --episodes 5 [--model pybrain]``.
+  ``python -m sde_torchrl.envs.ballcatch --policy scripted --episodes 5 [--model cup]``.
 """
 
 from __future__ import annotations
 
 from sde_torchrl.envs.ballcatch.batched import BatchedBallCatchEnv, make_ballcatch_env, make_parallel_ballcatch
 from sde_torchrl.envs.ballcatch.gym_env import BallCatchEnv, episode_return
-from sde_torchrl.envs.ballcatch.models import ARM_MODELS, ArmModel, scripted_action, scripted_weights
+from sde_torchrl.envs.ballcatch.models import ARM_MODELS, DEFAULT_MODEL, ArmModel, scripted_action, scripted_weights
 from sde_torchrl.envs.ballcatch.task import EPISODE_STEPS, CatchEpisode
 from sde_torchrl.envs.ballcatch.world import BallCatchConfig, BallCatchWorld
 from sde_torchrl.envs.registration import BALLCATCH_ID, register_ballcatch
 
 __all__ = [
     "ARM_MODELS",
+    "DEFAULT_MODEL",
     "BALLCATCH_ID",
     "EPISODE_STEPS",
     "ArmModel",

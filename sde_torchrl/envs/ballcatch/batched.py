@@ -22,6 +22,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, InitTracker, ParallelEnv, TransformedEnv
 
 from sde_torchrl.envs.ballcatch.episodes import linear_episode
+from sde_torchrl.envs.ballcatch.models import DEFAULT_MODEL
 from sde_torchrl.envs.ballcatch.task import EPISODE_STEPS, CatchEpisode
 from sde_torchrl.envs.ballcatch.world import BallCatchConfig, BallCatchWorld
 from sde_torchrl.rng import RunStreams
@@ -45,7 +46,7 @@ class BatchedBallCatchEnv(EnvBase):
     Args:
         num_worlds: number of worlds N (one pybullet DIRECT client each), per run if ``runs``.
         config: physical parameters shared by all worlds, the arm model among them (default
-            :class:`BallCatchConfig`: model "cup").
+            :class:`BallCatchConfig`: model "pybrain").
         max_steps: episode length (the paper's 500).
         seed: seed of the env's private generator for the ball's release jitter.
         device: torch device of the returned tensors (physics always runs on the CPU).
@@ -298,7 +299,7 @@ def make_parallel_ballcatch(
 
 def make_ballcatch_env(
     episodes: int = 1, *, runs: int | None = None, first_run: int = 0, stream: str = "env",
-    episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None, model: str = "cup",
+    episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None, model: str = DEFAULT_MODEL,
 ) -> TransformedEnv:
     """The batched ball-catching env as the trainer builds envs: ``[runs, episodes]`` worlds
     with ``is_init`` (episodes end by themselves after ``episode_length`` steps).
@@ -311,7 +312,7 @@ def make_ballcatch_env(
         episode_length: steps per episode (the paper's 500).
         jitter: half-width of the uniform horizontal release offset.
         seed: seed of the release jitter.
-        model: the arm, ``"cup"`` or ``"pybrain"`` (:data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`).
+        model: the arm, ``"pybrain"`` (default) or ``"cup"`` (:data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`).
 
     Returns:
         ``TransformedEnv(BatchedBallCatchEnv(...), InitTracker())``.

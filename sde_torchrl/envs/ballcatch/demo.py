@@ -2,7 +2,7 @@
 
 Runs a few episodes of the scripted, zero or random policy in the gymnasium env and prints one
 JSON line with the returns, e.g. ``python -m sde_torchrl.envs.ballcatch --policy scripted
---episodes 5`` (``--model pybrain`` for the second arm, ``--video out.gif`` for a GIF of the
+--episodes 5`` (``--model cup`` for the second arm, ``--video out.gif`` for a GIF of the
 first episode).
 """
 

@@ -3,7 +3,7 @@ each one's hand-written catching controller (:func:`scripted_weights`).
 
 Two models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`):
 
-* ``"cup"`` (default): a fixed pedestal carries a three-joint arm (shoulder, elbow, wrist; all
+* ``"cup"``: a fixed pedestal carries a three-joint arm (shoulder, elbow, wrist; all
   hinges about the same horizontal axis, so the arm moves forward-backward and up-down in the
   x-z plane). The wrist carries a 1 x 1 x 0.1 palm with four two-joint fingers, one on each palm
   edge. One actuator drives all eight finger joints (proximal joints with its full torque,
@@ -24,7 +24,7 @@ Two models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`):
   - Torque control only: pybullet's default velocity motors are disabled (force 0) and the
     action in ``[-1, 1]^4`` is scaled by :data:`MAX_TORQUES` (shoulder, elbow, wrist, fingers).
 
-* ``"pybrain"``: the arm of the authors' library of the paper's time, after PyBrain's
+* ``"pybrain"`` (default, :data:`DEFAULT_MODEL`): the arm of the authors' library of the paper's time, after PyBrain's
   ``arm.xode`` (``assets/arm_pybrain.urdf``, whose comment gives the geometry): a fixed torso,
   upper arm hanging from the shoulder, forearm pointing forward, palm facing up with its centre
   0.5 above the ground at (3.5, 0, 0.5) (the origin is on the ground below the shoulder), a
@@ -53,6 +53,7 @@ import numpy as np
 
 __all__ = [
     "ARM_MODELS",
+    "DEFAULT_MODEL",
     "DISTAL_TORQUE_RATIO",
     "JOINT_TRANSMISSION",
     "MAX_TORQUES",
@@ -156,27 +157,10 @@ class ArmModel:
         return self.ball_radius + 0.01
 
 
+DEFAULT_MODEL = "pybrain"
+"""The arm of ``BallCatch-v0``, ``env=ballcatch`` and the paper experiments: the authors' arm."""
+
 ARM_MODELS = {
-    "cup": ArmModel(
-        urdf="ballcatch.urdf",
-        joints=ARM_JOINTS + tuple(f"finger_{f}_{part}" for f in FINGER_NAMES for part in ("proximal", "distal")),
-        transmission=JOINT_TRANSMISSION,
-        joint_friction=(0.0,) * len(JOINT_TRANSMISSION),
-        initial_pose=INITIAL_ARM_POSE + INITIAL_FINGER_POSE * len(FINGER_NAMES),
-        ball_radius=BALL_RADIUS,
-        ball_mass=BALL_MASS,
-        drop_height=DROP_HEIGHT,
-        max_torques=MAX_TORQUES,
-        friction=1.0,
-        restitution=0.0,
-        ball_restitution=0.0,
-        joint_damping=0.05,
-        body_damping=None,
-        solver_iterations=30,
-        inertia_from_file=False,
-        camera_target=(2.2, 0.0, 5.4),
-        camera_yaw=25.0,
-    ),
     "pybrain": ArmModel(
         urdf="arm_pybrain.urdf",
         joints=ARM_JOINTS + tuple(f"{f}_{k}" for f in PYBRAIN_FINGERS for k in range(3)),
@@ -196,6 +180,26 @@ ARM_MODELS = {
         inertia_from_file=True,
         camera_target=(2.5, 0.0, 2.5),
         camera_yaw=150.0,  # from the side away from the torso
+    ),
+    "cup": ArmModel(
+        urdf="ballcatch.urdf",
+        joints=ARM_JOINTS + tuple(f"finger_{f}_{part}" for f in FINGER_NAMES for part in ("proximal", "distal")),
+        transmission=JOINT_TRANSMISSION,
+        joint_friction=(0.0,) * len(JOINT_TRANSMISSION),
+        initial_pose=INITIAL_ARM_POSE + INITIAL_FINGER_POSE * len(FINGER_NAMES),
+        ball_radius=BALL_RADIUS,
+        ball_mass=BALL_MASS,
+        drop_height=DROP_HEIGHT,
+        max_torques=MAX_TORQUES,
+        friction=1.0,
+        restitution=0.0,
+        ball_restitution=0.0,
+        joint_damping=0.05,
+        body_damping=None,
+        solver_iterations=30,
+        inertia_from_file=False,
+        camera_target=(2.2, 0.0, 5.4),
+        camera_yaw=25.0,
     ),
 }
 """The arm models: ``"cup"`` (``assets/ballcatch.urdf``) and ``"pybrain"`` (after PyBrain's
@@ -241,7 +245,7 @@ does a hand closed from the start; an always-open hand gives the zero-torque reg
 """
 
 
-def scripted_weights(model: str = "cup") -> np.ndarray:
+def scripted_weights(model: str = DEFAULT_MODEL) -> np.ndarray:
     """The hand-written catching controller's weights for an arm model: :data:`SCRIPTED_WEIGHTS`
     (``"cup"``) or :data:`PYBRAIN_SCRIPTED_WEIGHTS` (``"pybrain"``).
 
@@ -252,13 +256,15 @@ def scripted_weights(model: str = "cup") -> np.ndarray:
     return {"cup": SCRIPTED_WEIGHTS, "pybrain": PYBRAIN_SCRIPTED_WEIGHTS}[model]
 
 
-def scripted_action(observation: Sequence[float], model: str = "cup") -> np.ndarray:
+def scripted_action(observation: Sequence[float], model: str = DEFAULT_MODEL) -> np.ndarray:
     """The hand-written catching controller: ``tanh(W @ ball_xyz)`` with ``W`` =
     :func:`scripted_weights` of ``model``, a bias-free linear map squashed by tanh, i.e. exactly
     the paper's controller class.
 
     Examples:
-        >>> scripted_action([2.95, 0.0, 9.0]).round(3).tolist()  # ball high: arm up, hand open
+        >>> scripted_action([3.5, 0.0, 5.5]).round(3).tolist()  # ball high: hand open
+        [0.0, 0.0, 0.0, -1.0]
+        >>> scripted_action([2.95, 0.0, 9.0], model="cup").round(3).tolist()  # cup arm: arm up, hand open
         [1.0, 1.0, 1.0, -1.0]
     """
     return np.tanh(scripted_weights(model) @ np.asarray(observation, dtype=np.float64))

@@ -22,18 +22,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 
-from sde_torchrl.envs.ballcatch.models import ARM_MODELS
 from sde_torchrl.envs.ballcatch.world import BallCatchWorld
 from sde_torchrl.envs.registration import EPISODE_STEPS
 
-__all__ = ["EPISODE_STEPS", "GROUND_Z", "CatchEpisode", "clip_action", "step_reward"]
+__all__ = ["EPISODE_STEPS", "CatchEpisode", "clip_action", "step_reward"]
 
 DISTANCE_CAP = 3.0
 MIN_DISTANCE = 0.5
 GROUND_REWARD = -3.0
-GROUND_Z = ARM_MODELS["cup"].ground_z
-"""The ball counts as having touched the ground once its centre is below this height (model "cup";
-each model's is :attr:`~sde_torchrl.envs.ballcatch.models.ArmModel.ground_z`)."""
 
 
 def clip_action(action: Iterable[float]) -> list[float]:

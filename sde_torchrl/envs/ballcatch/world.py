@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
-from sde_torchrl.envs.ballcatch.models import ARM_MODELS, ArmModel
+from sde_torchrl.envs.ballcatch.models import ARM_MODELS, DEFAULT_MODEL, ArmModel
 
 __all__ = ["TIME_STEP", "BallCatchConfig", "BallCatchWorld"]
 
@@ -39,8 +39,8 @@ class BallCatchConfig:
     Args:
         jitter: half-width of the uniform horizontal offset (x and y, units) of the ball's release
             point around the spot above the palm centre. Default 0.05.
-        model: the arm, a key of :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS` (``"cup"``
-            or ``"pybrain"``).
+        model: the arm, a key of :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`:
+            ``"pybrain"`` (the default, after the authors' ``arm.xode``) or ``"cup"``.
         ball_mass: ball mass in kg.
         ball_friction: lateral friction of every body (ball, robot, ground).
         drop_height: release height of the ball centre above the palm centre.
@@ -52,9 +52,11 @@ class BallCatchConfig:
             further (-1.65). 30 keeps a margin and steps 1.17x faster than 50.
 
     Examples:
-        >>> BallCatchConfig(jitter=0.0).max_torques
+        >>> BallCatchConfig().model
+        'pybrain'
+        >>> BallCatchConfig(jitter=0.0, model="cup").max_torques
         (150.0, 80.0, 30.0, 5.0)
-        >>> BallCatchConfig(model="pybrain").max_torques == ARM_MODELS["pybrain"].max_torques
+        >>> BallCatchConfig().max_torques == ARM_MODELS["pybrain"].max_torques
         True
         >>> BallCatchConfig(jitter=-1.0)
         Traceback (most recent call last):
@@ -63,7 +65,7 @@ class BallCatchConfig:
     """
 
     jitter: float = 0.05
-    model: str = "cup"
+    model: str = DEFAULT_MODEL
     ball_mass: float | None = None
     ball_friction: float | None = None
     drop_height: float | None = None
