@@ -5,9 +5,12 @@ machines: runs are merged by their global index, a run found twice must agree), 
 of one estimator, and writes into ``--out DIR``:
 
 - ``fig5.png`` (``fig6.png`` for ENAC): left, the deterministic evaluation returns over the
-  updates, mean ± std over runs, SDE and REX; right, the cumulative number of runs whose best
-  evaluated policy reached R ≥ -2.0, -1.5, -1.1, -1.0;
-- ``fig5.json`` / ``fig5.md``: those counts per explorer, best and final, beside the paper's.
+  updates (mean reward per step, the paper's units), mean over runs with its 95 % bootstrap
+  band, SDE and REX; right, the percent of runs whose best evaluated policy reached
+  R ≥ -2.0, -1.5, -1.1, -1.0, with 95 % Wilson intervals, and the paper's where it states them;
+- ``fig5.json`` / ``fig5.md``: those counts per explorer, best and final, with their intervals,
+  beside the paper's, and the SDE − REX differences with bootstrap intervals (significant
+  where the interval excludes 0).
 
 Usage:
     python analysis/fig5.py --out results/fig5 multirun/2026-11-22/10-00-00 [more shards...]
@@ -19,7 +22,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import statistics
 import sys
 from pathlib import Path
 
@@ -63,46 +65,99 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     return runs
 
 
-def counts(runs: dict[int, dict]) -> dict[str, dict[str, int]]:
-    """Runs whose best (and whose final) evaluated policy reached each level."""
-    best = [max(r for _, r in run["evals"]) for run in runs.values()]
-    final = [run["final"] for run in runs.values()]
-    return {
-        "best": {f"{level}": sum(b >= level for b in best) for level in LEVELS},
-        "final": {f"{level}": sum(f >= level for f in final) for level in LEVELS},
-    }
+def reached(runs: dict[int, dict]) -> dict[str, dict[str, list[bool]]]:
+    """Per run (in index order), whether its best and its final evaluated policy reached each level."""
+    ordered = [runs[index] for index in sorted(runs)]
+    best = [max(r for _, r in run["evals"]) for run in ordered]
+    final = [run["final"] for run in ordered]
+    return {kind: {f"{level}": [value >= level for value in values] for level in LEVELS}
+            for kind, values in (("best", best), ("final", final))}
 
 
 def report(runs: dict[str, dict[int, dict]], estimator: str) -> dict:
-    """The figure's numbers: per explorer, run count, catch counts and the paper's."""
-    return {
-        "estimator": estimator,
-        "explorers": {
-            explorer: {"runs": len(by_run), **counts(by_run),
-                       "paper": {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}}
-            for explorer, by_run in sorted(runs.items())
-        },
-    }
+    """The figure's numbers: per explorer, run count, catch counts (best and final) with their
+    95 % Wilson intervals as fractions of the runs, and the paper's counts (out of 100); with
+    both explorers, the SDE − REX difference of each fraction with its 95 % bootstrap interval
+    over runs (``significant``: the interval excludes 0)."""
+    from sde_torchrl.intervals import binomial_interval, bootstrap_interval
+
+    flags = {explorer: reached(by_run) for explorer, by_run in runs.items()}
+    explorers = {}
+    for explorer, by_run in sorted(runs.items()):
+        n, stats = len(by_run), {"runs": len(by_run)}
+        for kind in ("best", "final"):
+            stats[kind] = {level: sum(hits) for level, hits in flags[explorer][kind].items()}
+            stats[f"{kind}_interval"] = {level: list(binomial_interval(k, n)[1:]) for level, k in stats[kind].items()}
+        stats["paper"] = {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}
+        explorers[explorer] = stats
+    result = {"estimator": estimator, "explorers": explorers}
+    if {"sde", "rex"} <= runs.keys():
+        difference = {}
+        for kind in ("best", "final"):
+            difference[kind] = {}
+            for level in flags["sde"][kind]:
+                sde, rex = flags["sde"][kind][level], flags["rex"][kind][level]
+                estimate, low, high = bootstrap_interval((sde, rex), lambda a, b: a.mean(-1) - b.mean(-1))
+                difference[kind][level] = {"estimate": estimate, "interval": [low, high],
+                                           "significant": not low <= 0.0 <= high}
+        result["sde_minus_rex"] = difference
+    return result
+
+
+def _percent(fraction: float) -> str:
+    return f"{100 * fraction:.0f}"
 
 
 def write_markdown(result: dict, path: Path) -> None:
-    """Counts per level, ours (best / final evaluated policy) beside the paper's."""
-    lines = ["| explorer | runs | " + " | ".join(f"R ≥ {level}" for level in LEVELS) + " |",
-             "| --- | --- | " + " | ".join("---" for _ in LEVELS) + " |"]
+    """Per level, the fraction of runs (best / final evaluated policy) with its 95 % interval,
+    beside the paper's; then the SDE − REX differences."""
+    header = ["| explorer | runs | " + " | ".join(f"R ≥ {level}" for level in LEVELS) + " |",
+              "| --- | --- | " + " | ".join("---" for _ in LEVELS) + " |"]
+    lines = list(header)
     for explorer, stats in result["explorers"].items():
         cells = []
-        for level in LEVELS:
-            paper = stats["paper"].get(f"{level}")
-            cells.append(f"{stats['best'][f'{level}']} / {stats['final'][f'{level}']}"
-                         + (f" (paper {paper})" if paper is not None else ""))
+        for level in (f"{level}" for level in LEVELS):
+            best, final = (stats[kind][level] / stats["runs"] for kind in ("best", "final"))
+            (b_low, b_high), (f_low, f_high) = (stats[f"{kind}_interval"][level] for kind in ("best", "final"))
+            paper = stats["paper"].get(level)
+            cells.append(f"{_percent(best)} % [{_percent(b_low)}, {_percent(b_high)}] / "
+                         f"{_percent(final)} % [{_percent(f_low)}, {_percent(f_high)}]"
+                         + (f" (paper {paper} %)" if paper is not None else ""))
         lines.append(f"| {explorer.upper()} | {stats['runs']} | " + " | ".join(cells) + " |")
-    lines += ["", "Cells: runs whose best / final deterministic evaluation reached the level; "
-              "the paper's count (out of 100) where it states one."]
+    if "sde_minus_rex" in result:
+        cells = []
+        for level in (f"{level}" for level in LEVELS):
+            parts = []
+            for kind in ("best", "final"):
+                d = result["sde_minus_rex"][kind][level]
+                low, high = d["interval"]
+                parts.append(f"{100 * d['estimate']:+.0f} [{100 * low:+.0f}, {100 * high:+.0f}]"
+                             + ("*" if d["significant"] else ""))
+            cells.append(" / ".join(parts))
+        lines.append("| SDE − REX (points) |  | " + " | ".join(cells) + " |")
+    lines += ["", "Cells: percent of runs whose best / final deterministic evaluation reached the level, with its "
+              "95 % Wilson interval; the paper's count out of 100 runs where it states one. SDE − REX: the "
+              "difference in percentage points with its 95 % bootstrap interval over runs; * where the interval "
+              "excludes 0."]
     path.write_text("\n".join(lines) + "\n")
 
 
+def mean_curve(by_run: dict[int, dict]) -> tuple[list[int], list[tuple[float, float, float]]]:
+    """Updates (1-based) with evaluations, and per update the mean return over runs with its
+    95 % bootstrap interval."""
+    from sde_torchrl.intervals import bootstrap_interval
+
+    updates = sorted({u for run in by_run.values() for u, _ in run["evals"]})
+    curve = []
+    for update in updates:
+        values = [r for run in by_run.values() for u, r in run["evals"] if u == update]
+        curve.append(tuple(bootstrap_interval(values, resamples=2000)))
+    return [u + 1 for u in updates], curve
+
+
 def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str) -> None:
-    """Left: evaluation curves (mean ± std); right: cumulative catch counts."""
+    """Left: mean evaluation curves with 95 % bands; right: percent of runs reaching each level
+    (best evaluated policy) with 95 % intervals, and the paper's where it states them."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -110,23 +165,30 @@ def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str)
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.4))
     styles = {"sde": {"color": "tab:blue", "ls": "-"}, "rex": {"color": "tab:red", "ls": "--"}}
-    for explorer, by_run in sorted(runs.items()):
-        updates = sorted({u for run in by_run.values() for u, _ in run["evals"]})
-        table = [[dict(run["evals"]).get(u) for run in by_run.values()] for u in updates]
-        mean = [statistics.mean(v for v in row if v is not None) for row in table]
-        std = [statistics.pstdev([v for v in row if v is not None]) for row in table]
-        x = [u + 1 for u in updates]
-        left.plot(x, mean, label=explorer.upper(), **styles.get(explorer, {}))
-        left.fill_between(x, [m - s for m, s in zip(mean, std, strict=True)],
-                          [m + s for m, s in zip(mean, std, strict=True)],
-                          color=styles.get(explorer, {}).get("color"), alpha=0.2)
-        best = result["explorers"][explorer]["best"]
-        right.plot([str(level) for level in LEVELS], [best[f"{level}"] for level in LEVELS], marker="o",
-                   label=explorer.upper(), **styles.get(explorer, {}))
-    left.set(xlabel="policy updates", ylabel="deterministic return R", title=title)
-    right.set(xlabel="level: runs with R ≥ level", ylabel="number of runs", title="runs reaching a level")
+    labels = [str(level) for level in LEVELS]
+    for shift, (explorer, by_run) in zip((-0.06, 0.06), sorted(runs.items()), strict=False):
+        style = styles.get(explorer, {})
+        x, curve = mean_curve(by_run)
+        left.plot(x, [m for m, _, _ in curve], label=explorer.upper(), **style)
+        left.fill_between(x, [lo for _, lo, _ in curve], [hi for _, _, hi in curve], color=style.get("color"),
+                          alpha=0.2)
+        stats = result["explorers"][explorer]
+        fraction = [100 * stats["best"][f"{level}"] / stats["runs"] for level in LEVELS]
+        low = [100 * stats["best_interval"][f"{level}"][0] for level in LEVELS]
+        high = [100 * stats["best_interval"][f"{level}"][1] for level in LEVELS]
+        positions = [i + shift for i in range(len(LEVELS))]
+        right.errorbar(positions, fraction, yerr=[[f - lo for f, lo in zip(fraction, low, strict=True)],
+                                                  [hi - f for f, hi in zip(fraction, high, strict=True)]],
+                       marker="o", capsize=3, label=f"{explorer.upper()} ({stats['runs']} runs)", **style)
+        paper = [(i, stats["paper"][f"{level}"]) for i, level in enumerate(LEVELS) if f"{level}" in stats["paper"]]
+        if paper:
+            right.scatter([i for i, _ in paper], [v for _, v in paper], marker="x", s=60, color=style.get("color"),
+                          label=f"{explorer.upper()}, paper", zorder=3)
+    left.set(xlabel="policy updates", ylabel="deterministic return R (mean reward)", title=title)
+    right.set(xlabel="level: runs with R ≥ level", ylabel="% of runs (best evaluation)",
+              title="runs reaching a level (95 % CI)", xticks=range(len(LEVELS)), xticklabels=labels, ylim=(-3, 103))
     left.legend(loc="lower right")
-    right.legend()
+    right.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -51,7 +51,25 @@ def test_counts_best_and_final_levels(tmp_path):
     assert rex["best"] == {"-2.0": 3, "-1.5": 2, "-1.1": 1, "-1.0": 1}
     assert sde["paper"] == {"-1.0": 68, "-1.1": 98} and sde["runs"] == 4
     assert (tmp_path / "out" / "fig5.png").stat().st_size > 0
-    assert "(paper 68)" in (tmp_path / "out" / "fig5.md").read_text()
+    assert "(paper 68 %)" in (tmp_path / "out" / "fig5.md").read_text()
+
+
+def test_counts_carry_intervals_and_the_sde_rex_difference_its_significance(tmp_path):
+    from sde_torchrl.intervals import binomial_interval
+
+    many = {"sde": [[-2.0, -0.95]] * 30 + [[-2.0, -2.4]] * 10, "rex": [[-2.0, -1.3]] * 36 + [[-2.5, -0.98]] * 4}
+    for explorer, curves in many.items():
+        _write_job(tmp_path / explorer, explorer, 0, curves)
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "fig5.json").read_text())
+    sde = result["explorers"]["sde"]
+    assert sde["best"]["-1.0"] == 30 and sde["best_interval"]["-1.0"] == pytest.approx(binomial_interval(30, 40)[1:])
+    catch, slowed = result["sde_minus_rex"]["best"]["-1.0"], result["sde_minus_rex"]["best"]["-2.0"]
+    assert catch["estimate"] == pytest.approx(0.75 - 0.1) and catch["significant"]
+    assert catch["interval"][0] < 0.65 < catch["interval"][1]
+    assert slowed["estimate"] == 0 and not slowed["significant"]  # every run of both reached -2.0
+    table = (tmp_path / "out" / "fig5.md").read_text()
+    assert "75 % [60, 86]" in table and "+65 [" in table and "]*" in table
 
 
 def test_summed_returns_are_counted_as_mean_rewards(tmp_path):
