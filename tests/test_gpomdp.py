@@ -269,3 +269,15 @@ def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
     assert (tmp_path / "resumed" / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
     reference.pop("wall_s"), resumed.pop("wall_s")
     assert resumed == reference
+
+
+@pytest.mark.parametrize("experiment", ["pendulum", "ballcatch"])
+def test_composes_with_the_other_envs_and_trains(tmp_path, experiment):
+    from sde_torchrl.build import build_trainer
+
+    trainer = build_trainer(compose_config(f"+experiment={experiment}", "logger=none", "estimator=gpomdp", "runs=2",
+                                           "updates=2", "episodes_per_update=3", "episode_queue=0", "eval_period=0",
+                                           "env.episode_length=20"))
+    assert isinstance(trainer.estimator, GPOMDPEstimator)
+    summary = trainer.train(tmp_path)
+    assert summary["updates_done"] == 2 and all(math.isfinite(r) for r in summary["final_return"])
