@@ -6,6 +6,20 @@ that ``analysis/learner_search.py`` chose) on a pool of worker processes, or rea
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
 paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
+Every count, speed-up and plateau time carries a 95 % percentile-bootstrap interval over runs
+(:func:`sde_torchrl.intervals.bootstrap_interval`, 10,000 resamples, seed 0): a cell reads
+``1,850 [1,620, 2,110]``. A difference is called significant when the bootstrap interval of the
+ratio of the two methods' mean counts excludes 1, and ours differs significantly from the paper's
+when the paper's count lies outside our interval (the paper gives no spread of its own).
+
+Added method (issue 16): **GPOMDP + SDE**, the SDE jobs of the two 1-D sweeps again with
+``estimator=gpomdp``. Its learner, by the rule of ``analysis/learner_search.py``, which chooses
+ONE learner for all the methods compared and never tunes one method alone, is that learner
+unchanged (plain scores, per-run norm bound 100, N = 10, α = 0.002, summed return, the sweeps'
+budget). Rerunning the search with GPOMDP among the methods would let GPOMDP's runs change REX's
+and SDE's learner, and a search for GPOMDP alone is what the rule forbids. (Written down and
+committed before any Table 1 result of GPOMDP was seen.)
+
 Usage:
     python analysis/table1.py --out results/table1              # run everything, then report
     python analysis/table1.py --out results/table1 --from DIR   # report on finished runs
@@ -26,6 +40,13 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
+#: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE.
+METHODS = ("rex", "sde", "sde_gpomdp")
+LABELS = {"rex": "REX", "sde": "SDE", "sde_gpomdp": "SDE + GPOMDP"}
+#: Added methods: the overrides appended to each SDE job of the 1-D sweeps.
+ADDED = {"sde_gpomdp": ["estimator=gpomdp"]}
+#: The confidence level and bootstrap resamples of every interval.
+LEVEL, RESAMPLES = 0.95, 10_000
 SWEEP_NAMES = {"noise_sweep": "noise", "episode_length_sweep": "episode_length"}
 #: Table 1 of the paper: (sweep, σ_noise, EL) → (R_lim, REX episodes, SDE episodes).
 PAPER = {
@@ -78,8 +99,12 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
     jobs = []
     for experiment in EXPERIMENTS:
         for overrides in sweep_jobs(experiment):
-            name = experiment + "__" + "_".join(o.replace("=", "-") for o in overrides)
-            jobs.append((experiment, overrides + extra, str(runs_dir / name)))
+            variants = [overrides]
+            if experiment in SWEEP_NAMES and "explorer=sde" in overrides:
+                variants += [overrides + added for added in ADDED.values()]
+            for variant in variants:
+                name = experiment + "__" + "_".join(o.replace("=", "-") for o in variant)
+                jobs.append((experiment, variant + extra, str(runs_dir / name)))
     jobs.sort(key=_expected_cost, reverse=True)
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers) as pool:
@@ -93,7 +118,7 @@ def _expected_cost(job: tuple[str, list[str], str]) -> float:
     if experiment == "minimize2d_mlp":
         return 1e9
     length = next((int(o.split("=")[1]) for o in overrides if o.startswith("env.episode_length=")), 15)
-    return length * (4 if "explorer=rex" in overrides else 1)
+    return length * (4 if "explorer=rex" in overrides else 2 if "estimator=gpomdp" in overrides else 1)
 
 
 # -------------------------------------------------------------------------- reading runs
@@ -117,41 +142,70 @@ def load_runs(directory: Path) -> list[dict]:
     return runs
 
 
+def _method(summary: dict) -> str:
+    """``rex``, ``sde`` or an added method (:data:`ADDED`) from a run's labels."""
+    return "sde_gpomdp" if summary.get("estimator") == "gpomdp" else summary["explorer"]
+
+
 def _setting(summary: dict) -> tuple[str, float, int]:
     env = summary["config"]["env"]
     return SWEEP_NAMES[summary["experiment"]], float(env["noise_std"]), int(env["episode_length"])
 
 
+def _interval(values, statistic=None) -> list[float]:
+    """``[low, high]`` of the 95 % bootstrap interval (:data:`LEVEL`, :data:`RESAMPLES`, seed 0)."""
+    from sde_torchrl.intervals import bootstrap_interval
+
+    kwargs = {} if statistic is None else {"statistic": statistic}
+    interval = bootstrap_interval(values, level=LEVEL, resamples=RESAMPLES, seed=0, **kwargs)
+    return [interval.low, interval.high]
+
+
+def _ratio_of_means(a, b):
+    return a.mean(-1) / b.mean(-1)
+
+
 def table_rows(runs: list[dict]) -> list[dict]:
-    """One row per (sweep, σ_noise, EL): mean episodes to ``R_lim`` for REX and SDE."""
+    """One row per (sweep, σ_noise, EL): mean episodes to ``R_lim`` per method (over the runs that
+    reached it) with 95 % bootstrap intervals over those runs, REX/SDE speed-up and SDE's
+    REINFORCE/GPOMDP ratio with intervals (a ratio whose interval excludes 1 is significant)."""
     by_setting: dict[tuple, dict[str, dict]] = {}
     for summary in runs:
         if summary["experiment"] in SWEEP_NAMES:
-            by_setting.setdefault(_setting(summary), {})[summary["explorer"]] = summary
+            by_setting.setdefault(_setting(summary), {})[_method(summary)] = summary
     rows = []
     for setting in sorted(by_setting, key=lambda s: (s[0] != "noise", s[1], s[2])):
         sweep, noise, length = setting
         row = {"sweep": sweep, "sigma_noise": noise, "episode_length": length}
-        for explorer in ("rex", "sde"):
-            summary = by_setting[setting].get(explorer)
+        reached_by = {}
+        for method in METHODS:
+            summary = by_setting[setting].get(method)
             if summary is None:
                 continue
             row["r_lim"] = summary["settings"]["r_lim"]
             episodes = summary["episodes_to_threshold"]
-            reached = [e for e in episodes if e is not None]
-            row[f"{explorer}_episodes"] = statistics.mean(reached) if reached else None
-            row[f"{explorer}_spread"] = {
+            reached = reached_by[method] = [e for e in episodes if e is not None]
+            row[f"{method}_episodes"] = statistics.mean(reached) if reached else None
+            row[f"{method}_ci"] = _interval(reached) if reached else None
+            row[f"{method}_spread"] = {
                 "std": statistics.pstdev(reached) if reached else None,
                 "median": statistics.median(reached) if reached else None,
                 "min": min(reached, default=None), "max": max(reached, default=None),
                 "runs": len(episodes), "not_converged": len(episodes) - len(reached),
             }
-        if row.get("rex_episodes") and row.get("sde_episodes"):
-            row["speedup"] = row["rex_episodes"] / row["sde_episodes"]
+        for key, (slow, fast) in {"speedup": ("rex", "sde"), "gpomdp_ratio": ("sde", "sde_gpomdp")}.items():
+            if row.get(f"{slow}_episodes") and row.get(f"{fast}_episodes"):
+                row[key] = row[f"{slow}_episodes"] / row[f"{fast}_episodes"]
+                row[f"{key}_ci"] = _interval((reached_by[slow], reached_by[fast]), _ratio_of_means)
+                row[f"{key}_significant"] = not row[f"{key}_ci"][0] <= 1 <= row[f"{key}_ci"][1]
         paper = PAPER.get(setting)
         if paper:
             row["paper"] = {"r_lim": paper[0], "rex_episodes": paper[1], "sde_episodes": paper[2],
                             "speedup": paper[1] / paper[2]}
+            row["paper_outside_ci"] = {
+                key: not row[f"{key}_ci"][0] <= row["paper"][f"{key}_episodes" if key != "speedup" else key]
+                <= row[f"{key}_ci"][1]
+                for key in ("rex", "sde", "speedup") if row.get(f"{key}_ci")}
         rows.append(row)
     return rows
 
@@ -189,7 +243,61 @@ def mlp_summary(runs: list[dict]) -> dict | None:
     reached = result["episodes_to_rex_plateau"]
     if reached["sde"] and reached["rex"]:
         result["plateau_speedup"] = reached["rex"] / reached["sde"]
+    result["intervals"] = _mlp_intervals({e: _smoothed(s["curves"], SMOOTH) for e, s in mlp.items()}, per_update, tail)
     return result
+
+
+#: Resamples of the 2-D MLP's curve statistics (each resample averages 30 curves of 1,500 updates).
+MLP_RESAMPLES = 2_000
+
+
+def _smoothed(curves: list[list[float]], smooth: int):
+    """Each run's curve averaged over its last ``smooth`` updates (fewer at the start), ``[runs, updates]``."""
+    import numpy as np
+
+    values = np.asarray(curves, dtype=float)
+    total = np.cumsum(values, axis=1)
+    lagged = np.concatenate([np.zeros((len(values), smooth)), total[:, :-smooth]], axis=1)[:, :values.shape[1]]
+    return (total - lagged) / np.minimum(np.arange(1, values.shape[1] + 1), smooth)
+
+
+def _mlp_intervals(smoothed: dict, per_update: int, tail: int) -> dict:
+    """95 % bootstrap intervals over runs of the 2-D MLP's REX plateau, the episodes each method
+    needs to reach it (the plateau recomputed in each resample), their ratio, and the final
+    mean returns. The runs are resampled as indices into the smoothed curves."""
+    import numpy as np
+
+    from sde_torchrl.intervals import bootstrap_interval
+
+    def mean_curves(indices, curves):
+        runs = len(curves)
+        counts = (indices.astype(int)[..., :, None] == np.arange(runs)).sum(-2)  # [..., runs]
+        return counts @ curves / indices.shape[-1]
+
+    def reaching(rex_indices, sde_indices):
+        rex = mean_curves(rex_indices, smoothed["rex"])
+        plateau = rex[..., -tail:].mean(-1)
+        result = {"rex_plateau": plateau}
+        for method, curve in (("rex", rex), ("sde", mean_curves(sde_indices, smoothed["sde"]))):
+            above = curve >= plateau[..., None]
+            result[method] = np.where(above.any(-1), (above.argmax(-1) + 1) * per_update, np.inf)
+        return result
+
+    def speedup(reached):
+        return reached["rex"] / reached["sde"]
+
+    def interval(statistic, values):
+        found = bootstrap_interval(values, statistic, LEVEL, MLP_RESAMPLES, seed=0)
+        return [found.low, found.high]
+
+    indices = (np.arange(len(smoothed["rex"])), np.arange(len(smoothed["sde"])))
+    return {
+        "rex_plateau": interval(lambda r, s: reaching(r, s)["rex_plateau"], indices),
+        "episodes_to_rex_plateau": {m: interval(lambda r, s, m=m: reaching(r, s)[m], indices) for m in ("sde", "rex")},
+        "plateau_speedup": interval(lambda r, s: speedup(reaching(r, s)), indices),
+        "final_mean_return": {m: _interval(smoothed[m][:, -tail:].mean(-1)) for m in ("sde", "rex")},
+        "resamples": MLP_RESAMPLES,
+    }
 
 
 # ------------------------------------------------------------------------------- writing
@@ -228,32 +336,82 @@ def _fmt(value, digits=0):
     return "—" if value is None else f"{value:.{digits}f}"
 
 
+def _cell(value, interval, digits=0) -> str:
+    """``1,850 [1,620, 2,110]``: a value and its interval, or ``—``."""
+    if value is None:
+        return "—"
+    text = f"{value:,.{digits}f}"
+    return text if interval is None else f"{text} [{interval[0]:,.{digits}f}, {interval[1]:,.{digits}f}]"
+
+
+def _label(row: dict) -> str:
+    return f"σ {row['sigma_noise']}" if row["sweep"] == "noise" else f"EL {row['episode_length']}"
+
+
+def significance_lines(rows: list[dict]) -> list[str]:
+    """Which differences are significant at 95 %: methods (ratio interval excluding 1) and ours
+    against the paper's (the paper's count outside our interval)."""
+    def listed(predicate):
+        found = [_label(r) for r in rows if predicate(r)]
+        return f"{len(found)} of {len(rows)}" + (f" ({', '.join(found)})" if found else "")
+
+    def paper_outside(key):
+        return listed(lambda r: r.get("paper_outside_ci", {}).get(key, False))
+
+    ratios = [r for r in rows if r.get("gpomdp_ratio") is not None]
+    faster = listed(lambda r: r.get("gpomdp_ratio_significant") and r["gpomdp_ratio"] > 1)
+    slower = listed(lambda r: r.get("gpomdp_ratio_significant") and r["gpomdp_ratio"] < 1)
+    return [
+        "Significance (95 %; `†` in the table: the paper's number lies outside our interval):",
+        "",
+        f"- SDE faster than REX (speed-up interval above 1): {listed(lambda r: r.get('speedup_significant'))}.",
+        f"- Paper's REX count outside our interval: {paper_outside('rex')}; SDE: {paper_outside('sde')}; "
+        f"speed-up: {paper_outside('speedup')}.",
+        f"- SDE + GPOMDP against SDE + REINFORCE (interval of REINFORCE's / GPOMDP's mean episodes, "
+        f"{len(ratios)} settings): GPOMDP significantly faster in {faster}; significantly slower in {slower}.",
+    ]
+
+
 def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float | None = None) -> None:
-    """The paper's Table 1 layout, ours beside the paper's, then the 2-D MLP and the checks."""
+    """The paper's Table 1 layout, ours (with 95 % bootstrap intervals over runs) beside the
+    paper's, the added SDE + GPOMDP, which differences are significant, the 2-D MLP, the checks."""
+    def paper_mark(row, key):
+        return " †" if row.get("paper_outside_ci", {}).get(key) else ""
+
     lines = [
-        "| sweep | σ_noise | EL | R_lim (ours / paper) | REX (ours / paper) | SDE (ours / paper) "
-        "| speed-up (ours / paper) | not converged REX / SDE |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| sweep | σ_noise | EL | R_lim (ours / paper) | REX: ours [95 % CI] / paper | SDE: ours [95 % CI] / paper "
+        "| speed-up REX/SDE: ours [95 % CI] / paper | SDE + GPOMDP [95 % CI] "
+        "| SDE: REINFORCE/GPOMDP episodes [95 % CI] | not converged REX / SDE / SDE + GPOMDP |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for row in rows:
         paper = row.get("paper", {})
         lines.append(
             f"| {row['sweep']} | {row['sigma_noise']} | {row['episode_length']} "
             f"| {_fmt(row.get('r_lim'), 2)} / {_fmt(paper.get('r_lim'), 1)} "
-            f"| {_fmt(row.get('rex_episodes'))} / {_fmt(paper.get('rex_episodes'))} "
-            f"| {_fmt(row.get('sde_episodes'))} / {_fmt(paper.get('sde_episodes'))} "
-            f"| {_fmt(row.get('speedup'), 2)} / {_fmt(paper.get('speedup'), 2)} "
-            f"| {row.get('rex_spread', {}).get('not_converged', '—')} / "
-            f"{row.get('sde_spread', {}).get('not_converged', '—')} |"
+            f"| {_cell(row.get('rex_episodes'), row.get('rex_ci'))} / {_cell(paper.get('rex_episodes'), None)}"
+            f"{paper_mark(row, 'rex')} "
+            f"| {_cell(row.get('sde_episodes'), row.get('sde_ci'))} / {_cell(paper.get('sde_episodes'), None)}"
+            f"{paper_mark(row, 'sde')} "
+            f"| {_cell(row.get('speedup'), row.get('speedup_ci'), 2)} / {_fmt(paper.get('speedup'), 2)}"
+            f"{paper_mark(row, 'speedup')} "
+            f"| {_cell(row.get('sde_gpomdp_episodes'), row.get('sde_gpomdp_ci'))} "
+            f"| {_cell(row.get('gpomdp_ratio'), row.get('gpomdp_ratio_ci'), 2)} "
+            f"| {' / '.join(str(row.get(f'{m}_spread', {}).get('not_converged', '—')) for m in METHODS)} |"
         )
+    lines += ["", *significance_lines(rows)]
     if mlp:
-        reached = mlp["episodes_to_rex_plateau"]
+        reached, intervals = mlp["episodes_to_rex_plateau"], mlp["intervals"]
         lines += [
             "",
-            f"2-D MLP ({mlp['runs']} runs, {mlp['episodes']} episodes): REX's final plateau "
-            f"{mlp['rex_plateau']:.2f} reached after {_fmt(reached['sde'])} episodes by SDE and "
-            f"{_fmt(reached['rex'])} by REX (×{_fmt(mlp.get('plateau_speedup'), 1)}); final mean "
-            f"return SDE {mlp['final_mean_return']['sde']:.2f}, REX {mlp['final_mean_return']['rex']:.2f} "
+            f"2-D MLP ({mlp['runs']} runs, {mlp['episodes']} episodes; 95 % bootstrap intervals over runs, "
+            f"{intervals['resamples']:,} resamples): REX's final plateau "
+            f"{_cell(mlp['rex_plateau'], intervals['rex_plateau'], 2)} reached after "
+            f"{_cell(reached['sde'], intervals['episodes_to_rex_plateau']['sde'])} episodes by SDE and "
+            f"{_cell(reached['rex'], intervals['episodes_to_rex_plateau']['rex'])} by REX "
+            f"(×{_cell(mlp.get('plateau_speedup'), intervals['plateau_speedup'], 1)}); final mean return SDE "
+            f"{_cell(mlp['final_mean_return']['sde'], intervals['final_mean_return']['sde'], 2)}, REX "
+            f"{_cell(mlp['final_mean_return']['rex'], intervals['final_mean_return']['rex'], 2)} "
             f"(summed return; paper: REX stuck near {PAPER_MLP['rex_plateau']:.0f}, SDE there after about "
             f"{PAPER_MLP['sde_episodes_to_plateau']:,} episodes).",
         ]
@@ -271,8 +429,8 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
 
 
 def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
-    """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX and
-    SDE (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
+    """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX, SDE
+    and SDE + GPOMDP (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -284,7 +442,7 @@ def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
     fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
     for ax, setting in zip(axes[0], settings, strict=True):
         for summary in (s for s in chosen if _setting(s) == setting):
-            _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX", robust=True)
+            _plot_band(ax, summary, LABELS[_method(summary)], robust=True)
             ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
         label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
         r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
@@ -313,7 +471,8 @@ def _plot_band(ax, summary: dict, label: str, smooth: int = 1, robust: bool = Fa
         low, high = [m - s for m, s in zip(centre, std, strict=True)], [m + s for m, s in zip(centre, std, strict=True)]
     per_update = summary["settings"]["episodes_per_update"]
     episodes = [(i + 1) * per_update for i in range(len(centre))]
-    style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"}}[label]
+    style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"},
+             "SDE + GPOMDP": {"color": "tab:green", "ls": "-."}}[label]
     ax.plot(episodes, centre, label=label, **style)
     ax.fill_between(episodes, low, high, color=style["color"], alpha=0.2)
 
@@ -328,7 +487,7 @@ def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5, 3.4))
     for summary in sorted((s for s in runs if s["experiment"] == "minimize2d_mlp"),
                           key=lambda s: s["explorer"]):
-        _plot_band(ax, summary, "SDE" if summary["explorer"] == "sde" else "REX", SMOOTH)
+        _plot_band(ax, summary, LABELS[_method(summary)], SMOOTH)
     ax.axhline(mlp["rex_plateau"], color="grey", lw=0.8, ls=":", label="REX final plateau")
     start = min(statistics.mean(c[0] for c in s["curves"]) for s in runs
                 if s["experiment"] == "minimize2d_mlp")

@@ -291,8 +291,9 @@ class ExplorerConf:
 
 @dataclass
 class EstimatorConf:
-    """``estimator=reinforce|enac``: episodic REINFORCE with the optimal per-parameter baseline,
-    or the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``).
+    """``estimator=reinforce|enac|gpomdp``: episodic REINFORCE with the optimal per-parameter
+    baseline, the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``), or GPOMDP (each
+    reward credited to the actions before it, with the time-dependent optimal baseline).
 
     Attributes:
         max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
@@ -439,18 +440,23 @@ class TrainConf:
 def _check_can_learn(conf: TrainConf) -> None:
     """Refuses settings under which no update can change the policy (hours of compute for nothing).
 
-    REINFORCE's optimal baseline over a single episode equals that episode's return: with one
-    episode per update and no queue, every gradient is exactly 0. ENAC with fewer episodes than
-    parameters + 1 is not refused: its regression is rank-deficient, but the minimum-norm
+    REINFORCE's optimal baseline over a single episode equals that episode's return (GPOMDP's,
+    each step's reward): with one episode per update and no queue, every gradient is exactly 0.
+    ENAC with fewer episodes than parameters + 1 is not refused: its regression is rank-deficient, but the minimum-norm
     solution it then takes is not zero, only noisy: a warning once the parameters are counted
     (:func:`sde_torchrl.build.warn_if_rank_deficient`).
     """
     target = getattr(conf.estimator, "_target_", "") or ""
-    if target.endswith("ReinforceEstimator") and max(conf.episodes_per_update, conf.episode_queue) < 2:
+    name = next((n for suffix, n in BASELINE_ESTIMATORS.items() if target.endswith(suffix)), None)
+    if name is not None and max(conf.episodes_per_update, conf.episode_queue) < 2:
         raise ArgumentError(
             "episodes_per_update", conf.episodes_per_update,
-            "at least 2 with estimator=reinforce (or an episode_queue of 2 or more): over a single "
-            "episode the optimal baseline equals its return, so every gradient is exactly 0")
+            f"at least 2 with estimator={name} (or an episode_queue of 2 or more): over a single "
+            "episode the optimal baseline equals its return (GPOMDP's: each reward), so every gradient is exactly 0")
+
+
+#: Estimators whose optimal baseline cancels a single episode: ``_target_`` suffix → group option.
+BASELINE_ESTIMATORS = {"ReinforceEstimator": "reinforce", "GPOMDPEstimator": "gpomdp"}
 
 
 #: ``schema/<name>`` → dataclass; YAML files name these first in their defaults list.

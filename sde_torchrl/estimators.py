@@ -1,6 +1,6 @@
 """Episodic likelihood-ratio gradient estimators as TorchRL loss modules.
 
-Both estimators work on ``N`` whole episodes (TensorDicts shaped ``[*runs, N, T]``) and on the
+The estimators (REINFORCE, ENAC, GPOMDP) work on ``N`` whole episodes (TensorDicts shaped ``[*runs, N, T]``) and on the
 per-episode score vectors ``ψ_n = Σ_t ∇_θ log π(u_t | x_t)`` (eq. 9) over every learnable
 parameter of the policy, controller and exploration alike, computed for all episodes at once
 with ``torch.func``. The returned ``loss_objective`` is the surrogate ``-g·θ`` whose gradient is
@@ -456,6 +456,13 @@ class EpisodicEstimator(LossModule):
         """Gradient ``[*runs, K]`` and diagnostics from scores ``[*runs, N, K]``, returns ``[*runs, N]``."""
         raise NotImplementedError
 
+    def estimate_from_episodes(
+        self, episodes: TensorDictBase, scores: torch.Tensor, returns: torch.Tensor,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Gradient and diagnostics for the checked ``episodes``; :meth:`estimate` unless the
+        estimator needs more than the episode scores and returns (GPOMDP's per-step terms)."""
+        return self.estimate(scores, returns)
+
     def check_episodes(self, episodes: TensorDictBase) -> None:
         """Checks the input contract (see the class docstring); cheap: one fused check per key.
 
@@ -567,7 +574,7 @@ class EpisodicEstimator(LossModule):
         scores = flatten_scores(per_parameter, run_dims)
         if not self.allow_nonfinite and not bool(torch.isfinite(scores).all()):
             self._check_finite("scores", per_parameter, run_dims, per_episode=True)
-        gradient, diagnostics = self.estimate(scores, returns)
+        gradient, diagnostics = self.estimate_from_episodes(episodes, scores, returns)
         if not self.allow_nonfinite and not bool(torch.isfinite(gradient).all()):
             sizes = [s[(0,) * (run_dims + 1)].numel() for s in per_parameter.values()]
             self._check_finite("gradient", dict(zip(per_parameter, gradient.split(sizes, -1), strict=True)),
@@ -621,3 +628,129 @@ class ENACEstimator(EpisodicEstimator):
     def estimate(self, scores, returns):
         natural, average_return, rank, condition = enac_gradient(scores, returns)
         return natural, {"rank": rank, "condition_number": condition, "J": average_return}
+
+
+# ---------------------------------------------------------------------------------- GPOMDP
+
+
+def step_scores(log_likelihood: EpisodeLogLikelihood, episodes: TensorDictBase) -> dict[str, torch.Tensor]:
+    """Per-step score vectors ``∇_θ log π(u_t | x_t)`` for every learnable parameter.
+
+    Each step's log-likelihood depends on that step's stored observation, features and action
+    only (eqs. 13, 20), so the ``N`` episodes of ``T`` steps are scored as ``N·T`` one-step
+    episodes (:func:`episode_scores`); summed over time they give the episode scores ``ψ_n``
+    (eq. 9).
+
+    Args:
+        log_likelihood: the policy's episode log-likelihood.
+        episodes: TensorDict shaped ``[*runs, N, T]``.
+
+    Returns:
+        ``{parameter name: score}`` with each score shaped ``[*runs, N, T, *parameter_shape[len(runs):]]``.
+
+    Examples:
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer
+        >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
+        >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action_sample": torch.randn(4, 10, 2)}, [4, 10])
+        >>> per_step = step_scores(log_likelihood, steps)
+        >>> {name: tuple(s.shape) for name, s in per_step.items()}
+        {'actor.module.0.module.weight': (4, 10, 2, 3), 'explorer.sigma_param': (4, 10, 2, 3)}
+        >>> per_episode = episode_scores(log_likelihood, steps)
+        >>> all(torch.allclose(per_step[n].sum(1), per_episode[n], atol=1e-5) for n in per_episode)
+        True
+    """
+    shape = tuple(episodes.batch_size)
+    if len(shape) < 2:
+        raise ValueError(f"episodes must be shaped [*runs, episodes, time], got batch {shape}")
+    one_step_episodes = episodes.select(*log_likelihood.in_keys).reshape(*shape[:-2], shape[-2] * shape[-1], 1)
+    scores = episode_scores(log_likelihood, one_step_episodes)
+    return {name: s.unflatten(len(shape) - 2, shape[-2:]) for name, s in scores.items()}
+
+
+def step_rewards(
+    episodes: TensorDictBase, reward_key: NestedKey = ("next", "reward"), kind: str = "mean",
+) -> torch.Tensor:
+    """Per-step rewards ``[*runs, N, T]`` that sum to :func:`episode_returns`: ``r_t / T``
+    (``mean``) or ``r_t`` (``sum``).
+
+    Examples:
+        >>> td = TensorDict({"next": {"reward": torch.tensor([[[[-1.0], [-3.0]]]])}}, [1, 1, 2])
+        >>> step_rewards(td), step_rewards(td, kind="sum")
+        (tensor([[[-0.5000, -1.5000]]]), tensor([[[-1., -3.]]]))
+    """
+    one_of("kind", kind, EPISODE_RETURNS)
+    rewards = episodes.get(reward_key).reshape(*episodes.batch_size, -1).sum(-1)
+    return rewards / episodes.batch_size[-1] if kind == "mean" else rewards
+
+
+def gpomdp_gradient(scores: torch.Tensor, rewards: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """GPOMDP (Baxter & Bartlett 2001) with the time-dependent optimal baseline (Peters & Schaal
+    2008, "Reinforcement learning of motor skills with policy gradients", section on G(PO)MDP).
+
+    Each reward ``r_k`` is credited only to the actions taken up to step ``k``, through the
+    partial score sums ``Ψ_nk = Σ_{t≤k} ∇_θ log π(u_nt | x_nt)``:
+
+    ``g_h = (1/N) Σ_n Σ_k Ψ_nkh (r_nk − b_kh)``, with
+    ``b_kh = Σ_n Ψ_nkh² r_nk / Σ_n Ψ_nkh²``
+
+    (``b_kh`` is 0 where the ``Ψ_nkh`` are all 0). A reward cannot depend on a later action, so
+    dropping those terms from REINFORCE's ``ψ_n R_n`` (eq. 11) leaves the expectation unchanged
+    and removes their variance.
+
+    Args:
+        scores: per-step scores ``∇_θ log π``, shaped ``[*runs, N, T, K]``.
+        rewards: per-step rewards, shaped ``[*runs, N, T]``.
+
+    Returns:
+        ``(g, b)``: ``g`` shaped ``[*runs, K]``, the baseline ``b`` ``[*runs, T, K]``.
+
+    Examples:
+        >>> scores = torch.tensor([[[1.0], [0.0]], [[-1.0], [0.0]]])  # 2 episodes, 2 steps, 1 parameter
+        >>> rewards = torch.tensor([[5.0, 1.0], [3.0, 2.0]])
+        >>> g, b = gpomdp_gradient(scores, rewards)
+        >>> g, b.squeeze(-1)
+        (tensor([0.5000]), tensor([4.0000, 1.5000]))
+    """
+    partial = scores.cumsum(-2)
+    squared = partial.square()
+    weight = squared.sum(-3)
+    baseline = (squared * rewards.unsqueeze(-1)).sum(-3) / torch.where(weight > 0, weight, 1.0)
+    gradient = (partial * (rewards.unsqueeze(-1) - baseline.unsqueeze(-3))).sum(-2).mean(-2)
+    return gradient, baseline
+
+
+class GPOMDPEstimator(EpisodicEstimator):
+    """GPOMDP with the time-dependent optimal baseline (:func:`gpomdp_gradient`), for SDE as for
+    REX: with SDE the actions of one episode share one noise matrix, but a reward still cannot
+    depend on a later action, so the estimate stays unbiased.
+
+    The options are REINFORCE's (:class:`EpisodicEstimator`): with ``episode_return="mean"``
+    the per-step rewards are ``r_t / T`` (:func:`step_rewards`), with ``"sum"`` they are ``r_t``;
+    ``variance_weighted`` weights each step's score as it weights the episode's;
+    ``max_grad_entry`` and ``max_grad_norm`` bound the result. Diagnostics: ``baseline``
+    ``[*runs, T, K]``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer
+        >>> from sde_torchrl.envs import make_minimize_env
+        >>> explorer = StateDependentExplorer(1, 1)
+        >>> env = make_minimize_env(5, episodes=8).append_transform(explorer.make_tensordict_primer())
+        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> loss = GPOMDPEstimator(policy, episode_return="sum")
+        >>> with torch.no_grad():
+        ...     episodes = env.rollout(5, policy)
+        >>> out = loss(episodes)
+        >>> out["gradient"].shape, out["baseline"].shape
+        (torch.Size([2]), torch.Size([5, 2]))
+        >>> out["loss_objective"].backward()
+    """
+
+    def estimate_from_episodes(self, episodes, scores, returns):
+        run_dims = episodes.batch_dims - 2
+        per_step = flatten_scores(step_scores(self.log_likelihood, episodes), run_dims + 1)
+        rewards = step_rewards(episodes, self.tensor_keys.reward, self.episode_return)
+        gradient, baseline = gpomdp_gradient(per_step, rewards)
+        return gradient, {"baseline": baseline}

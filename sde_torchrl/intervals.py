@@ -55,7 +55,9 @@ def bootstrap_interval(
 
     Each sample is resampled with replacement, independently of the others, ``resamples`` times;
     the interval is the ``(1 − level)/2`` and ``(1 + level)/2`` quantiles of the statistic over
-    the resamples, and the estimate is the statistic of the samples themselves.
+    the resamples (order statistics, not interpolated: a statistic that is infinite in some
+    resamples, such as "episodes until a level is first reached" when it never is, gives an
+    infinite end rather than NaN), and the estimate is the statistic of the samples themselves.
 
     Args:
         values: one sample (a sequence of numbers, one per run), or a tuple of independent
@@ -93,7 +95,7 @@ def bootstrap_interval(
     rng = np.random.default_rng(seed)
     resampled = [s[rng.integers(0, s.size, size=(resamples, s.size))] for s in samples]
     replicates = np.asarray(statistic(*resampled), dtype=float)
-    low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])
+    low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2], method="inverted_cdf")
     return Interval(float(statistic(*samples)), float(low), float(high))
 
 

@@ -100,3 +100,9 @@ def test_bootstrap_difference_detects_a_real_difference_and_not_a_null_one():
                                  lambda x, y: x.mean(-1) - y.mean(-1))
     assert same.low < 0 < same.high
     assert shifted.low > 0
+
+
+def test_bootstrap_end_is_infinite_not_nan_when_some_resamples_are():
+    never = [100.0, 200.0, float("inf")]
+    interval = bootstrap_interval(never, lambda x: np.median(x, -1))
+    assert interval.low == 100.0 and interval.high == float("inf")
