@@ -1,4 +1,11 @@
-"""The state-dependent Normal distribution (paper eqs. 17-22) as a ``torch.distributions.Distribution``.
+"""The maths of state-dependent exploration (paper eqs. 13, 17-22), once, and the distribution built on it.
+
+The functions here are the single home of SDE's per-step maths: the exploration matrix
+``Θ̂ = σ̂ ⊙ ξ`` (:func:`noise_matrix`, eq. 18), the action ``u = loc + Θ̂ x [+ σ_gauss ε]``
+(:func:`sde_sample`, eqs. 17-19, 22), its per-action variance (:func:`sde_variance`, eqs. 20, 22)
+and the Gaussian log-likelihood (:func:`gaussian_log_prob`, eq. 13).
+:class:`~sde_torchrl.exploration.StateDependentExplorer`, the episodic estimators and the fast
+rollout paths call them as :class:`SDENormal` does.
 
 TorchRL's PPO, A2C and SAC losses rebuild the policy's distribution from stored tensordict
 entries and score the stored action (``get_dist`` then ``log_prob``). :class:`SDENormal` needs
@@ -17,32 +24,116 @@ import torch
 import torch.nn.functional as F
 from torch.distributions import Distribution, constraints
 
-from sde_torchrl.exploration import MIN_VARIANCE, gaussian_log_prob
+from sde_torchrl._shapes import stacked_matvec
 
+#: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
+MIN_VARIANCE = 1e-12
+_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 _HALF_LOG_2PI_E = 0.5 * math.log(2 * math.pi * math.e)
 _LOG_2 = math.log(2.0)
 
 
+def gaussian_log_prob(sample: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """``Σ_j log N(sample_j; loc_j, scale_j²)`` over the last dimension (eq. 13).
+
+    Args:
+        sample: the action, ``[*, A]``.
+        loc: the mean, ``[*, A]``.
+        scale: the per-action standard deviation, ``[*, A]``.
+
+    Returns:
+        The log-density, shape ``[*]``.
+
+    Examples:
+        >>> gaussian_log_prob(torch.zeros(2), torch.zeros(2), torch.ones(2))  # 2 · log N(0; 0, 1)
+        tensor(-1.8379)
+    """
+    return (-0.5 * ((sample - loc) / scale).square() - scale.log() - _HALF_LOG_2PI).sum(-1)
+
+
+def noise_matrix(sigma_hat: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """The exploration matrix ``Θ̂ = σ̂ ⊙ ξ``, ``Θ̂_ji ~ N(0, σ̂_ji²)`` (eq. 18).
+
+    Args:
+        sigma_hat: ``σ̂``, ``[*, A, S]`` or broadcastable to ``noise``.
+        noise: the standard-normal matrix ``ξ``, ``[*, A, S]``.
+
+    Returns:
+        ``Θ̂``, the broadcast shape of both.
+
+    Examples:
+        >>> noise_matrix(torch.full((2, 1), 0.5), torch.ones(4, 2, 3)).shape
+        torch.Size([4, 2, 3])
+    """
+    return sigma_hat * noise
+
+
+def sde_sample(
+    loc: torch.Tensor,
+    sigma_hat: torch.Tensor,
+    noise: torch.Tensor,
+    features: torch.Tensor,
+    gaussian_scale: torch.Tensor | None = None,
+    gaussian_noise: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """The SDE action ``u = loc + Θ̂ x [+ σ_gauss ε]`` with ``Θ̂ = σ̂ ⊙ ξ`` (eqs. 17-19, 22).
+
+    Differentiable in ``loc``, ``σ̂`` and ``σ_gauss`` (the reparameterisation); the draws ``ξ``
+    and ``ε`` are the caller's.
+
+    Args:
+        loc: the controller's mean ``f(x; θ)``, ``[*, A]``.
+        sigma_hat: ``σ̂``, broadcastable to ``noise``.
+        noise: ``ξ``, ``[*, A, S]``.
+        features: ``x``, ``[*, S]``.
+        gaussian_scale: ``σ_gauss`` of eq. (22), broadcastable to ``[*, A]``, or ``None``.
+        gaussian_noise: the standard-normal ``ε``, ``[*, A]``; needed with ``gaussian_scale``.
+
+    Returns:
+        ``u``, ``[*, A]`` (before any squashing).
+
+    Examples:
+        >>> sde_sample(torch.zeros(2), torch.full((2, 3), 0.1), torch.ones(2, 3), torch.ones(3))
+        tensor([0.3000, 0.3000])
+    """
+    sample = loc + (noise_matrix(sigma_hat, noise) @ features.unsqueeze(-1)).squeeze(-1)
+    if gaussian_scale is not None:
+        sample = sample + gaussian_scale * gaussian_noise
+    return sample
+
+
 def sde_variance(
-    sigma_hat: torch.Tensor, features: torch.Tensor, gaussian_scale: torch.Tensor | None = None
+    sigma_hat: torch.Tensor,
+    features: torch.Tensor,
+    gaussian_scale: torch.Tensor | None = None,
+    run_dims: int | None = None,
 ) -> torch.Tensor:
     """Per-action variance of the SDE action: ``σ_j² = Σ_i (x_i σ̂_ji)² [+ σ_gauss_j²]`` (eqs. 20, 22).
 
     Args:
-        sigma_hat: ``σ̂``, ``[*, A, S]`` (or broadcastable to it).
-        features: ``x``, ``[*, S]``.
-        gaussian_scale: standard deviation of eq. (22)'s i.i.d. Gaussian part, ``[*, A]``, or
-            ``None`` for pure SDE.
+        sigma_hat: ``σ̂``, ``[*, A, S]`` (or broadcastable to it); with ``run_dims``, one matrix
+            per run, ``[*runs, A, S]``, shared by all of that run's rows.
+        features: ``x``, ``[*, S]`` (runs first with ``run_dims``).
+        gaussian_scale: standard deviation of eq. (22)'s i.i.d. Gaussian part, broadcastable to
+            ``[*, A]``, or ``None`` for pure SDE.
+        run_dims: ``None`` for broadcasting; else the number of leading run dimensions of
+            ``sigma_hat`` (0 or 1), computed as one matrix product per run
+            (:func:`~sde_torchrl._shapes.stacked_matvec`) over whole episodes.
 
     Returns:
-        ``σ²`` of shape ``[*, A]``, floored at :data:`~sde_torchrl.exploration.MIN_VARIANCE`
-        (at ``x = 0`` SDE adds no noise and the likelihood would be infinite).
+        ``σ²`` of shape ``[*, A]``, floored at :data:`MIN_VARIANCE` (at ``x = 0`` SDE adds no
+        noise and the likelihood would be infinite).
 
     Examples:
         >>> sde_variance(torch.full((2, 3), 0.5), torch.tensor([1.0, 2.0, 0.0]))
         tensor([1.2500, 1.2500])
+        >>> sde_variance(torch.full((4, 2, 3), 0.5), torch.ones(4, 10, 3), run_dims=1).shape
+        torch.Size([4, 10, 2])
     """
-    variance = (sigma_hat.square() * features.square().unsqueeze(-2)).sum(-1)
+    if run_dims is None:
+        variance = (sigma_hat.square() * features.square().unsqueeze(-2)).sum(-1)
+    else:
+        variance = stacked_matvec(sigma_hat.square(), features.square(), run_dims)
     if gaussian_scale is not None:
         variance = variance + gaussian_scale.square()
     return variance.clamp_min(MIN_VARIANCE)
@@ -166,10 +257,11 @@ class SDENormal(Distribution):
                 sample_shape + self.batch_shape + (self.action_dim, self.feature_dim),
                 dtype=self.loc.dtype, device=self.loc.device,
             )
-        sample = self.loc + (self.sigma_hat * noise * self.features.unsqueeze(-2)).sum(-1)
+        gaussian_noise = None
         if self.gaussian_scale is not None:
-            shape = self._extended_shape(sample_shape)
-            sample = sample + self.gaussian_scale * torch.randn(shape, dtype=sample.dtype, device=sample.device)
+            gaussian_noise = torch.randn(self._extended_shape(sample_shape), dtype=self.loc.dtype,
+                                         device=self.loc.device)
+        sample = sde_sample(self.loc, self.sigma_hat, noise, self.features, self.gaussian_scale, gaussian_noise)
         return sample.expand(self._extended_shape(sample_shape))
 
     def sample(self, sample_shape: torch.Size | tuple[int, ...] = ()) -> torch.Tensor:

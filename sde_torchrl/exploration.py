@@ -1,35 +1,39 @@
-"""State-dependent exploration (SDE), paper section 3.
+"""State-dependent exploration (SDE), paper section 3: its parameters and the explorer.
 
 The explorer adds ``ε̂(x; Θ̂) = Θ̂ x`` to the controller's mean (17)-(19), with
 ``Θ̂_ji = σ̂_ji ξ_ji`` and ``ξ ~ N(0, 1)`` kept in the tensordict under a public key, redrawn at
 episode boundaries (SDE), at every step (REX, the paper's random-exploration baseline) or every
 ``n`` steps. ``σ̂ = expln(p)`` (23) keeps the standard deviations positive; i.i.d. Gaussian noise
 with its own ``σ = expln(q)`` can be added on top (22).
+
+:class:`SDESigma` holds those parameters and the per-step Gaussian they define; it is shared by
+:class:`StateDependentExplorer` (which samples by itself, for the episodic estimators) and
+:class:`~sde_torchrl.sde_actor.SDEParams` (which writes them for
+:class:`~sde_torchrl.distribution.SDENormal`, for TorchRL's losses). The maths of both lives in
+:mod:`sde_torchrl.distribution`.
 """
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, TensorDictPrimer
 from torchrl.envs.utils import ExplorationType, exploration_type
 
-from sde_torchrl._shapes import align, stacked_matvec
+from sde_torchrl._shapes import align
 from sde_torchrl.checks import ArgumentError, one_of, positive_int
+from sde_torchrl.distribution import gaussian_log_prob, noise_matrix, sde_sample, sde_variance
 from sde_torchrl.rng import RunStreams, draw_normal
 
 SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
-#: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
-MIN_VARIANCE = 1e-12
-_HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 def expln(p: torch.Tensor) -> torch.Tensor:
@@ -92,12 +96,151 @@ def sigma_param_shape(sharing: str, action_dim: int, feature_dim: int) -> tuple[
     return {"element": (action_dim, feature_dim), "action": (action_dim, 1)}.get(sharing, (1, 1))
 
 
-def gaussian_log_prob(sample: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-    """``Σ_j log N(sample_j; loc_j, scale_j²)`` over the last dimension (eq. 13)."""
-    return (-0.5 * ((sample - loc) / scale).square() - scale.log() - _HALF_LOG_2PI).sum(-1)
+class SDESigma(TensorDictModuleBase):
+    """The parameters of state-dependent exploration and the per-step Gaussian they define.
+
+    Holds ``p`` with ``σ̂ = expln(p)`` (eqs. 23, 24), one per matrix element, per action or one
+    for all (``sharing``), and, for eq. (22)'s i.i.d. Gaussian part, ``q`` with
+    ``σ_gauss = expln(q)`` per action: parameters named ``sigma_param`` and ``gaussian_param``
+    (buffers if not learned), stacked over ``runs`` along a leading dimension. Given the
+    features ``x``, the action is Gaussian around the controller's mean with
+    ``σ_j² = Σ_i (x_i σ̂_ji)² [+ σ_gauss_j²]`` (eq. 20): :meth:`scale` and :meth:`log_prob`.
+
+    The base of :class:`StateDependentExplorer` and :class:`~sde_torchrl.sde_actor.SDEParams`,
+    which add a ``forward`` (and their keys): both explore with the same parameters, under the
+    same names, through the same maths (:mod:`sde_torchrl.distribution`).
+
+    Args:
+        action_dim: ``A``, size of the action.
+        feature_dim: ``S``, size of the exploration features ``x``.
+        schedule: when ``ξ`` is redrawn: ``"episode"`` (SDE), ``"step"`` (REX) or
+            ``"every_n"`` (gSDE's sampling frequency).
+        every_n: redraw period for ``schedule="every_n"``.
+        sharing: one ``σ̂`` per matrix element (``"element"``, ``A×S``), per action
+            (``"action"``, ``A``) or one for all (``"single"``) (paper section 2.3, footnote 1).
+        init_param: initial ``p``; the paper starts at -2 (``σ̂ ≈ 0.135``).
+        gaussian_init_param: initial ``q`` of eq. (22)'s i.i.d. Gaussian part, ``None`` for none.
+        learn_sigma: ``p`` (and ``q``) as learnable parameters, or as fixed buffers.
+        runs: independent runs stacked along a leading parameter dimension, or ``None`` for a
+            single, unstacked learner.
+        loc_key: the controller's mean.
+        feature_key: the features ``x`` that ``Θ̂`` sees.
+
+    Attributes:
+        streams: per-run :class:`~sde_torchrl.rng.RunStreams` for the noise draws when runs are
+            stacked (the data's leading batch dimension); ``None``: torch's global generator.
+
+    Raises:
+        ArgumentError: for an option that is not allowed, named.
+
+    Examples:
+        >>> sigma = SDESigma(action_dim=2, feature_dim=3, sharing="action", runs=4)
+        >>> sigma.sigma_param.shape, sigma.sde_sigma.shape
+        (torch.Size([4, 2, 1]), torch.Size([4, 2, 3]))
+        >>> sigma.scale(torch.ones(4, 10, 3)).shape  # eq. 20 per run, step and action
+        torch.Size([4, 10, 2])
+    """
+
+    def __init__(
+        self,
+        action_dim: int,
+        feature_dim: int,
+        *,
+        schedule: str = "episode",
+        every_n: int | None = None,
+        sharing: str = "element",
+        init_param: float = -2.0,
+        gaussian_init_param: float | None = None,
+        learn_sigma: bool = True,
+        runs: int | None = None,
+        loc_key: NestedKey = "loc",
+        feature_key: NestedKey = "observation",
+    ) -> None:
+        super().__init__()
+        self.action_dim = positive_int("action_dim", action_dim)
+        self.feature_dim = positive_int("feature_dim", feature_dim)
+        self.schedule = one_of("schedule", schedule, SCHEDULES)
+        if schedule == "every_n":
+            positive_int("every_n", every_n)
+        elif every_n is not None:
+            raise ArgumentError("every_n", every_n, "null unless schedule=every_n")
+        self.every_n, self.sharing = every_n, one_of("sharing", sharing, SHARINGS)
+        self.runs = None if runs is None else positive_int("runs", runs)
+        self.run_dims = 0 if runs is None else 1
+        self.streams: RunStreams | None = None
+        run_shape = () if runs is None else (runs,)
+        self._register("sigma_param", torch.full(
+            run_shape + sigma_param_shape(sharing, action_dim, feature_dim), float(init_param)
+        ), learn_sigma)
+        self.has_gaussian = gaussian_init_param is not None
+        if self.has_gaussian:
+            self._register("gaussian_param", torch.full(run_shape + (action_dim,), float(gaussian_init_param)),
+                           learn_sigma)
+        self.loc_key, self.feature_key = loc_key, feature_key
+        self.in_keys, self.out_keys = [loc_key, feature_key], []
+
+    def _register(self, name: str, value: torch.Tensor, learnable: bool) -> None:
+        if learnable:
+            self.register_parameter(name, nn.Parameter(value))
+        else:
+            self.register_buffer(name, value)
+
+    @property
+    def sde_sigma(self) -> torch.Tensor:
+        """``σ̂ = expln(p)`` broadcast to the full ``[*runs, A, S]`` matrix (eq. 23)."""
+        sigma = expln(self.sigma_param)
+        return sigma.expand(*sigma.shape[:-2], self.action_dim, self.feature_dim)
+
+    def gaussian_scale(self, batch_dims: int) -> torch.Tensor | None:
+        """``σ_gauss = expln(q)`` (eqs. 22, 23) viewed to broadcast against ``[*batch, A]`` data
+        with ``batch_dims`` batch dimensions (runs first), or ``None`` for pure SDE."""
+        return align(expln(self.gaussian_param), self.run_dims, batch_dims) if self.has_gaussian else None
+
+    def scale(self, features: torch.Tensor) -> torch.Tensor:
+        """Per-action standard deviation of the action given the features (eqs. 20, 22).
+
+        Args:
+            features: ``x`` of shape ``[*batch, S]`` (runs first when stacked).
+
+        Returns:
+            ``σ`` of shape ``[*batch, A]`` with ``σ_j² = Σ_i (x_i σ̂_ji)² + σ_gauss_j²``.
+        """
+        gaussian = self.gaussian_scale(features.dim() - 1)
+        return sde_variance(self.sde_sigma, features, gaussian, run_dims=self.run_dims).sqrt()
+
+    def log_prob(self, loc: torch.Tensor, features: torch.Tensor, sample: torch.Tensor) -> torch.Tensor:
+        """Per-step log-likelihood ``Σ_j log N(sample_j; loc_j, σ_j²)`` (eqs. 13, 20).
+
+        Autograd of this through ``loc`` and ``σ̂`` gives the paper's scores (14), (16) and (21)
+        with the ``expln'`` factor (24). With squashing, scoring the pre-squash sample is exact:
+        the tanh Jacobian does not depend on the parameters. The same number as
+        :meth:`SDENormal.log_prob <sde_torchrl.distribution.SDENormal.log_prob>` of ``sample``.
+
+        Args:
+            loc: controller mean, ``[*batch, A]``.
+            features: exploration features, ``[*batch, S]``.
+            sample: the pre-squash action that was taken, ``[*batch, A]``.
+
+        Returns:
+            Log-likelihood of shape ``[*batch]``.
+        """
+        return gaussian_log_prob(sample, loc, self.scale(features))
+
+    def _check_shapes(self, loc: torch.Tensor, features: torch.Tensor) -> None:
+        if loc.shape[-1] != self.action_dim:
+            raise ValueError(
+                f"{self.loc_key!r} has shape {tuple(loc.shape)}: expected [..., {self.action_dim}] "
+                f"(action_dim={self.action_dim})"
+            )
+        if features.shape[-1] != self.feature_dim or features.shape[:-1] != loc.shape[:-1]:
+            raise ValueError(
+                f"{self.feature_key!r} has shape {tuple(features.shape)}: expected "
+                f"{tuple(loc.shape[:-1]) + (self.feature_dim,)} ({self.loc_key!r} batch "
+                f"{tuple(loc.shape[:-1])}, feature_dim={self.feature_dim})"
+            )
 
 
-class StateDependentExplorer(TensorDictModuleBase):
+class StateDependentExplorer(SDESigma):
     """Adds state-dependent exploration ``Θ̂ x`` to a controller's mean (eqs. 17-24).
 
     Reads the controller's mean (``loc``), the exploration features ``x`` (by default the
@@ -120,6 +263,13 @@ class StateDependentExplorer(TensorDictModuleBase):
 
     Under ``ExplorationType.DETERMINISTIC`` (or ``MODE``/``MEAN``) no noise is added: the action
     is ``squash(loc)``. The noise matrix still travels with the episode, untouched.
+
+    Its parameters, :meth:`scale` and :meth:`log_prob` are :class:`SDESigma`'s, shared with
+    :class:`~sde_torchrl.sde_actor.SDEParams`, and its sample is
+    :func:`~sde_torchrl.distribution.sde_sample`: given the same ``ξ``, the action and its
+    log-prob are those of :class:`~sde_torchrl.distribution.SDENormal`. It samples by itself
+    (what the episodic estimators and the fast rollout paths need); TorchRL's PPO, A2C and SAC
+    losses need the distribution form, :func:`~sde_torchrl.sde_actor.make_sde_actor`.
 
     Args:
         action_dim: ``A``, size of the action.
@@ -165,85 +315,19 @@ class StateDependentExplorer(TensorDictModuleBase):
         runs: int | None = None,
         feature_key: str = "observation",
     ) -> None:
-        super().__init__()
-        positive_int("action_dim", action_dim)
-        positive_int("feature_dim", feature_dim)
-        one_of("schedule", schedule, SCHEDULES)
-        if schedule == "every_n":
-            positive_int("every_n", every_n)
-        elif every_n is not None:
-            raise ArgumentError("every_n", every_n, "null unless schedule=every_n")
-        one_of("sharing", sharing, SHARINGS)
-        if runs is not None:
-            positive_int("runs", runs)
-        self.action_dim, self.feature_dim = action_dim, feature_dim
-        self.schedule, self.every_n, self.sharing = schedule, every_n, sharing
-        self.squash, self.runs = squash, runs
-        self.run_dims = 0 if runs is None else 1
-        self.streams: RunStreams | None = None
+        super().__init__(
+            action_dim, feature_dim, schedule=schedule, every_n=every_n, sharing=sharing, init_param=init_param,
+            gaussian_init_param=gaussian_init_param, learn_sigma=learn_sigma, runs=runs, loc_key=self.loc_key,
+            feature_key=feature_key,
+        )
+        self.squash = squash
         self._warned_no_init = False
-
-        run_shape = () if runs is None else (runs,)
-        self._register("sigma_param", torch.full(
-            run_shape + sigma_param_shape(sharing, action_dim, feature_dim), float(init_param)
-        ), learn_sigma)
-        self.has_gaussian = gaussian_init_param is not None
-        if self.has_gaussian:
-            self._register("gaussian_param", torch.full(
-                run_shape + (action_dim,), float(gaussian_init_param)
-            ), learn_sigma)
-
-        self.feature_key = feature_key
         self.in_keys = [self.loc_key, self.feature_key, self.noise_key, self.is_init_key]
         self.out_keys = [self.action_key, self.sample_key, self.scale_key, self.log_prob_key,
                          self.noise_key]
         if schedule == "every_n":
             self.in_keys.append(self.age_key)
             self.out_keys.append(self.age_key)
-
-    def _register(self, name: str, value: torch.Tensor, learnable: bool) -> None:
-        if learnable:
-            self.register_parameter(name, nn.Parameter(value))
-        else:
-            self.register_buffer(name, value)
-
-    @property
-    def sde_sigma(self) -> torch.Tensor:
-        """``σ̂ = expln(p)`` broadcast to the full ``[*runs, A, S]`` matrix (eq. 23)."""
-        sigma = expln(self.sigma_param)
-        return sigma.expand(*sigma.shape[:-2], self.action_dim, self.feature_dim)
-
-    def scale(self, features: torch.Tensor) -> torch.Tensor:
-        """Per-action standard deviation of the action given the features (eqs. 20, 22).
-
-        Args:
-            features: ``x`` of shape ``[*batch, S]`` (runs first when stacked).
-
-        Returns:
-            ``σ`` of shape ``[*batch, A]`` with ``σ_j² = Σ_i (x_i σ̂_ji)² + σ_gauss_j²``.
-        """
-        batch_dims = features.dim() - 1
-        variance = stacked_matvec(self.sde_sigma.square(), features.square(), self.run_dims)
-        if self.has_gaussian:
-            variance = variance + align(expln(self.gaussian_param), self.run_dims, batch_dims).square()
-        return variance.clamp_min(MIN_VARIANCE).sqrt()
-
-    def log_prob(self, loc: torch.Tensor, features: torch.Tensor, sample: torch.Tensor) -> torch.Tensor:
-        """Per-step log-likelihood ``Σ_j log N(sample_j; loc_j, σ_j²)`` (eqs. 13, 20).
-
-        Autograd of this through ``loc`` and ``σ̂`` gives the paper's scores (14), (16) and (21)
-        with the ``expln'`` factor (24). With squashing, scoring the pre-squash sample is exact:
-        the tanh Jacobian does not depend on the parameters.
-
-        Args:
-            loc: controller mean, ``[*batch, A]``.
-            features: exploration features, ``[*batch, S]``.
-            sample: the pre-squash action that was taken, ``[*batch, A]``.
-
-        Returns:
-            Log-likelihood of shape ``[*batch]``.
-        """
-        return gaussian_log_prob(sample, loc, self.scale(features))
 
     def make_tensordict_primer(self) -> Compose:
         """Primer that gives every (partially) reset env a fresh noise matrix.
@@ -312,16 +396,13 @@ class StateDependentExplorer(TensorDictModuleBase):
 
     def perturb(self, loc: torch.Tensor, features: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """``u = f(x) + Θ̂ x (+ ε)`` with ``Θ̂ = σ̂ ⊙ ξ`` (eqs. 17-19, 22), before squashing."""
-        batch_dims = loc.dim() - 1
-        sample = loc + (self.noise_matrix(noise) @ features.unsqueeze(-1)).squeeze(-1)
-        if self.has_gaussian:
-            gauss = align(expln(self.gaussian_param), self.run_dims, batch_dims)
-            sample = sample + gauss * draw_normal(loc.shape, self.streams)
-        return sample
+        sigma_hat = align(self.sde_sigma, self.run_dims, noise.dim() - 2)
+        gaussian_noise = draw_normal(loc.shape, self.streams) if self.has_gaussian else None
+        return sde_sample(loc, sigma_hat, noise, features, self.gaussian_scale(loc.dim() - 1), gaussian_noise)
 
     def noise_matrix(self, noise: torch.Tensor) -> torch.Tensor:
         """``Θ̂ = σ̂ ⊙ ξ`` (eq. 18) for noise ``ξ`` shaped ``[*batch, A, S]`` (runs first)."""
-        return align(self.sde_sigma, self.run_dims, noise.dim() - 2) * noise
+        return noise_matrix(align(self.sde_sigma, self.run_dims, noise.dim() - 2), noise)
 
     def _next_noise(
         self, previous: torch.Tensor | None, is_init: torch.Tensor | None,
@@ -339,22 +420,3 @@ class StateDependentExplorer(TensorDictModuleBase):
             redraw = age % self.every_n == 0
             age = age + 1
         return torch.where(redraw.unsqueeze(-1), fresh, previous), age
-
-    def _check_shapes(self, loc: torch.Tensor, features: torch.Tensor) -> None:
-        if loc.shape[-1] != self.action_dim:
-            raise ValueError(
-                f"{self.loc_key!r} has last dimension {loc.shape[-1]}, expected action_dim="
-                f"{self.action_dim}"
-            )
-        if features.shape[-1] != self.feature_dim:
-            raise ValueError(
-                f"{self.feature_key!r} has last dimension {features.shape[-1]}, expected "
-                f"feature_dim={self.feature_dim}"
-            )
-        if features.shape[:-1] != loc.shape[:-1]:
-            raise ValueError(
-                f"batch shapes differ: {self.loc_key!r} {tuple(loc.shape[:-1])} vs "
-                f"{self.feature_key!r} {tuple(features.shape[:-1])}"
-            )
-
-

@@ -63,7 +63,8 @@ from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictP
 from sde_torchrl._shapes import align
 from sde_torchrl.actors import BatchedLinear
 from sde_torchrl.checks import positive_int
-from sde_torchrl.exploration import deterministic_exploration, gaussian_log_prob
+from sde_torchrl.distribution import gaussian_log_prob
+from sde_torchrl.exploration import deterministic_exploration
 from sde_torchrl.rng import RunStreams, draw_normal
 
 #: Keys under which a :class:`TensorStepEnv`'s steps are written, TorchRL's defaults.

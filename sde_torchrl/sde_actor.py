@@ -19,16 +19,15 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import InteractionType, TensorDictModuleBase, TensorDictSequential
 from tensordict.utils import NestedKey, expand_as_right
-from torch import nn
 from torchrl.data import Bounded, Composite, TensorSpec, Unbounded
 from torchrl.envs import TensorDictPrimer
 from torchrl.envs.transforms.utils import _get_reset
 from torchrl.modules import ProbabilisticActor
 
 from sde_torchrl._shapes import align
-from sde_torchrl.checks import ArgumentError, one_of, positive_int
+from sde_torchrl.checks import one_of, positive_int
 from sde_torchrl.distribution import SDENormal, TanhSDENormal
-from sde_torchrl.exploration import SCHEDULES, SHARINGS, deterministic_exploration, expln, sigma_param_shape
+from sde_torchrl.exploration import SCHEDULES, SDESigma, deterministic_exploration
 from sde_torchrl.rng import RunStreams, draw_normal
 
 _ADD_PRIMER = (
@@ -114,7 +113,7 @@ class SDENoisePrimer(TensorDictPrimer):
         return next_tensordict
 
 
-class SDEParams(TensorDictModuleBase):
+class SDEParams(SDESigma):
     """Writes the parameters of :class:`~sde_torchrl.distribution.SDENormal` next to the actor's ``loc``.
 
     Reads ``loc`` (the controller's mean, eq. 17), the exploration features ``x`` and checks the
@@ -122,8 +121,11 @@ class SDEParams(TensorDictModuleBase):
     (``sde_sigma_hat``, ``[*, A, S]``) and, with eq. (22)'s Gaussian part, its per-action scale
     ``σ_gauss = expln(q)`` (``sde_gaussian_scale``). It draws nothing: the noise is drawn by the
     env transform from :meth:`make_tensordict_primer`, so a loss that re-runs the policy on
-    stored data rebuilds exactly the distribution the action was drawn from. The parameter
-    names (``sigma_param``, ``gaussian_param``) and sharing modes are those of
+    stored data rebuilds exactly the distribution the action was drawn from. The parameters
+    (``sigma_param``, ``gaussian_param``), sharing modes, run stacking and the per-step
+    likelihood (:meth:`~sde_torchrl.exploration.SDESigma.log_prob`, the number
+    :class:`~sde_torchrl.distribution.SDENormal` gives) are
+    :class:`~sde_torchrl.exploration.SDESigma`'s, shared with
     :class:`~sde_torchrl.exploration.StateDependentExplorer`.
 
     Args:
@@ -181,42 +183,15 @@ class SDEParams(TensorDictModuleBase):
         gaussian_scale_key: NestedKey = "sde_gaussian_scale",
         age_key: NestedKey = "sde_age",
     ) -> None:
-        super().__init__()
-        self.action_dim = positive_int("action_dim", action_dim)
-        self.feature_dim = positive_int("feature_dim", feature_dim)
-        self.schedule = one_of("schedule", schedule, SCHEDULES)
-        if schedule == "every_n":
-            positive_int("every_n", every_n)
-        elif every_n is not None:
-            raise ArgumentError("every_n", every_n, "null unless schedule=every_n")
-        self.every_n, self.sharing = every_n, one_of("sharing", sharing, SHARINGS)
-        self.runs = None if runs is None else positive_int("runs", runs)
-        self.run_dims = 0 if runs is None else 1
-        self.streams: RunStreams | None = None
-        run_shape = () if runs is None else (runs,)
-        self._register("sigma_param", torch.full(
-            run_shape + sigma_param_shape(sharing, action_dim, feature_dim), float(init_param)
-        ), learn_sigma)
-        self.has_gaussian = gaussian_init_param is not None
-        if self.has_gaussian:
-            self._register("gaussian_param", torch.full(run_shape + (action_dim,), float(gaussian_init_param)),
-                           learn_sigma)
-        self.loc_key, self.feature_key, self.noise_key = loc_key, feature_key, noise_key
+        super().__init__(
+            action_dim, feature_dim, schedule=schedule, every_n=every_n, sharing=sharing, init_param=init_param,
+            gaussian_init_param=gaussian_init_param, learn_sigma=learn_sigma, runs=runs, loc_key=loc_key,
+            feature_key=feature_key,
+        )
+        self.noise_key = noise_key
         self.sigma_key, self.gaussian_scale_key, self.age_key = sigma_key, gaussian_scale_key, age_key
         self.in_keys = [loc_key, feature_key, noise_key]
         self.out_keys = [sigma_key] + ([gaussian_scale_key] if self.has_gaussian else [])
-
-    def _register(self, name: str, value: torch.Tensor, learnable: bool) -> None:
-        if learnable:
-            self.register_parameter(name, nn.Parameter(value))
-        else:
-            self.register_buffer(name, value)
-
-    @property
-    def sde_sigma(self) -> torch.Tensor:
-        """``σ̂ = expln(p)`` broadcast to the full ``[*runs, A, S]`` matrix (eq. 23)."""
-        sigma = expln(self.sigma_param)
-        return sigma.expand(*sigma.shape[:-2], self.action_dim, self.feature_dim)
 
     @property
     def dist_keys(self) -> dict[str, NestedKey]:
@@ -249,7 +224,7 @@ class SDEParams(TensorDictModuleBase):
         sigma = align(self.sde_sigma, self.run_dims, batch_dims).to(loc.dtype)
         tensordict.set(self.sigma_key, sigma.expand(*batch, self.action_dim, self.feature_dim))
         if self.has_gaussian:
-            scale = align(expln(self.gaussian_param), self.run_dims, batch_dims).to(loc.dtype)
+            scale = self.gaussian_scale(batch_dims).to(loc.dtype)
             tensordict.set(self.gaussian_scale_key, scale.expand(*batch, self.action_dim))
         return tensordict
 
@@ -260,19 +235,6 @@ class SDEParams(TensorDictModuleBase):
             present = sorted(str(k) for k in tensordict.keys(True, True))
             raise KeyError(f"SDEParams reads {key!r}, which is missing (present: {present}): {fix}")
         return value
-
-    def _check_shapes(self, loc: torch.Tensor, features: torch.Tensor) -> None:
-        if loc.shape[-1] != self.action_dim:
-            raise ValueError(
-                f"{self.loc_key!r} has shape {tuple(loc.shape)}: expected [..., {self.action_dim}] "
-                f"(action_dim={self.action_dim})"
-            )
-        if features.shape[-1] != self.feature_dim or features.shape[:-1] != loc.shape[:-1]:
-            raise ValueError(
-                f"{self.feature_key!r} has shape {tuple(features.shape)}: expected "
-                f"{tuple(loc.shape[:-1]) + (self.feature_dim,)} ({self.loc_key!r} batch "
-                f"{tuple(loc.shape[:-1])}, feature_dim={self.feature_dim})"
-            )
 
 
 def action_bounds(spec: TensorSpec, action_key: NestedKey = "action") -> tuple[torch.Tensor, torch.Tensor]:
@@ -339,6 +301,7 @@ def make_sde_actor(
 
     Examples:
         >>> from tensordict.nn import TensorDictModule
+        >>> from torch import nn
         >>> from torchrl.envs import GymEnv, TransformedEnv
         >>> env = GymEnv("Pendulum-v1")
         >>> sde = SDEParams(action_dim=1, feature_dim=3)

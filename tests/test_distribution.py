@@ -28,7 +28,7 @@ from torchrl.objectives.value import GAE
 
 import sde_torchrl.distribution
 import sde_torchrl.sde_actor
-from sde_torchrl.distribution import SDENormal, TanhSDENormal, sde_variance
+from sde_torchrl.distribution import SDENormal, TanhSDENormal, gaussian_log_prob, noise_matrix, sde_sample, sde_variance
 from sde_torchrl.exploration import expln
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
@@ -224,6 +224,38 @@ def test_noise_schedule_across_partial_resets(schedule, every_n):
         expected = {"episode": starts, "step": torch.ones_like(starts),
                     "every_n": starts | (age[1:] % 2 == 0)}[schedule]
         assert torch.equal(changed, expected)
+
+
+@pytest.mark.parametrize("gaussian", [None, -1.0])
+def test_sde_params_log_prob_is_the_distributions(gaussian):
+    """SDEParams.log_prob (SDESigma's, what the episodic estimators score) gives the log-prob
+    the policy stored and its distribution recomputes: one likelihood for both paths."""
+    torch.manual_seed(2)
+    sde = SDEParams(1, 3, gaussian_init_param=gaussian)
+    policy = make_sde_actor(_linear_actor(), sde)
+    td = _pendulum(sde).rollout(10, policy)
+    torch.testing.assert_close(sde.log_prob(td["loc"], td["observation"], td["action"]), td["action_log_prob"])
+    torch.testing.assert_close(sde.scale(td["observation"]), policy.get_dist(td.clone()).stddev)
+
+
+@pytest.mark.parametrize("gaussian", [False, True])
+def test_sde_sample_is_loc_plus_theta_hat_x(gaussian):
+    loc, sigma_hat, x, noise = _params()
+    expected = loc + torch.einsum("bas,bs->ba", sigma_hat * noise, x)
+    scale = eps = None
+    if gaussian:
+        scale, eps = torch.full((A,), 0.3, dtype=torch.float64), torch.randn(4, A, dtype=torch.float64)
+        expected = expected + scale * eps
+    torch.testing.assert_close(sde_sample(loc, sigma_hat, noise, x, scale, eps), expected)  # eqs. 17-19, 22
+    torch.testing.assert_close(noise_matrix(sigma_hat, noise), sigma_hat * noise)  # eq. 18
+
+
+def test_run_stacked_variance_equals_the_broadcast_one():
+    sigma_hat, x = torch.rand(2, A, S, dtype=torch.float64), torch.randn(2, 7, S, dtype=torch.float64)
+    gauss = torch.rand(2, 1, A, dtype=torch.float64)
+    stacked = sde_variance(sigma_hat, x, gauss, run_dims=1)  # one matrix product per run
+    torch.testing.assert_close(stacked, sde_variance(sigma_hat[:, None], x, gauss))
+    assert sde_variance(torch.zeros(A, S), torch.zeros(S)).min() > 0  # floored: a finite likelihood at x = 0
 
 
 def test_stored_noise_reproduces_the_taken_action_and_log_prob():
@@ -500,7 +532,8 @@ def test_every_public_name_has_examples():
     for module in (sde_torchrl.distribution, sde_torchrl.sde_actor):
         for name in module.__all__ if hasattr(module, "__all__") else ():
             assert "Examples:" in getattr(module, name).__doc__, name
-    for obj in (SDENormal, TanhSDENormal, sde_variance, SDEParams, SDENoisePrimer, action_bounds, make_sde_actor):
+    for obj in (SDENormal, TanhSDENormal, gaussian_log_prob, noise_matrix, sde_sample, sde_variance, SDEParams,
+                SDENoisePrimer, action_bounds, make_sde_actor):
         assert "Examples:" in obj.__doc__, obj.__name__
 
 

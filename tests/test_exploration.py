@@ -1,9 +1,11 @@
 """The SDE explorer: expln (23, 24), the action distribution (20, 22), the likelihood's
 gradients against the paper's closed forms (14)-(16), (21) and finite differences, and the
-noise schedule (episode / step / every_n) across full and partial resets."""
+noise schedule (episode / step / every_n) across full and partial resets; and that the explorer is
+the same SDE as the distribution form (shared ``SDESigma`` parameters, ``SDENormal``'s numbers)."""
 
 from __future__ import annotations
 
+import doctest
 import math
 import warnings
 
@@ -13,7 +15,17 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from sde_torchrl import LinearActor, StateDependentExplorer, expln, expln_inverse, make_minimize_env
+import sde_torchrl.exploration
+from sde_torchrl import (
+    LinearActor,
+    SDENormal,
+    SDEParams,
+    StateDependentExplorer,
+    expln,
+    expln_inverse,
+    make_minimize_env,
+)
+from sde_torchrl.exploration import SDESigma
 
 SHARINGS = ("element", "action", "single")
 
@@ -360,3 +372,64 @@ def test_carried_noise_without_is_init_warns_once():
         explorer(out.clone())  # once per explorer
         out["is_init"] = torch.zeros(3, 1, dtype=torch.bool)
         StateDependentExplorer(action_dim=1, feature_dim=2)(out.clone())  # with is_init: fine
+
+
+# ------------------------------------------------------------- one implementation with SDENormal
+
+def _explorer_and_step(sharing, runs, gaussian=None):
+    torch.manual_seed(3)
+    explorer = _explorer(sharing, runs=runs, gaussian_init_param=gaussian)
+    if gaussian is not None:
+        with torch.no_grad():
+            explorer.gaussian_param.uniform_(-1.0, 0.5)
+    batch = (5,) if runs is None else (runs, 5)
+    td = TensorDict({"loc": torch.randn(*batch, 2, dtype=torch.float64),
+                     "observation": torch.randn(*batch, 3, dtype=torch.float64),
+                     "sde_noise": torch.randn(*batch, 2, 3, dtype=torch.float64),
+                     "is_init": torch.zeros(*batch, 1, dtype=torch.bool)}, batch)
+    return explorer, td
+
+
+def _sde_normal(explorer, td):
+    """The SDENormal that SDEParams, loaded with the explorer's state dict, parameterises."""
+    sde = SDEParams(2, 3, sharing=explorer.sharing, runs=explorer.runs,
+                    gaussian_init_param=0.0 if explorer.has_gaussian else None).double()
+    sde.load_state_dict(explorer.state_dict())  # the same parameter names
+    params = sde(td.clone())
+    return SDENormal(params["loc"], params["sde_sigma_hat"], params["observation"], params["sde_noise"],
+                     params.get("sde_gaussian_scale", None))
+
+
+@pytest.mark.parametrize("runs", [None, 2])
+@pytest.mark.parametrize("sharing", SHARINGS)
+def test_explorer_acts_and_scores_as_sde_normal_with_the_same_parameters(sharing, runs):
+    """Given the carried ξ, SDENormal takes the explorer's very action and scores it alike."""
+    explorer, td = _explorer_and_step(sharing, runs)
+    out = explorer(td.clone())
+    dist = _sde_normal(explorer, td)
+    assert torch.equal(out["sde_noise"], td["sde_noise"])  # held: no reset
+    assert torch.equal(dist.rsample(), out["action_sample"])  # eqs. 17-19, one formula
+    torch.testing.assert_close(dist.stddev, out["scale"])  # eq. 20
+    torch.testing.assert_close(dist.log_prob(out["action_sample"]), out["action_log_prob"])  # eq. 13
+
+
+@pytest.mark.parametrize("runs", [None, 2])
+def test_gaussian_part_scores_as_sde_normal(runs):
+    explorer, td = _explorer_and_step("action", runs, gaussian=-0.7)
+    out = explorer(td.clone())
+    dist = _sde_normal(explorer, td)
+    torch.testing.assert_close(dist.stddev, out["scale"])  # eqs. 20, 22
+    torch.testing.assert_close(dist.log_prob(out["action_sample"]), out["action_log_prob"])
+
+
+def test_explorer_and_sde_params_share_the_sigma_module():
+    explorer, sde = StateDependentExplorer(2, 3, runs=4), SDEParams(2, 3, runs=4)
+    assert isinstance(explorer, SDESigma) and isinstance(sde, SDESigma)
+    assert [name for name, _ in explorer.named_parameters()] == [name for name, _ in sde.named_parameters()]
+    x = torch.randn(4, 6, 3)
+    torch.testing.assert_close(explorer.scale(x), sde.scale(x))
+
+
+def test_exploration_doctests():
+    result = doctest.testmod(sde_torchrl.exploration, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
