@@ -46,7 +46,7 @@ class ParameterExplorer(TensorDictModuleBase):
     * ``action``: ``squash(f(x; θ))``; ``tanh`` if ``squash`` is set;
     * ``action_sample``: the same before squashing;
     * ``pgpe_noise``: the standard-normal ``ξ`` ``[*batch, K]``, carried from step to step and
-      redrawn where ``is_init`` is set (or where it is missing);
+      redrawn where ``is_init`` is set (drawn where the input carries none);
     * ``pgpe_parameters``: ``θ = μ + σ ⊙ ξ`` ``[*batch, K]``, what the estimator scores.
 
     The ``K`` entries of ``θ`` are the actor network's learnable parameters flattened in
@@ -163,7 +163,8 @@ class ParameterExplorer(TensorDictModuleBase):
 
     def next_noise(self, previous: torch.Tensor | None, is_init: torch.Tensor | None,
                    batch: torch.Size) -> torch.Tensor:
-        """``ξ`` for this step: the previous one, or a fresh draw where an episode starts.
+        """``ξ`` for this step: the previous one, or a fresh draw where an episode starts
+        (``is_init``; without it, only where no previous ``ξ`` is carried).
 
         Fresh draws are ``N(0, 1)`` per batch element, or with ``symmetric`` ``ξ`` for the even
         episodes and ``-ξ`` for the odd ones (the last batch dimension). They come from the
@@ -172,7 +173,7 @@ class ParameterExplorer(TensorDictModuleBase):
         Raises:
             ValueError: ``symmetric`` with an odd number of episodes.
         """
-        if previous is not None and is_init is not None and not bool(is_init.any()):
+        if previous is not None and (is_init is None or not bool(is_init.any())):
             return previous
         if self.symmetric:
             if not batch or batch[-1] % 2:
@@ -182,7 +183,7 @@ class ParameterExplorer(TensorDictModuleBase):
             fresh = torch.stack([half, -half], dim=-2).reshape(*batch, self.num_parameters)
         else:
             fresh = draw_normal((*batch, self.num_parameters), self.streams)
-        if previous is None or is_init is None:
+        if previous is None:
             return fresh
         return torch.where(is_init.reshape(*batch, 1), fresh, previous)
 

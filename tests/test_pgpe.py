@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 from _helpers import build, compose_config, crash_at, read_rows, run_cli
+from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 
 import sde_torchrl.pgpe
@@ -104,6 +105,19 @@ def test_explorer_acts_with_the_drawn_parameters_and_draws_once_per_episode(acto
                       zip(params.items(), explorer.parameter_shapes, strict=True)}
             out = torch.func.functional_call(controller.module, single, (episodes["observation"][:, e],))[r]
             torch.testing.assert_close(episodes["action"][r, e], out, rtol=1e-5, atol=1e-5)
+
+
+def test_noise_is_kept_until_an_episode_starts():
+    actor = LinearActor(2, 1)
+    explorer = ParameterExplorer(actor, symmetric=False)
+    td = actor(TensorDict({"observation": torch.randn(3, 2)}, [3]))
+    first = explorer(td.clone())["pgpe_noise"]
+    kept = explorer(actor(TensorDict({"observation": torch.randn(3, 2), "pgpe_noise": first}, [3])))
+    assert torch.equal(kept["pgpe_noise"], first)  # no is_init: the episode goes on
+    is_init = torch.tensor([[True], [False], [False]])
+    step = TensorDict({"observation": torch.randn(3, 2), "pgpe_noise": first, "is_init": is_init}, [3])
+    redrawn = explorer(actor(step))["pgpe_noise"]
+    assert not torch.equal(redrawn[0], first[0]) and torch.equal(redrawn[1:], first[1:])
 
 
 def test_plain_sampling_draws_independently_and_evaluation_draws_nothing():
