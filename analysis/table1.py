@@ -20,6 +20,24 @@ budget). Rerunning the search with GPOMDP among the methods would let GPOMDP's r
 and SDE's learner, and a search for GPOMDP alone is what the rule forbids. (Written down and
 committed before any Table 1 result of GPOMDP was seen.)
 
+Added method (issue 16): **PGPE** (``explorer=pgpe estimator=pgpe``, Sehnke et al. 2010), the SDE
+jobs of the two 1-D sweeps again with PGPE's explorer and estimator. Its settings follow the same
+rule, written down and committed before any Table 1 result of PGPE was seen (none was run):
+
+1. The learner is the one ``analysis/learner_search.py`` chose for all methods, unchanged: plain
+   gradients (``estimator.variance_weighted=false``: PGPE's likelihood-ratio gradient itself, not
+   the paper's ``α_i = α σ_i²`` step, which is the counterpart of the variance-weighted scores the
+   search did not choose), the per-run norm bound 100, N = 10 episodes per update, α = 0.002, the
+   summed return, the sweeps' budget (2,000 updates) and stop rule.
+2. PGPE's own options take their standard or SDE-matched values, fixed here: symmetric sampling
+   (the standard PGPE variant, section 2.3: 5 pairs μ ± ε per update), σ learned, σ₀ = e⁻² ≈ 0.135
+   per parameter (``explorer.init_param=-2``, SDE's σ̂₀: on the linear controller PGPE's first
+   episodes are then distributed exactly as SDE's, ``(θ + σ ξ) x``), the batch's mean return as
+   baseline (the estimator's only baseline).
+3. Nothing of PGPE is tuned, and the search is not rerun with PGPE among the methods (its runs
+   would change REX's and SDE's learner); if PGPE misses R_lim within the budget in some runs,
+   the table reports them as not converged.
+
 Usage:
     python analysis/table1.py --out results/table1              # run everything, then report
     python analysis/table1.py --out results/table1 --from DIR   # report on finished runs
@@ -40,11 +58,14 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
-#: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE.
-METHODS = ("rex", "sde", "sde_gpomdp")
-LABELS = {"rex": "REX", "sde": "SDE", "sde_gpomdp": "SDE + GPOMDP"}
-#: Added methods: the overrides appended to each SDE job of the 1-D sweeps.
-ADDED = {"sde_gpomdp": ["estimator=gpomdp"]}
+#: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE and PGPE.
+METHODS = ("rex", "sde", "sde_gpomdp", "pgpe")
+LABELS = {"rex": "REX", "sde": "SDE", "sde_gpomdp": "SDE + GPOMDP", "pgpe": "PGPE"}
+#: Added methods: the overrides that turn each SDE job of the 1-D sweeps into theirs (replacing
+#: the SDE job's choice for the same group).
+ADDED = {"sde_gpomdp": ["estimator=gpomdp"], "pgpe": ["explorer=pgpe", "estimator=pgpe"]}
+#: Comparisons with a ratio of mean episodes (``slow / fast``) and its interval: row key → (slow, fast).
+RATIOS = {"speedup": ("rex", "sde"), "gpomdp_ratio": ("sde", "sde_gpomdp"), "pgpe_ratio": ("pgpe", "sde")}
 #: The confidence level and bootstrap resamples of every interval.
 LEVEL, RESAMPLES = 0.95, 10_000
 SWEEP_NAMES = {"noise_sweep": "noise", "episode_length_sweep": "episode_length"}
@@ -101,7 +122,7 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
         for overrides in sweep_jobs(experiment):
             variants = [overrides]
             if experiment in SWEEP_NAMES and "explorer=sde" in overrides:
-                variants += [overrides + added for added in ADDED.values()]
+                variants += [_variant(overrides, added) for added in ADDED.values()]
             for variant in variants:
                 name = experiment + "__" + "_".join(o.replace("=", "-") for o in variant)
                 jobs.append((experiment, variant + extra, str(runs_dir / name)))
@@ -113,12 +134,20 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
     return runs_dir
 
 
+def _variant(overrides: list[str], added: list[str]) -> list[str]:
+    """``overrides`` with ``added`` appended, dropping the overrides of the groups it sets."""
+    groups = {o.split("=", 1)[0] for o in added}
+    return [o for o in overrides if o.split("=", 1)[0] not in groups] + added
+
+
 def _expected_cost(job: tuple[str, list[str], str]) -> float:
     experiment, overrides, _ = job
     if experiment == "minimize2d_mlp":
         return 1e9
     length = next((int(o.split("=")[1]) for o in overrides if o.startswith("env.episode_length=")), 15)
-    return length * (4 if "explorer=rex" in overrides else 2 if "estimator=gpomdp" in overrides else 1)
+    factor = 4 if "explorer=rex" in overrides else 5 if "explorer=pgpe" in overrides else \
+        2 if "estimator=gpomdp" in overrides else 1
+    return length * factor
 
 
 # -------------------------------------------------------------------------- reading runs
@@ -167,8 +196,9 @@ def _ratio_of_means(a, b):
 
 def table_rows(runs: list[dict]) -> list[dict]:
     """One row per (sweep, σ_noise, EL): mean episodes to ``R_lim`` per method (over the runs that
-    reached it) with 95 % bootstrap intervals over those runs, REX/SDE speed-up and SDE's
-    REINFORCE/GPOMDP ratio with intervals (a ratio whose interval excludes 1 is significant)."""
+    reached it) with 95 % bootstrap intervals over those runs, REX/SDE speed-up, SDE's
+    REINFORCE/GPOMDP ratio and PGPE/SDE ratio with intervals (:data:`RATIOS`; a ratio whose
+    interval excludes 1 is significant)."""
     by_setting: dict[tuple, dict[str, dict]] = {}
     for summary in runs:
         if summary["experiment"] in SWEEP_NAMES:
@@ -193,7 +223,7 @@ def table_rows(runs: list[dict]) -> list[dict]:
                 "min": min(reached, default=None), "max": max(reached, default=None),
                 "runs": len(episodes), "not_converged": len(episodes) - len(reached),
             }
-        for key, (slow, fast) in {"speedup": ("rex", "sde"), "gpomdp_ratio": ("sde", "sde_gpomdp")}.items():
+        for key, (slow, fast) in RATIOS.items():
             if row.get(f"{slow}_episodes") and row.get(f"{fast}_episodes"):
                 row[key] = row[f"{slow}_episodes"] / row[f"{fast}_episodes"]
                 row[f"{key}_ci"] = _interval((reached_by[slow], reached_by[fast]), _ratio_of_means)
@@ -358,9 +388,14 @@ def significance_lines(rows: list[dict]) -> list[str]:
     def paper_outside(key):
         return listed(lambda r: r.get("paper_outside_ci", {}).get(key, False))
 
-    ratios = [r for r in rows if r.get("gpomdp_ratio") is not None]
-    faster = listed(lambda r: r.get("gpomdp_ratio_significant") and r["gpomdp_ratio"] > 1)
-    slower = listed(lambda r: r.get("gpomdp_ratio_significant") and r["gpomdp_ratio"] < 1)
+    def compared(key):
+        """(settings with the ratio, significantly above 1, significantly below 1)."""
+        return (len([r for r in rows if r.get(key) is not None]),
+                listed(lambda r: r.get(f"{key}_significant") and r[key] > 1),
+                listed(lambda r: r.get(f"{key}_significant") and r[key] < 1))
+
+    ratios, faster, slower = compared("gpomdp_ratio")
+    pgpe_ratios, sde_faster, pgpe_faster = compared("pgpe_ratio")
     return [
         "Significance (95 %; `†` in the table: the paper's number lies outside our interval):",
         "",
@@ -368,21 +403,25 @@ def significance_lines(rows: list[dict]) -> list[str]:
         f"- Paper's REX count outside our interval: {paper_outside('rex')}; SDE: {paper_outside('sde')}; "
         f"speed-up: {paper_outside('speedup')}.",
         f"- SDE + GPOMDP against SDE + REINFORCE (interval of REINFORCE's / GPOMDP's mean episodes, "
-        f"{len(ratios)} settings): GPOMDP significantly faster in {faster}; significantly slower in {slower}.",
+        f"{ratios} settings): GPOMDP significantly faster in {faster}; significantly slower in {slower}.",
+        f"- PGPE against SDE (interval of PGPE's / SDE's mean episodes over the runs that reached R_lim, "
+        f"{pgpe_ratios} settings): SDE significantly faster in {sde_faster}; PGPE significantly faster in "
+        f"{pgpe_faster}.",
     ]
 
 
 def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float | None = None) -> None:
     """The paper's Table 1 layout, ours (with 95 % bootstrap intervals over runs) beside the
-    paper's, the added SDE + GPOMDP, which differences are significant, the 2-D MLP, the checks."""
+    paper's, the added SDE + GPOMDP and PGPE, which differences are significant, the 2-D MLP, the checks."""
     def paper_mark(row, key):
         return " †" if row.get("paper_outside_ci", {}).get(key) else ""
 
     lines = [
         "| sweep | σ_noise | EL | R_lim (ours / paper) | REX: ours [95 % CI] / paper | SDE: ours [95 % CI] / paper "
         "| speed-up REX/SDE: ours [95 % CI] / paper | SDE + GPOMDP [95 % CI] "
-        "| SDE: REINFORCE/GPOMDP episodes [95 % CI] | not converged REX / SDE / SDE + GPOMDP |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| SDE: REINFORCE/GPOMDP episodes [95 % CI] | PGPE [95 % CI] | PGPE/SDE episodes [95 % CI] "
+        "| not converged REX / SDE / SDE + GPOMDP / PGPE |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for row in rows:
         paper = row.get("paper", {})
@@ -397,6 +436,8 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
             f"{paper_mark(row, 'speedup')} "
             f"| {_cell(row.get('sde_gpomdp_episodes'), row.get('sde_gpomdp_ci'))} "
             f"| {_cell(row.get('gpomdp_ratio'), row.get('gpomdp_ratio_ci'), 2)} "
+            f"| {_cell(row.get('pgpe_episodes'), row.get('pgpe_ci'))} "
+            f"| {_cell(row.get('pgpe_ratio'), row.get('pgpe_ratio_ci'), 2)} "
             f"| {' / '.join(str(row.get(f'{m}_spread', {}).get('not_converged', '—')) for m in METHODS)} |"
         )
     lines += ["", *significance_lines(rows)]
@@ -429,8 +470,8 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
 
 
 def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
-    """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX, SDE
-    and SDE + GPOMDP (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
+    """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX, SDE,
+    SDE + GPOMDP and PGPE (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -472,7 +513,7 @@ def _plot_band(ax, summary: dict, label: str, smooth: int = 1, robust: bool = Fa
     per_update = summary["settings"]["episodes_per_update"]
     episodes = [(i + 1) * per_update for i in range(len(centre))]
     style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"},
-             "SDE + GPOMDP": {"color": "tab:green", "ls": "-."}}[label]
+             "SDE + GPOMDP": {"color": "tab:green", "ls": "-."}, "PGPE": {"color": "tab:purple", "ls": ":"}}[label]
     ax.plot(episodes, centre, label=label, **style)
     ax.fill_between(episodes, low, high, color=style["color"], alpha=0.2)
 

@@ -18,7 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import TransformedEnv
 
-from sde_torchrl.config import TrainConf, validate
+from sde_torchrl.config import PGPEExplorerConf, TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.estimators import ENACEstimator
 from sde_torchrl.rng import RunStreams
@@ -75,8 +75,11 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
     actor = instantiate(conf.actor, in_features=obs_dim, out_features=act_dim, runs=conf.runs)
     actor.module.reset_parameters(RunStreams(conf.seed, conf.runs, "init", conf.first_run))
-    explorer = instantiate(conf.explorer, action_dim=act_dim, feature_dim=feature_dim, runs=conf.runs,
-                           feature_key=feature_key)
+    if isinstance(conf.explorer, PGPEExplorerConf):  # PGPE draws the actor's own parameters
+        explorer = instantiate(conf.explorer, actor=actor, runs=conf.runs)
+    else:
+        explorer = instantiate(conf.explorer, action_dim=act_dim, feature_dim=feature_dim, runs=conf.runs,
+                               feature_key=feature_key)
     explorer.streams = RunStreams(conf.seed, conf.runs, "explore", conf.first_run)
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())

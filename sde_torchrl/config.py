@@ -290,10 +290,40 @@ class ExplorerConf:
 
 
 @dataclass
+class PGPEExplorerConf:
+    """``explorer=pgpe``: PGPE's parameter sampling, ``θ ~ N(μ, diag(σ²))`` once per episode
+    (Sehnke et al. 2010; :class:`~sde_torchrl.pgpe.ParameterExplorer`), with ``estimator=pgpe``.
+
+    Attributes:
+        symmetric: symmetric sampling ``θ± = μ ± ε`` over pairs of episodes (section 2.3);
+            ``episodes_per_update`` must then be even.
+        init_param: ``σ`` starts at ``expln(init_param)`` per parameter, SDE's ``σ̂₀`` for the
+            same value (``-2``: ≈ 0.135).
+        learn_sigma: learn ``σ`` (else it stays at its start value).
+        squash: tanh on the action.
+
+    Examples:
+        >>> PGPEExplorerConf().symmetric
+        True
+    """
+
+    _target_: str = "sde_torchrl.pgpe.ParameterExplorer"
+    symmetric: bool = True
+    init_param: float = -2.0
+    learn_sigma: bool = True
+    squash: bool = False
+
+    def __post_init__(self) -> None:
+        finite("explorer.init_param", self.init_param)
+
+
+@dataclass
 class EstimatorConf:
-    """``estimator=reinforce|enac|gpomdp``: episodic REINFORCE with the optimal per-parameter
-    baseline, the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``), or GPOMDP (each
-    reward credited to the actions before it, with the time-dependent optimal baseline).
+    """``estimator=reinforce|enac|gpomdp|pgpe``: episodic REINFORCE with the optimal per-parameter
+    baseline, the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``), GPOMDP (each
+    reward credited to the actions before it, with the time-dependent optimal baseline), or PGPE
+    (the likelihood-ratio gradient of ``explorer=pgpe``'s parameter distribution, with the batch's
+    mean return as baseline; :class:`~sde_torchrl.pgpe_estimator.PGPEEstimator`).
 
     Attributes:
         max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
@@ -302,7 +332,8 @@ class EstimatorConf:
         episode_return: ``mean`` (the paper's text, section 2.1) or ``sum`` (the authors' code) of
             an episode's rewards; used by the estimator and every reported return.
         variance_weighted: the authors' "auto-alpha" scores: each action's log-likelihood
-            weighted by its own variance ``σ_j²`` (held constant) before differentiating.
+            weighted by its own variance ``σ_j²`` (held constant) before differentiating; for
+            PGPE, Sehnke et al.'s step sizes ``α_i = α σ_i²``.
 
     Examples:
         >>> EstimatorConf(max_grad_norm=100.0).max_grad_norm
@@ -435,6 +466,31 @@ class TrainConf:
         if self.stop_at_threshold and self.r_lim is None:
             raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
         _check_can_learn(self)
+        _check_pgpe(self)
+
+
+def _check_pgpe(conf: TrainConf) -> None:
+    """``explorer=pgpe`` and ``estimator=pgpe`` only together; symmetric sampling on an even
+    ``episodes_per_update`` (pairs ``μ ± ε``); at least two draws (the batch-mean baseline of a
+    single draw cancels its return: every gradient would be exactly 0)."""
+    pgpe_explorer = isinstance(conf.explorer, PGPEExplorerConf)
+    pgpe_estimator = (getattr(conf.estimator, "_target_", "") or "").endswith("PGPEEstimator")
+    if pgpe_explorer != pgpe_estimator:
+        key = "estimator" if pgpe_explorer else "explorer"
+        value = (getattr(getattr(conf, key), "_target_", "") or "").rsplit(".", 1)[-1]
+        raise ArgumentError(key, value, "explorer=pgpe and estimator=pgpe go together (PGPE scores the parameter "
+                                        "draws, which only explorer=pgpe makes)")
+    if not pgpe_explorer:
+        return
+    if conf.explorer.symmetric and conf.episodes_per_update % 2:
+        raise ArgumentError("episodes_per_update", conf.episodes_per_update,
+                            "an even number with explorer=pgpe and explorer.symmetric=true (pairs μ ± ε), "
+                            "or explorer.symmetric=false")
+    draws = max(conf.episodes_per_update, conf.episode_queue) // (2 if conf.explorer.symmetric else 1)
+    if draws < 2:
+        raise ArgumentError("episodes_per_update", conf.episodes_per_update,
+                            "at least 2 parameter draws per update with estimator=pgpe (4 episodes with "
+                            "symmetric sampling): the batch-mean baseline of one draw cancels its return")
 
 
 def _check_can_learn(conf: TrainConf) -> None:
@@ -468,6 +524,7 @@ SCHEMAS: dict[str, type] = {
     "actor/linear": LinearActorConf,
     "actor/mlp": MLPActorConf,
     "explorer/sde": ExplorerConf,
+    "explorer/pgpe": PGPEExplorerConf,
     "estimator/episodic": EstimatorConf,
     "logger/csv": CSVLoggerConf,
     "logger/tensorboard": TensorboardLoggerConf,

@@ -452,6 +452,10 @@ class EpisodicEstimator(LossModule):
         """Each episode's return ``[*runs, N]`` in this estimator's definition (``episode_return``)."""
         return episode_returns(episodes, self.tensor_keys.reward, self.episode_return)
 
+    def scores(self, episodes: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Each episode's score ``ψ_n`` per learnable parameter (eq. 9, :func:`episode_scores`)."""
+        return episode_scores(self.log_likelihood, episodes)
+
     def estimate(self, scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Gradient ``[*runs, K]`` and diagnostics from scores ``[*runs, N, K]``, returns ``[*runs, N]``."""
         raise NotImplementedError

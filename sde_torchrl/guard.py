@@ -12,7 +12,8 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-from sde_torchrl.estimators import EpisodicEstimator, episode_scores
+from sde_torchrl.estimators import EpisodicEstimator
+from sde_torchrl.pgpe_estimator import PGPEEstimator
 
 
 class NonFiniteError(RuntimeError):
@@ -51,7 +52,7 @@ class FiniteGuard:
 
     Args:
         policy: the policy being trained (its state-dict names label the parameters).
-        estimator: the estimator over ``policy``.
+        estimator: the estimator over ``policy`` (its ``scores(episodes)`` name a non-finite score).
         runs: number of runs of the job (the leading dimension of every checked tensor).
         first_run: global index of the job's first run.
 
@@ -59,7 +60,8 @@ class FiniteGuard:
         See :meth:`sde_torchrl.trainer.Trainer.update`.
     """
 
-    def __init__(self, policy: nn.Module, estimator: EpisodicEstimator, runs: int, first_run: int = 0) -> None:
+    def __init__(self, policy: nn.Module, estimator: EpisodicEstimator | PGPEEstimator, runs: int,
+                 first_run: int = 0) -> None:
         self.policy, self.estimator, self.runs, self.first_run = policy, estimator, runs, first_run
         by_id = {id(p): n for n, p in policy.named_parameters()}
         self._policy_names = {n: by_id.get(id(p), n) for n, p in estimator.learnable_parameters().items()}
@@ -82,8 +84,7 @@ class FiniteGuard:
     def check_estimate(self, update: int, out: TensorDictBase, episodes: TensorDictBase) -> None:
         """The estimator's output: per-run score norms and the gradient ``[runs, K]``."""
         if not _finite(out["score_norm"]):
-            self._raise_named(update, "score", episode_scores(self.estimator.log_likelihood, episodes),
-                              out["score_norm"])
+            self._raise_named(update, "score", self.estimator.scores(episodes), out["score_norm"])
         if not _finite(out["gradient"]):
             self._raise_named(update, "gradient", self._split(out["gradient"]))
 

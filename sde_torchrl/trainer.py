@@ -28,6 +28,7 @@ from sde_torchrl.episode_queue import EpisodeQueue
 from sde_torchrl.estimators import EpisodicEstimator
 from sde_torchrl.guard import FiniteGuard
 from sde_torchrl.interrupt import DeferredInterrupt, TrainingInterrupted
+from sde_torchrl.pgpe_estimator import PGPEEstimator
 from sde_torchrl.report import Reporter, close_logger
 from sde_torchrl.rollout import collect_episodes
 from sde_torchrl.run_dir import RunDirectory, metric_rows
@@ -44,7 +45,8 @@ class Trainer:
         env: training env, batch ``[runs, episodes_per_update]``, with the explorer's primer.
         eval_env: evaluation env, batch ``[runs, eval_episodes]``.
         policy: ``TensorDictSequential(actor, explorer)`` with run-stacked parameters.
-        estimator: an :class:`~sde_torchrl.estimators.EpisodicEstimator` over ``policy``.
+        estimator: an :class:`~sde_torchrl.estimators.EpisodicEstimator` over ``policy``, or a
+            :class:`~sde_torchrl.pgpe_estimator.PGPEEstimator` (``explorer=pgpe``).
         optimizer: optimiser over the policy's parameters (``SGD(lr=α)`` is eq. 1).
         settings: the job's :class:`TrainingSettings`.
         logger: optional TorchRL logger (``log_scalar``) for run-averaged curves.
@@ -55,7 +57,7 @@ class Trainer:
 
     def __init__(
         self, env: EnvBase, eval_env: EnvBase, policy: TensorDictSequential,
-        estimator: EpisodicEstimator, optimizer: torch.optim.Optimizer,
+        estimator: EpisodicEstimator | PGPEEstimator, optimizer: torch.optim.Optimizer,
         settings: TrainingSettings, logger: Any = None,
     ) -> None:
         self.env, self.eval_env, self.policy = env, eval_env, policy

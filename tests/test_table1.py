@@ -31,11 +31,12 @@ def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
     for row in table["rows"]:
         assert row["paper"]["rex_episodes"] > row["paper"]["sde_episodes"]
         assert row["r_lim"] == row["paper"]["r_lim"]  # the paper's R_lim, unchanged, on the authors' task
-        for method in ("rex", "sde", "sde_gpomdp"):  # SDE + GPOMDP: the added method, same harness
+        for method in ("rex", "sde", "sde_gpomdp", "pgpe"):  # SDE + GPOMDP and PGPE: added, same harness
             assert row[f"{method}_spread"]["runs"] == 2
     assert table["mlp2d"]["runs"] == 2 and table["mlp2d"]["episodes"] == 32
     assert set(table["mlp2d"]["intervals"]) >= {"rex_plateau", "episodes_to_rex_plateau", "plateau_speedup"}
     assert len(list((tmp_path / "a" / "runs").glob("*estimator-gpomdp"))) == 8
+    assert len(list((tmp_path / "a" / "runs").glob("*explorer-pgpe_estimator-pgpe"))) == 8
     for name in OUTPUTS:
         assert (tmp_path / "a" / name).stat().st_size > 0, name
     markdown = (tmp_path / "a" / "table1.md").read_text()
@@ -49,8 +50,9 @@ def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
 
 
 def _summary(method: str, sweep: str, episodes: list) -> dict:
-    estimator = "gpomdp" if method == "sde_gpomdp" else "reinforce"
-    return {"experiment": sweep, "explorer": "sde" if method != "rex" else "rex", "estimator": estimator,
+    estimator = {"sde_gpomdp": "gpomdp", "pgpe": "pgpe"}.get(method, "reinforce")
+    explorer = method if method in ("rex", "pgpe") else "sde"
+    return {"experiment": sweep, "explorer": explorer, "estimator": estimator,
             "config": {"env": {"noise_std": 0.5, "episode_length": 15}}, "settings": {"r_lim": -1.6},
             "episodes_to_threshold": episodes}
 
@@ -60,18 +62,22 @@ def test_cells_carry_bootstrap_intervals_and_significance(tmp_path):
     rex = [9000 + 100 * i for i in range(30)]  # mean 10,450: the paper's 9,950 lies outside its interval
     sde = [700 + 10 * i for i in range(29)] + [None]
     gpomdp = [1400 + 20 * i for i in range(30)]
+    pgpe = [700 + 10 * i for i in range(28)] + [None, None]  # as fast as SDE: no significant difference
     rows = table1.table_rows([_summary("rex", "noise_sweep", rex), _summary("sde", "noise_sweep", sde),
-                              _summary("sde_gpomdp", "noise_sweep", gpomdp)])
+                              _summary("sde_gpomdp", "noise_sweep", gpomdp), _summary("pgpe", "noise_sweep", pgpe)])
     (row,) = rows
     assert row["rex_episodes"] == 10450 and row["rex_ci"][0] < 10450 < row["rex_ci"][1]
     assert row["sde_spread"]["not_converged"] == 1 and row["sde_episodes"] == 840
     assert row["speedup_significant"] and row["paper_outside_ci"] == {"rex": True, "sde": True, "speedup": True}
     assert row["gpomdp_ratio"] < 1 and row["gpomdp_ratio_significant"]  # GPOMDP slower here, significantly
+    assert row["pgpe_spread"]["not_converged"] == 2 and not row["pgpe_ratio_significant"]
     table1.write_markdown(rows, None, tmp_path / "table1.md")
     markdown = (tmp_path / "table1.md").read_text()
     low, high = (f"{x:,.0f}" for x in row["rex_ci"])
     assert f"| 10,450 [{low}, {high}] / 9,950 † |" in markdown
     assert "GPOMDP significantly faster in 0 of 1; significantly slower in 1 of 1 (σ 0.5)" in markdown
+    assert "SDE significantly faster in 0 of 1; PGPE significantly faster in 0 of 1" in markdown
+    assert "| 0 / 1 / 0 / 2 |" in markdown  # not converged REX / SDE / SDE + GPOMDP / PGPE
 
 
 @pytest.fixture(scope="module")
