@@ -10,7 +10,9 @@ of one estimator, and writes into ``--out DIR``:
   R ≥ -2.0, -1.5, -1.1, -1.0, with 95 % Wilson intervals, and the paper's where it states them;
 - ``fig5.json`` / ``fig5.md``: those counts per explorer, best and final, with their intervals,
   beside the paper's, and the SDE − REX differences with bootstrap intervals (significant
-  where the interval excludes 0).
+  where the interval excludes 0); with the ``initial.json`` files of
+  ``analysis/ballcatch_initial.py`` under the sweep directories, the mean initial and final
+  evaluations and the mean change per run with its bootstrap interval.
 
 Usage:
     python analysis/fig5.py --out results/fig5 multirun/2026-11-22/10-00-00 [more shards...]
@@ -65,6 +67,32 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     return runs
 
 
+def load_initial(directories: list[Path], estimator: str) -> dict[str, dict[int, float]]:
+    """``explorer → global run index → deterministic return of Θ0`` from the ``initial.json``
+    files of ``analysis/ballcatch_initial.py`` under ``directories`` (mean reward per step)."""
+    initial: dict[str, dict[int, float]] = {}
+    for directory in directories:
+        for path in sorted(directory.rglob("initial.json")):
+            found = json.loads(path.read_text())
+            if found["estimator"] == estimator:
+                for offset, value in enumerate(found["initial_eval_return"]):
+                    initial.setdefault(found["explorer"], {})[found["first_run"] + offset] = value
+    return initial
+
+
+def improvement(by_run: dict[int, dict], initial: dict[int, float]) -> dict | None:
+    """Mean initial and final evaluation over the runs, and the mean per-run change final −
+    initial with its 95 % bootstrap interval; ``None`` unless every run has an initial one."""
+    from sde_torchrl.intervals import bootstrap_interval
+
+    if not by_run.keys() <= initial.keys():
+        return None
+    change = bootstrap_interval([by_run[i]["final"] - initial[i] for i in sorted(by_run)])
+    return {"initial_mean": sum(initial[i] for i in by_run) / len(by_run),
+            "final_mean": sum(run["final"] for run in by_run.values()) / len(by_run),
+            "change": list(change)}
+
+
 def reached(runs: dict[int, dict]) -> dict[str, dict[str, list[bool]]]:
     """Per run (in index order), whether its best and its final evaluated policy reached each level."""
     ordered = [runs[index] for index in sorted(runs)]
@@ -74,7 +102,8 @@ def reached(runs: dict[int, dict]) -> dict[str, dict[str, list[bool]]]:
             for kind, values in (("best", best), ("final", final))}
 
 
-def report(runs: dict[str, dict[int, dict]], estimator: str) -> dict:
+def report(runs: dict[str, dict[int, dict]], estimator: str,
+           initial: dict[str, dict[int, float]] | None = None) -> dict:
     """The figure's numbers: per explorer, run count, catch counts (best and final) with their
     95 % Wilson intervals as fractions of the runs, and the paper's counts (out of 100); with
     both explorers, the SDE − REX difference of each fraction with its 95 % bootstrap interval
@@ -89,6 +118,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str) -> dict:
             stats[kind] = {level: sum(hits) for level, hits in flags[explorer][kind].items()}
             stats[f"{kind}_interval"] = {level: list(binomial_interval(k, n)[1:]) for level, k in stats[kind].items()}
         stats["paper"] = {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}
+        stats["improvement"] = improvement(by_run, (initial or {}).get(explorer, {}))
         explorers[explorer] = stats
     result = {"estimator": estimator, "explorers": explorers}
     if {"sde", "rex"} <= runs.keys():
@@ -135,6 +165,12 @@ def write_markdown(result: dict, path: Path) -> None:
                              + ("*" if d["significant"] else ""))
             cells.append(" / ".join(parts))
         lines.append("| SDE − REX (points) |  | " + " | ".join(cells) + " |")
+    for explorer, stats in result["explorers"].items():
+        if stats["improvement"]:
+            change = stats["improvement"]["change"]
+            lines += ["", f"{explorer.upper()}: mean evaluation {stats['improvement']['initial_mean']:.3f} (Θ0) → "
+                      f"{stats['improvement']['final_mean']:.3f} (final); mean change per run {change[0]:+.3f} "
+                      f"[{change[1]:+.3f}, {change[2]:+.3f}]"]
     lines += ["", "Cells: percent of runs whose best / final deterministic evaluation reached the level, with its "
               "95 % Wilson interval; the paper's count out of 100 runs where it states one. SDE − REX: the "
               "difference in percentage points with its 95 % bootstrap interval over runs; * where the interval "
@@ -206,7 +242,7 @@ def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:
         return 1
     args.out.mkdir(parents=True, exist_ok=True)
     name = FIGURE[args.estimator]
-    result = report(runs, args.estimator)
+    result = report(runs, args.estimator, load_initial(args.sweeps, args.estimator))
     (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
     write_markdown(result, args.out / f"{name}.md")
     plot(runs, result, args.out / f"{name}.png", f"ball catching, {args.estimator.upper()}")

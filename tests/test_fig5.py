@@ -72,6 +72,34 @@ def test_counts_carry_intervals_and_the_sde_rex_difference_its_significance(tmp_
     assert "75 % [60, 86]" in table and "+65 [" in table and "]*" in table
 
 
+def test_initial_evaluations_give_the_mean_change_per_run(tmp_path):
+    curves = CURVES["sde"]  # finals -1.05, -1.2, -1.6, -1.3
+    _write_job(tmp_path / "sde", "sde", 0, curves)
+    initial = {"explorer": "sde", "estimator": "reinforce", "first_run": 0, "initial_eval_return": [-2.0, -2.5]}
+    (tmp_path / "sde" / "initial_a").mkdir()
+    (tmp_path / "sde" / "initial_a" / "initial.json").write_text(json.dumps(initial))
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "part")]) == 0
+    assert json.loads((tmp_path / "part" / "fig5.json").read_text())["explorers"]["sde"]["improvement"] is None
+    (tmp_path / "sde" / "initial_b").mkdir()
+    (tmp_path / "sde" / "initial_b" / "initial.json").write_text(json.dumps(initial | {"first_run": 2}))
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "all")]) == 0
+    change = json.loads((tmp_path / "all" / "fig5.json").read_text())["explorers"]["sde"]["improvement"]
+    assert change["initial_mean"] == pytest.approx(-2.25) and change["final_mean"] == pytest.approx(-1.2875)
+    assert change["change"][0] == pytest.approx(0.9625) and change["change"][1] <= 0.9625 <= change["change"][2]
+    assert "mean change per run +0.96" in (tmp_path / "all" / "fig5.md").read_text()
+
+
+def test_initial_evaluation_of_a_summed_return_job_is_in_mean_rewards(tmp_path):
+    """The same Θ0 and release jitter, regressed on sums or means: the same mean-reward returns."""
+    initial = load_script("ballcatch_initial")
+    tiny = ["+experiment=ballcatch", "runs=2", "eval_episodes=1", "env.episode_length=120"]
+    summed = initial.initial_evaluation(tiny)
+    mean = initial.initial_evaluation([*tiny, "estimator.episode_return=mean"])
+    assert summed["explorer"] == "sde" and summed["estimator"] == "reinforce"
+    assert summed["initial_eval_return"] == pytest.approx(mean["initial_eval_return"], rel=1e-5)
+    assert all(-3.0 <= r <= -0.5 for r in summed["initial_eval_return"])
+
+
 def test_summed_returns_are_counted_as_mean_rewards(tmp_path):
     """The authors' learner regresses on summed rewards; the paper's levels are mean rewards."""
     for explorer, curves in CURVES.items():
