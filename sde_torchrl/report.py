@@ -21,6 +21,8 @@ class Reporter:
         done: updates already done (a resumed job).
         steps_per_update: env steps of one update (all runs), for the speed figure.
         progress: show a progress bar (:mod:`sde_torchrl.progress`).
+        summed_over: for returns that sum this many steps' rewards (``estimator.episode_return=sum``),
+            the log line adds them per step, the paper's mean-reward units; ``None``: nothing added.
 
     Examples:
         >>> import torch
@@ -29,8 +31,10 @@ class Reporter:
         >>> reporter.close()
     """
 
-    def __init__(self, logger: Any, updates: int, done: int, steps_per_update: int, progress: bool = False) -> None:
+    def __init__(self, logger: Any, updates: int, done: int, steps_per_update: int, progress: bool = False,
+                 summed_over: int | None = None) -> None:
         self.logger, self.updates, self.steps_per_update = logger, updates, steps_per_update
+        self.summed_over = summed_over
         self.bar = Progress(updates, done, enabled=progress)
         self.rate = RateMeter()
 
@@ -43,8 +47,11 @@ class Reporter:
             if eval_return is not None:
                 self.logger.log_scalar("eval_return", float(eval_return.mean()), step=episodes)
         if eval_return is not None:
-            log.info("update %d/%d  return %.3f  eval %.3f  %.0f env steps/s", k + 1, self.updates, mean,
-                     float(eval_return.mean()), speed)
+            evaluation = float(eval_return.mean())
+            per_step = "" if self.summed_over is None else \
+                f"  (per step: return {mean / self.summed_over:.3f}  eval {evaluation / self.summed_over:.3f})"
+            log.info("update %d/%d  return %.3f  eval %.3f%s  %.0f env steps/s", k + 1, self.updates, mean,
+                     evaluation, per_step, speed)
         self.bar.step(mean, speed)
 
     def close(self) -> None:

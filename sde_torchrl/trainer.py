@@ -164,7 +164,8 @@ class Trainer:
         s = self.settings
         session_start, session_wall = time.perf_counter(), state.wall_s
         reporter = Reporter(self.logger, s.updates, state.update,
-                            self.runs * s.episodes_per_update * s.episode_length, progress)
+                            self.runs * s.episodes_per_update * s.episode_length, progress,
+                            summed_over=s.episode_length if self.estimator.episode_return == "sum" else None)
         with run_dir.open_metrics(self._recorded_rows(state)) as metrics, DeferredInterrupt() as interrupt:
             try:
                 for k in range(state.update, s.updates):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 from _helpers import build, read_rows
@@ -41,6 +43,8 @@ def test_ballcatch_experiment_runs_end_to_end(tmp_path):
     assert summary["experiment"] == "ballcatch" and summary["runs"] == 2
     assert summary["env_steps"] == (2 + 2) * 60 * 2  # queue of 2, then one new episode per update
     assert summary["episode_return"] == "sum"  # the authors' learner: 60 rewards in [-3, -0.5] summed
+    per_step = re.search(r"eval (-[\d.]+)  \(per step: return -[\d.]+  eval (-[\d.]+)\)", result.stderr + result.stdout)
+    assert per_step and float(per_step[2]) == pytest.approx(float(per_step[1]) / 60, abs=1e-3)
     assert all(-3.0 * 60 <= r <= -0.5 * 60 for r in summary["final_eval_return"])
     evals = [r["eval_return"] for r in read_rows(tmp_path)]
     assert [bool(e) for e in evals] == [False, False, True, True, True, True]
