@@ -1,0 +1,376 @@
+"""PPO on HalfCheetahBullet: TorchRL with a plain Gaussian or the SDE policy, against SB3 PPO + gSDE.
+
+Three methods, the same hyperparameters (rl-baselines3-zoo's tuned PPO + gSDE settings for
+``HalfCheetahBulletEnv-v0``, :data:`ZOO`), the same observation and reward normalisation rule
+(SB3's ``VecNormalize``), 16 envs stepped in one process:
+
+* ``plain``: TorchRL ``Collector`` + ``GAE`` + ``ClipPPOLoss``, state-independent Gaussian
+  (``AddStateIndependentNormalScale``, log-std initialised to ``log_std_init``);
+* ``sde``: the same loop with the SDE policy (:func:`sde_torchrl.make_sde_actor`): features ``x``
+  from the actor's last hidden layer (detached, as gSDE's ``learn_features=False``), noise matrix
+  redrawn every ``sde_sample_freq`` steps and at every reset (``schedule="every_n"``),
+  ``p`` initialised to ``log_std_init`` (``σ̂ = expln(p) = exp(p)`` for ``p ≤ 0``);
+* ``sb3``: Stable-Baselines3 ``PPO(use_sde=True)`` (optional extra ``.[bench]``).
+
+Each run writes ``<out>/<method>_seed<k>.json``: the deterministic return of 10 evaluation
+episodes at the end (frozen observation statistics, raw rewards), the training episodes' raw
+returns against env steps, and env steps per wall-clock second of the whole training (collection
+and updates, evaluation excluded). ``report`` turns a folder of runs into a table and a plot.
+
+Usage::
+
+    python analysis/bench_ppo.py run --method sde --seed 0 --steps 500000 --out docs/ppo/runs
+    python analysis/bench_ppo.py report docs/ppo/runs --out docs/ppo
+
+Examples:
+    >>> sorted(METHODS)
+    ['plain', 'sb3', 'sde']
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ENV_ID = "HalfCheetahBulletEnv-v0"
+METHODS = ("plain", "sde", "sb3")
+EVAL_EPISODES = 10
+# rl-baselines3-zoo hyperparams/ppo.yml, "HalfCheetahBulletEnv-v0" (tuned, PPO + gSDE)
+ZOO = {
+    "n_envs": 16, "n_steps": 512, "batch_size": 128, "gamma": 0.99, "gae_lambda": 0.9, "n_epochs": 20,
+    "ent_coef": 0.0, "sde_sample_freq": 4, "max_grad_norm": 0.5, "vf_coef": 0.5, "learning_rate": 3e-5,
+    "clip_range": 0.4, "log_std_init": -2.0, "net_arch": [256, 256], "normalize": True,
+}
+CLIP, EPS = 10.0, 1e-8  # VecNormalize's clip_obs = clip_reward and epsilon
+
+
+def _gym_make():
+    import gymnasium as gym
+    import pybullet_envs_gymnasium  # noqa: F401  (registers the Bullet envs)
+
+    return gym.make(ENV_ID)
+
+
+# ----------------------------------------------------------------------------------- TorchRL side
+def _running_update(mean, var, count, batch):
+    """Parallel mean/variance update of SB3's ``RunningMeanStd`` (batch over the leading dims)."""
+    batch = batch.reshape(-1, *mean.shape).to(mean.dtype)
+    b_mean, b_var, b_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
+    delta, total = b_mean - mean, count + b_count
+    new_mean = mean + delta * b_count / total
+    m2 = var * count + b_var * b_count + delta.square() * count * b_count / total
+    return new_mean, m2 / total, total
+
+
+def make_normalizer(obs_dim: int, gamma: float):
+    """SB3 ``VecNormalize``'s rule as a TorchRL transform (observations and discounted-return scale)."""
+    from torchrl.envs import Transform
+
+    class ZooNormalize(Transform):
+        def __init__(self) -> None:
+            super().__init__(in_keys=["observation"], out_keys=["observation"])
+            self.register_buffer("obs_mean", torch.zeros(obs_dim, dtype=torch.float64))
+            self.register_buffer("obs_var", torch.ones(obs_dim, dtype=torch.float64))
+            self.register_buffer("obs_count", torch.tensor(1e-4, dtype=torch.float64))
+            self.register_buffer("ret_mean", torch.zeros((), dtype=torch.float64))
+            self.register_buffer("ret_var", torch.ones((), dtype=torch.float64))
+            self.register_buffer("ret_count", torch.tensor(1e-4, dtype=torch.float64))
+            self.training_stats, self.normalize_reward, self.returns = True, True, None
+
+        def _norm(self, obs):
+            scaled = (obs.double() - self.obs_mean) / (self.obs_var + EPS).sqrt()
+            return scaled.clamp(-CLIP, CLIP).to(obs.dtype)
+
+        def _reset(self, tensordict, tensordict_reset):
+            tensordict_reset.set("observation", self._norm(tensordict_reset.get("observation")))
+            return tensordict_reset
+
+        def _step(self, tensordict, next_tensordict):
+            obs, reward = next_tensordict.get("observation"), next_tensordict.get("reward")
+            if self.training_stats:
+                self.obs_mean, self.obs_var, self.obs_count = _running_update(
+                    self.obs_mean, self.obs_var, self.obs_count, obs)
+            next_tensordict.set("observation", self._norm(obs))
+            if self.normalize_reward:
+                if self.returns is None:
+                    self.returns = torch.zeros_like(reward, dtype=torch.float64)
+                self.returns = self.returns * gamma + reward.double()
+                if self.training_stats:
+                    self.ret_mean, self.ret_var, self.ret_count = _running_update(
+                        self.ret_mean, self.ret_var, self.ret_count, self.returns)
+                scaled = (reward.double() / (self.ret_var + EPS).sqrt()).clamp(-CLIP, CLIP)
+                next_tensordict.set("reward", scaled.to(reward.dtype))
+                self.returns = torch.where(next_tensordict.get("done"), 0.0, self.returns)
+            return next_tensordict
+
+    return ZooNormalize()
+
+
+def make_torchrl_env(n_envs: int, seed: int, normalizer, primer=None):
+    """16 Bullet envs in one gymnasium ``SyncVectorEnv``, wrapped by TorchRL, raw returns summed."""
+    import gymnasium as gym
+    from torchrl.envs import Compose, GymWrapper, RewardSum, TransformedEnv
+
+    vec = gym.vector.SyncVectorEnv([_gym_make] * n_envs, autoreset_mode=gym.vector.AutoresetMode.DISABLED)
+    base = GymWrapper(vec)
+    base.set_seed(seed)
+    transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"]), normalizer]
+    return TransformedEnv(base, Compose(*transforms, *([primer] if primer is not None else [])))
+
+
+def make_torchrl_policy(method: str, obs_dim: int, action_dim: int):
+    """The actor (``plain`` Gaussian or ``sde``) and the critic, SB3's architecture (no shared layers)."""
+    from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictSequential
+    from torch import nn
+    from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
+
+    from sde_torchrl import SDEParams, make_sde_actor
+
+    hidden = ZOO["net_arch"]
+    body = TensorDictModule(MLP(in_features=obs_dim, out_features=hidden[-1], num_cells=hidden[:-1],
+                                activation_class=nn.ReLU, activate_last_layer=True),
+                            in_keys=["observation"], out_keys=["latent"])
+    head = TensorDictModule(nn.Linear(hidden[-1], action_dim), in_keys=["latent"], out_keys=["loc"])
+    critic = ValueOperator(MLP(in_features=obs_dim, out_features=1, num_cells=hidden, activation_class=nn.ReLU),
+                           in_keys=["observation"])
+    if method == "plain":
+        scale = TensorDictModule(AddStateIndependentNormalScale(action_dim, init_value=ZOO["log_std_init"]),
+                                 in_keys=["loc"], out_keys=["loc", "scale"])
+        policy = ProbabilisticActor(TensorDictSequential(body, head, scale), in_keys=["loc", "scale"],
+                                    distribution_class=IndependentNormal, return_log_prob=True)
+        return policy, critic, None
+    detach = TensorDictModule(torch.Tensor.detach, in_keys=["latent"], out_keys=["sde_features"])
+    sde = SDEParams(action_dim, hidden[-1], schedule="every_n", every_n=ZOO["sde_sample_freq"],
+                    init_param=ZOO["log_std_init"], feature_key="sde_features")
+    return make_sde_actor(TensorDictSequential(body, detach, head, selected_out_keys=["loc", "sde_features"]),
+                          sde), critic, sde
+
+
+def evaluate_torchrl(policy, normalizer, seed: int) -> list[float]:
+    """Deterministic returns of ``EVAL_EPISODES`` episodes, frozen observation statistics, raw rewards."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    frozen = make_normalizer(normalizer.obs_mean.shape[0], ZOO["gamma"])
+    frozen.load_state_dict(normalizer.state_dict())
+    frozen.training_stats, frozen.normalize_reward = False, False
+    env = make_torchrl_env(EVAL_EPISODES, seed, frozen)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.rollout(_max_episode_steps(), policy, auto_cast_to_device=False, break_when_any_done=False)
+    env.close()
+    reward, done = td["next", "reward"].squeeze(-1), td["next", "done"].squeeze(-1)
+    first_episode = (done.long().cumsum(-1) - done.long()) == 0  # up to and including the first done
+    return (reward * first_episode).sum(-1).tolist()
+
+
+def _max_episode_steps() -> int:
+    env = _gym_make()
+    steps = env.spec.max_episode_steps
+    env.close()
+    return int(steps)
+
+
+def train_torchrl(method: str, seed: int, steps: int) -> dict:
+    from torchrl.collectors import Collector
+    from torchrl.objectives import ClipPPOLoss
+    from torchrl.objectives.value import GAE
+
+    torch.manual_seed(seed)
+    probe = _gym_make()
+    obs_dim, action_dim = probe.observation_space.shape[0], probe.action_space.shape[0]
+    probe.close()
+    policy, critic, sde = make_torchrl_policy(method, obs_dim, action_dim)
+    normalizer = make_normalizer(obs_dim, ZOO["gamma"])
+    env = make_torchrl_env(ZOO["n_envs"], seed, normalizer, sde.make_tensordict_primer() if sde else None)
+    loss = ClipPPOLoss(policy, critic, clip_epsilon=ZOO["clip_range"], entropy_bonus=ZOO["ent_coef"] > 0,
+                       critic_coeff=ZOO["vf_coef"], loss_critic_type="l2", normalize_advantage=True)
+    gae = GAE(gamma=ZOO["gamma"], lmbda=ZOO["gae_lambda"], value_network=critic, average_gae=False)
+    optim = torch.optim.Adam(loss.parameters(), lr=ZOO["learning_rate"], eps=1e-5)  # SB3's Adam eps
+    frames = ZOO["n_envs"] * ZOO["n_steps"]
+    collector = Collector(env, policy, frames_per_batch=frames, total_frames=steps,
+                          auto_register_policy_transforms=True)
+    curve, done_frames, start = [], 0, time.perf_counter()
+    for batch in collector:
+        done_frames += batch.numel()
+        finished = batch["next", "done"].squeeze(-1)
+        curve += [[done_frames, float(r)] for r in batch["next", "episode_reward"].squeeze(-1)[finished]]
+        with torch.no_grad():
+            gae(batch)
+        flat = batch.reshape(-1)
+        for _ in range(ZOO["n_epochs"]):
+            for idx in torch.randperm(flat.numel()).split(ZOO["batch_size"]):
+                out = loss(flat[idx])
+                total = out["loss_objective"] + out["loss_critic"]
+                optim.zero_grad()
+                total.backward()
+                torch.nn.utils.clip_grad_norm_(loss.parameters(), ZOO["max_grad_norm"])
+                optim.step()
+    wall = time.perf_counter() - start
+    collector.shutdown()
+    return {"wall_s": wall, "env_steps": done_frames, "curve": curve,
+            "eval_returns": evaluate_torchrl(policy, normalizer, 10_000 + seed)}
+
+
+# ---------------------------------------------------------------------------------------- SB3 side
+def train_sb3(seed: int, steps: int) -> dict:
+    try:
+        from stable_baselines3 import PPO
+        from stable_baselines3.common.callbacks import BaseCallback
+        from stable_baselines3.common.env_util import make_vec_env
+        from stable_baselines3.common.evaluation import evaluate_policy
+        from stable_baselines3.common.vec_env import VecNormalize
+    except ImportError as err:
+        raise SystemExit(f"bench_ppo: method sb3 needs Stable-Baselines3: pip install -e '.[bench]' ({err})") from err
+
+    curve: list[list[float]] = []
+
+    class EpisodeReturns(BaseCallback):
+        def _on_step(self) -> bool:
+            curve.extend([self.num_timesteps, float(i["episode"]["r"])] for i in self.locals["infos"] if "episode" in i)
+            return True
+
+    env = VecNormalize(make_vec_env(_gym_make, n_envs=ZOO["n_envs"], seed=seed), gamma=ZOO["gamma"])
+    model = PPO(
+        "MlpPolicy", env, n_steps=ZOO["n_steps"], batch_size=ZOO["batch_size"], gamma=ZOO["gamma"],
+        gae_lambda=ZOO["gae_lambda"], n_epochs=ZOO["n_epochs"], ent_coef=ZOO["ent_coef"], use_sde=True,
+        sde_sample_freq=ZOO["sde_sample_freq"], max_grad_norm=ZOO["max_grad_norm"], vf_coef=ZOO["vf_coef"],
+        learning_rate=ZOO["learning_rate"], clip_range=ZOO["clip_range"], seed=seed, device="cpu",
+        policy_kwargs={"log_std_init": ZOO["log_std_init"], "ortho_init": False, "activation_fn": torch.nn.ReLU,
+                       "net_arch": {"pi": ZOO["net_arch"], "vf": ZOO["net_arch"]}},
+    )
+    start = time.perf_counter()
+    model.learn(total_timesteps=steps, callback=EpisodeReturns())
+    wall = time.perf_counter() - start
+    eval_env = VecNormalize(make_vec_env(_gym_make, n_envs=1, seed=10_000 + seed), training=False, norm_reward=False)
+    eval_env.obs_rms = env.obs_rms
+    returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=EVAL_EPISODES, deterministic=True,
+                                 return_episode_rewards=True)
+    return {"wall_s": wall, "env_steps": int(model.num_timesteps), "curve": curve,
+            "eval_returns": [float(r) for r in returns]}
+
+
+# ------------------------------------------------------------------------------------------ command
+def run(method: str, seed: int, steps: int, out: Path) -> Path:
+    torch.set_num_threads(1)  # one core per run: two runs side by side on a 2-core machine
+    result = train_sb3(seed, steps) if method == "sb3" else train_torchrl(method, seed, steps)
+    import torchrl
+
+    result.update(method=method, seed=seed, env_id=ENV_ID, settings=ZOO,
+                  env_steps_per_s=result["env_steps"] / result["wall_s"],
+                  final_return_mean=float(np.mean(result["eval_returns"])),
+                  versions={"torch": torch.__version__, "torchrl": torchrl.__version__,
+                            "python": platform.python_version()})
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{method}_seed{seed}.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result))
+    os.replace(tmp, path)
+    return path
+
+
+def load_runs(folder: Path) -> dict[str, list[dict]]:
+    runs: dict[str, list[dict]] = {m: [] for m in METHODS}
+    for path in sorted(folder.glob("*_seed*.json")):
+        data = json.loads(path.read_text())
+        runs[data["method"]].append(data)
+    if not any(runs.values()):
+        raise SystemExit(f"bench_ppo: no <method>_seed<k>.json runs in {folder}: run `bench_ppo.py run` first")
+    return runs
+
+
+def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
+    """Mean raw training return of the episodes that ended in each ``bin_steps`` window (NaN if none)."""
+    points = np.asarray(run["curve"], dtype=float).reshape(-1, 2)
+    edges = np.arange(0, total + bin_steps, bin_steps)
+    which = np.clip(np.digitize(points[:, 0], edges[1:-1], right=True), 0, len(edges) - 2)
+    return np.array([points[which == b, 1].mean() if (which == b).any() else np.nan for b in range(len(edges) - 1)])
+
+
+def report(folder: Path, out: Path) -> str:
+    runs = load_runs(folder)
+    names = {"plain": "TorchRL PPO, Gaussian", "sde": "TorchRL PPO, SDE (ours)", "sb3": "SB3 PPO, gSDE"}
+    rows, stats = [], {}
+    for method in METHODS:
+        if not runs[method]:
+            continue
+        finals = np.array([r["final_return_mean"] for r in runs[method]])
+        speed = np.array([r["env_steps_per_s"] for r in runs[method]])
+        stats[method] = {"final": finals.tolist(), "speed": speed.tolist(), "steps": runs[method][0]["env_steps"]}
+        rows.append(f"| {names[method]} | {len(finals)} | {stats[method]['steps']:,} | {finals.mean():.0f} ± "
+                    f"{finals.std(ddof=1) if len(finals) > 1 else 0:.0f} | {', '.join(f'{f:.0f}' for f in finals)} "
+                    f"| {speed.mean():.0f} |")
+    lines = ["| method | seeds | env steps | final deterministic return (mean ± sd over seeds) | per seed "
+             "| env steps / s |", "| --- | --- | --- | --- | --- | --- |", *rows]
+    if "sde" in stats and "sb3" in stats:
+        ret = np.mean(stats["sde"]["final"]) / np.mean(stats["sb3"]["final"])
+        spd = np.mean(stats["sde"]["speed"]) / np.mean(stats["sb3"]["speed"])
+        lines += ["", f"SDE / SB3 gSDE: final return {ret:.2f}× (target ≥ 0.90), env steps per second "
+                      f"{spd:.2f}× (target ≥ 0.8)."]
+    table = "\n".join(lines) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_ppo.md").write_text(table)
+    (out / "bench_ppo.json").write_text(json.dumps(stats, indent=1))
+    _plot(runs, names, out / "bench_ppo.png")
+    return table
+
+
+def _plot(runs: dict[str, list[dict]], names: dict[str, str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4))
+    bin_steps = 25_000
+    for method, method_runs in runs.items():
+        if not method_runs:
+            continue
+        total = max(r["env_steps"] for r in method_runs)
+        curves = np.stack([binned_curve(r, bin_steps, total) for r in method_runs])
+        x = (np.arange(curves.shape[1]) + 1) * bin_steps
+        mean = np.nanmean(curves, 0)
+        ax.plot(x, mean, label=f"{names[method]} ({len(method_runs)} seeds)")
+        if len(method_runs) > 1:
+            ax.fill_between(x, np.nanmin(curves, 0), np.nanmax(curves, 0), alpha=0.2)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("training episode return (raw)")
+    ax.set_title(f"PPO on {ENV_ID} (rl-zoo settings); band: min-max over seeds")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run_p = sub.add_parser("run", help="train one method with one seed")
+    run_p.add_argument("--method", choices=METHODS, required=True)
+    run_p.add_argument("--seed", type=int, default=0)
+    run_p.add_argument("--steps", type=int, default=500_000)
+    run_p.add_argument("--out", type=Path, default=Path("docs/ppo/runs"))
+    rep_p = sub.add_parser("report", help="table and plot from a folder of runs")
+    rep_p.add_argument("folder", type=Path)
+    rep_p.add_argument("--out", type=Path, default=Path("docs/ppo"))
+    args = parser.parse_args(argv)
+    if args.command == "run":
+        if args.steps <= 0:
+            parser.error(f"--steps must be positive, got {args.steps}")
+        path = run(args.method, args.seed, args.steps, args.out)
+        data = json.loads(path.read_text())
+        print(f"{args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
+              f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")
+    else:
+        sys.stdout.write(report(args.folder, args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
