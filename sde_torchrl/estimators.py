@@ -18,14 +18,16 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
 from tensordict.utils import NestedKey
 from torch import nn
 from torch.func import functional_call, grad, vmap
 from torchrl.objectives import LossModule
 
 from sde_torchrl.checks import NonFiniteInputError, batch_entries, one_of
-from sde_torchrl.exploration import StateDependentExplorer
+from sde_torchrl.distribution import SDENormal, TanhSDENormal
+from sde_torchrl.exploration import SDESigma, StateDependentExplorer
+from sde_torchrl.sde_actor import SDEParams
 
 
 class EpisodesError(ValueError):
@@ -75,23 +77,50 @@ class NonFiniteEpisodesError(EpisodesError, NonFiniteInputError):
 
 
 #: The expected policy, as the errors name it.
-POLICY_FORM = "TensorDictSequential(actor, explorer): an actor writing 'loc', then a StateDependentExplorer"
+POLICY_FORM = (
+    "TensorDictSequential(actor, explorer): an actor writing 'loc', then a StateDependentExplorer; or the "
+    "ProbabilisticActor of make_sde_actor(actor, SDEParams(...)) without squash"
+)
 
 
-def check_policy(policy: object) -> None:
-    """Raises a ``TypeError`` naming what was given unless ``policy`` is a
-    ``TensorDictSequential`` of at least one actor module followed by a
-    :class:`~sde_torchrl.exploration.StateDependentExplorer`.
+@dataclass(frozen=True)
+class PolicyParts:
+    """What the likelihood needs of a policy (:func:`policy_parts`).
+
+    Attributes:
+        actor: the modules before the SDE module (they write ``loc``).
+        sde: the :class:`~sde_torchrl.exploration.SDESigma` (explorer or ``SDEParams``) holding ``σ̂``.
+        sample_key: where the episodes hold the (pre-squash) action the likelihood scores.
+        is_init_key: the episode-start flags.
+    """
+
+    actor: TensorDictSequential
+    sde: SDESigma
+    sample_key: NestedKey
+    is_init_key: NestedKey
+
+
+def policy_parts(policy: object) -> PolicyParts:
+    """Splits an SDE policy into its actor and its ``σ̂`` module, or raises a ``TypeError``
+    naming what was given.
+
+    Two forms are accepted: this library's ``TensorDictSequential(actor, explorer)`` (the
+    explorer draws the noise and stores the pre-squash ``action_sample``) and TorchRL's
+    ``ProbabilisticActor`` built by :func:`~sde_torchrl.sde_actor.make_sde_actor` without
+    ``squash`` (the env's primer draws the noise; the action is the sample). A squashed
+    ``TanhSDENormal`` policy is refused: its stored action is the squashed one.
 
     Examples:
         >>> from sde_torchrl import StateDependentExplorer
-        >>> check_policy(StateDependentExplorer(1, 1))
+        >>> policy_parts(StateDependentExplorer(1, 1))
         Traceback (most recent call last):
         ...
         TypeError: policy: got a StateDependentExplorer alone; expected TensorDictSequential(actor, explorer): ...
     """
     if isinstance(policy, StateDependentExplorer):
         raise TypeError(f"policy: got a StateDependentExplorer alone; expected {POLICY_FORM}")
+    if isinstance(policy, ProbabilisticTensorDictSequential):
+        return _probabilistic_parts(policy)
     if not isinstance(policy, TensorDictSequential):
         raise TypeError(f"policy: got {type(policy).__name__}; expected {POLICY_FORM}")
     modules = [type(m).__name__ for m in policy.module]
@@ -101,15 +130,51 @@ def check_policy(policy: object) -> None:
     if len(modules) < 2:
         raise TypeError(f"policy: TensorDictSequential({modules[0]}) has no actor before the explorer; "
                         f"expected {POLICY_FORM}")
+    explorer = policy.module[-1]
+    return PolicyParts(TensorDictSequential(*policy.module[:-1]), explorer, explorer.sample_key,
+                       explorer.is_init_key)
+
+
+def _probabilistic_parts(policy: ProbabilisticTensorDictSequential) -> PolicyParts:
+    dist_module = policy.module[-1]
+    dist_class = getattr(dist_module, "distribution_class", None)
+    if dist_class is not SDENormal:
+        name = getattr(dist_class, "__name__", type(dist_module).__name__)
+        fix = ("build it with make_sde_actor(actor, sde) without squash (the env clips the action)"
+               if dist_class is TanhSDENormal else "build it with make_sde_actor(actor, SDEParams(...))")
+        raise TypeError(f"policy: a ProbabilisticActor with {name}; the episodic estimators score the unsquashed "
+                        f"SDENormal action: {fix}")
+    params = policy.module[0]
+    inner = list(params.module) if isinstance(params, TensorDictSequential) else [params]
+    if not isinstance(inner[-1], SDEParams) or len(inner) < 2:
+        raise TypeError(f"policy: a ProbabilisticActor over {type(params).__name__}; expected "
+                        "make_sde_actor(actor, SDEParams(...)), i.e. TensorDictSequential(actor, sde) inside")
+    return PolicyParts(TensorDictSequential(*inner[:-1]), inner[-1], dist_module.out_keys[0],
+                       StateDependentExplorer.is_init_key)
+
+
+def check_policy(policy: object) -> None:
+    """Raises a ``TypeError`` naming what was given unless :func:`policy_parts` accepts ``policy``.
+
+    Examples:
+        >>> from sde_torchrl import StateDependentExplorer
+        >>> check_policy(StateDependentExplorer(1, 1))
+        Traceback (most recent call last):
+        ...
+        TypeError: policy: got a StateDependentExplorer alone; expected TensorDictSequential(actor, explorer): ...
+    """
+    policy_parts(policy)
 
 
 class EpisodeLogLikelihood(nn.Module):
     """``log p(episode) = Σ_t log π(u_t | x_t)`` up to policy-free terms (eqs. 8, 9, 13, 20).
 
     Wraps a policy ``TensorDictSequential(actor, explorer)`` whose last module is a
-    :class:`~sde_torchrl.exploration.StateDependentExplorer`; the actor's output ``loc`` and
-    the explorer's likelihood are recomputed from the stored observations and pre-squash actions.
-    The keys it reads are the explorer's until :meth:`set_keys` renames them.
+    :class:`~sde_torchrl.exploration.StateDependentExplorer`, or the unsquashed
+    ``ProbabilisticActor`` of :func:`~sde_torchrl.sde_actor.make_sde_actor` (:func:`policy_parts`);
+    the actor's output ``loc`` and the ``σ̂`` module's likelihood are recomputed from the stored
+    observations and pre-squash actions (``action_sample`` for the explorer, the action for the
+    ``ProbabilisticActor``). The keys it reads are the policy's until :meth:`set_keys` renames them.
 
     With ``variance_weighted``, each action element's log-likelihood is multiplied by its own
     variance ``σ_j²`` held constant (detached), the "auto-alpha" scores of the authors' PyBrain
@@ -127,7 +192,7 @@ class EpisodeLogLikelihood(nn.Module):
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> from tensordict.nn import TensorDictSequential
+        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
         >>> log_likelihood.in_keys
@@ -139,14 +204,13 @@ class EpisodeLogLikelihood(nn.Module):
 
     def __init__(self, policy: TensorDictSequential, variance_weighted: bool = False) -> None:
         super().__init__()
-        check_policy(policy)
+        parts = policy_parts(policy)
         self.variance_weighted = variance_weighted
-        explorer = policy.module[-1]
         # No reference to `policy` itself: its parameters would be reachable under two names,
         # which torch.func.functional_call does not restore correctly.
-        self.actor = TensorDictSequential(*policy.module[:-1])
-        self.explorer = explorer
-        self.set_keys(loc=explorer.loc_key, features=explorer.feature_key, action_sample=explorer.sample_key)
+        self.actor, self.explorer = parts.actor, parts.sde
+        self.sample_key_default, self.is_init_key = parts.sample_key, parts.is_init_key
+        self.set_keys(loc=parts.sde.loc_key, features=parts.sde.feature_key, action_sample=parts.sample_key)
 
     def set_keys(self, *, loc: NestedKey, features: NestedKey, action_sample: NestedKey) -> None:
         """Sets where the actor writes its mean and where the episodes hold the exploration
@@ -336,7 +400,8 @@ class EpisodicEstimator(LossModule):
     ``return_mean`` (per run), ``gradient`` (``[*runs, K]``) and estimator diagnostics.
 
     Args:
-        policy: ``TensorDictSequential(actor, explorer)``, the policy being trained.
+        policy: ``TensorDictSequential(actor, explorer)`` or the unsquashed ``ProbabilisticActor``
+            of :func:`~sde_torchrl.sde_actor.make_sde_actor`, the policy being trained.
         max_grad_norm: if set, each run's gradient is rescaled to at most this norm before the
             update (off by default: the paper's update is plain gradient ascent; the authors'
             own code bounded large gradients). ``gradient_norm`` reports the norm before.
@@ -366,12 +431,12 @@ class EpisodicEstimator(LossModule):
     are, to the dtype of the actor's ``loc``, as the explorer does when it acts.
 
     Raises:
-        TypeError: ``policy`` is not ``TensorDictSequential(actor, explorer)``.
+        TypeError: ``policy`` is neither form (:func:`policy_parts`).
         ValueError: an option is not allowed.
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import TensorDictSequential
+        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
         >>> from sde_torchrl.rollout import collect_episodes
         >>> explorer = StateDependentExplorer(1, 1)
@@ -430,9 +495,9 @@ class EpisodicEstimator(LossModule):
 
     def default_keys(self) -> _AcceptedKeys:
         """The default keys: the policy's explorer's for the likelihood, ``("next", "reward")``."""
-        explorer = self.log_likelihood.explorer
-        return self._AcceptedKeys(action_sample=explorer.sample_key, features=explorer.feature_key,
-                                  loc=explorer.loc_key, is_init=explorer.is_init_key)
+        likelihood = self.log_likelihood
+        return self._AcceptedKeys(action_sample=likelihood.sample_key_default, features=likelihood.explorer.feature_key,
+                                  loc=likelihood.explorer.loc_key, is_init=likelihood.is_init_key)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         """Called by ``set_keys``: hands the likelihood its keys and refreshes ``in_keys``."""
@@ -606,7 +671,7 @@ class ReinforceEstimator(EpisodicEstimator):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import TensorDictSequential
+        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> from sde_torchrl.envs import make_minimize_env
         >>> explorer = StateDependentExplorer(1, 1)
@@ -653,7 +718,7 @@ def step_scores(log_likelihood: EpisodeLogLikelihood, episodes: TensorDictBase) 
         ``{parameter name: score}`` with each score shaped ``[*runs, N, T, *parameter_shape[len(runs):]]``.
 
     Examples:
-        >>> from tensordict.nn import TensorDictSequential
+        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
         >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action_sample": torch.randn(4, 10, 2)}, [4, 10])
@@ -737,7 +802,7 @@ class GPOMDPEstimator(EpisodicEstimator):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import TensorDictSequential
+        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> from sde_torchrl.envs import make_minimize_env
         >>> explorer = StateDependentExplorer(1, 1)

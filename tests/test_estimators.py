@@ -7,17 +7,21 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torchrl.modules import ProbabilisticActor
 
 from sde_torchrl import (
     ENACEstimator,
+    GPOMDPEstimator,
     LinearActor,
     MLPActor,
     ReinforceEstimator,
+    SDEParams,
     StateDependentExplorer,
     episode_returns,
     episode_scores,
     make_minimize_env,
+    make_sde_actor,
 )
 from sde_torchrl.estimators import (
     EpisodeLogLikelihood,
@@ -296,3 +300,51 @@ def test_max_grad_entry_rescales_by_the_signed_largest_entry_per_run():
     torch.testing.assert_close(rescale_largest_entry(negative, 1000.0), negative)
     with pytest.raises(ValueError, match="max_grad_entry"):
         ReinforceEstimator(policy, max_grad_entry=0.0)
+
+
+def _probabilistic_twin(policy, squash=False):
+    """The ProbabilisticActor form (make_sde_actor) of a TensorDictSequential(actor, explorer), same parameters."""
+    actor, explorer = policy.module
+    sde = SDEParams(explorer.action_dim, explorer.feature_dim, sharing=explorer.sharing,
+                    gaussian_init_param=-1.0 if explorer.has_gaussian else None)
+    sde.load_state_dict(explorer.state_dict())
+    kwargs = {"squash": True, "low": -1.0, "high": 1.0} if squash else {}
+    return make_sde_actor(actor, sde, **kwargs)
+
+
+@pytest.mark.parametrize("estimator_cls", [ReinforceEstimator, ENACEstimator, GPOMDPEstimator])
+@pytest.mark.parametrize("variance_weighted", [False, True])
+def test_probabilistic_actor_policy_gives_the_explorer_policys_gradient(estimator_cls, variance_weighted):
+    torch.manual_seed(0)
+    policy = _policy(gaussian=-1.0)
+    with torch.no_grad():
+        policy.module[-1].sigma_param.add_(0.3 * torch.randn_like(policy.module[-1].sigma_param))
+    twin = _probabilistic_twin(policy)
+    episodes = _episodes(policy, episodes=6)
+    # make_sde_actor's policy reads the action it took under "action": the explorer's pre-squash sample
+    as_taken = episodes.exclude("action").set("action", episodes["action_sample"]).exclude("action_sample")
+    expected = estimator_cls(policy, variance_weighted=variance_weighted)(episodes)["gradient"]
+    got = estimator_cls(twin, variance_weighted=variance_weighted)(as_taken)["gradient"]
+    assert expected.abs().max() > 0
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+
+
+def test_probabilistic_actor_policy_learns_from_its_own_rollouts():
+    torch.manual_seed(0)
+    sde = SDEParams(1, 1)
+    policy = make_sde_actor(LinearActor(1, 1, init=-2.0), sde)
+    env = make_minimize_env(5, episodes=8, x0=1.0).append_transform(sde.make_tensordict_primer())
+    with torch.no_grad():
+        episodes = env.rollout(5, policy, break_when_any_done=False)
+    assert episodes["sde_noise"][:, 0].ne(episodes["sde_noise"][:, -1]).sum() == 0  # ξ held for the episode
+    gradient = ReinforceEstimator(policy)(episodes)["gradient"]
+    assert gradient.shape == (2,) and torch.isfinite(gradient).all() and gradient.abs().max() > 0
+
+
+def test_squashed_or_foreign_probabilistic_policies_are_refused_with_the_fix():
+    with pytest.raises(TypeError, match="TanhSDENormal.*without squash"):
+        ReinforceEstimator(_probabilistic_twin(_policy(), squash=True))
+    plain = ProbabilisticActor(TensorDictModule(torch.nn.Linear(2, 4), in_keys=["observation"], out_keys=["p"]),
+                               in_keys=["p"], distribution_class=torch.distributions.Normal)
+    with pytest.raises(TypeError, match="make_sde_actor"):
+        ReinforceEstimator(plain)
