@@ -14,9 +14,14 @@ of one estimator, and writes into ``--out DIR``:
   ``analysis/ballcatch_initial.py`` under the sweep directories, the mean initial and final
   evaluations and the mean change per run with its bootstrap interval.
 
+With ``--estimator all`` it compares the methods of the REINFORCE sweeps (issue 16): SDE and
+REX with REINFORCE, SDE with GPOMDP (``sde+gpomdp``) and PGPE, written as ``methods.*``, with
+every method's difference from REINFORCE + SDE (and PGPE's from REX) in the same form.
+
 Usage:
     python analysis/fig5.py --out results/fig5 multirun/2026-11-22/10-00-00 [more shards...]
     python analysis/fig5.py --estimator enac --out results/fig6 SWEEP_DIR
+    python analysis/fig5.py --estimator all --out results/methods FIG5_SWEEP GPOMDP_SWEEP PGPE_SWEEP
 """
 
 from __future__ import annotations
@@ -35,7 +40,28 @@ PAPER = {
     "reinforce": {"sde": {-1.0: 68, -1.1: 98}, "rex": {-1.0: 7}},
     "enac": {"sde": {-1.1: 93}, "rex": {-1.1: 67}},  # "SDE outperformed REX by over 38%"
 }
-FIGURE = {"reinforce": "fig5", "enac": "fig6"}
+PAPER["all"] = PAPER["reinforce"]
+FIGURE = {"reinforce": "fig5", "enac": "fig6", "all": "methods"}
+#: ``--estimator all``: the estimators compared on the REINFORCE sweeps' settings.
+COMPARED = ("reinforce", "gpomdp", "pgpe")
+#: ``--estimator all``: (method, baseline) pairs whose differences are reported.
+VERSUS = (("sde", "rex"), ("sde+gpomdp", "sde"), ("pgpe", "sde"), ("pgpe", "rex"))
+
+
+def method_label(explorer: str, estimator: str, wanted: str) -> str | None:
+    """The run's label in the figure, or ``None`` if the figure leaves it out: the explorer for
+    one estimator; with ``wanted="all"``, ``explorer`` for REINFORCE, ``explorer+estimator`` for
+    GPOMDP, ``pgpe`` for PGPE.
+
+    Examples:
+        >>> method_label("sde", "gpomdp", "all"), method_label("sde", "gpomdp", "reinforce")
+        ('sde+gpomdp', None)
+    """
+    if wanted != "all":
+        return explorer if estimator == wanted else None
+    if estimator not in COMPARED:
+        return None
+    return explorer if estimator in ("reinforce", explorer) else f"{explorer}+{estimator}"
 
 
 def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, dict]]:
@@ -48,9 +74,10 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     for directory in directories:
         for summary_path in sorted(directory.rglob("summary.json")):
             summary = read_summary(summary_path)
-            if summary.get("estimator") != estimator:
+            explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
+            if explorer is None:
                 continue
-            explorer, scale = summary["explorer"], mean_reward_factor(summary)
+            scale = mean_reward_factor(summary)
             evals: dict[int, list[tuple[int, float]]] = {}
             with open(summary_path.parent / "metrics.csv") as f:
                 for row in csv.DictReader(f):
@@ -74,9 +101,10 @@ def load_initial(directories: list[Path], estimator: str) -> dict[str, dict[int,
     for directory in directories:
         for path in sorted(directory.rglob("initial.json")):
             found = json.loads(path.read_text())
-            if found["estimator"] == estimator:
+            label = method_label(found["explorer"], found["estimator"], estimator)
+            if label is not None:
                 for offset, value in enumerate(found["initial_eval_return"]):
-                    initial.setdefault(found["explorer"], {})[found["first_run"] + offset] = value
+                    initial.setdefault(label, {})[found["first_run"] + offset] = value
     return initial
 
 
@@ -121,16 +149,22 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
         stats["improvement"] = improvement(by_run, (initial or {}).get(explorer, {}))
         explorers[explorer] = stats
     result = {"estimator": estimator, "explorers": explorers}
-    if {"sde", "rex"} <= runs.keys():
-        difference = {}
+
+    def difference(method: str, baseline: str) -> dict:
+        out = {}
         for kind in ("best", "final"):
-            difference[kind] = {}
-            for level in flags["sde"][kind]:
-                sde, rex = flags["sde"][kind][level], flags["rex"][kind][level]
-                estimate, low, high = bootstrap_interval((sde, rex), lambda a, b: a.mean(-1) - b.mean(-1))
-                difference[kind][level] = {"estimate": estimate, "interval": [low, high],
-                                           "significant": not low <= 0.0 <= high}
-        result["sde_minus_rex"] = difference
+            out[kind] = {}
+            for level in flags[method][kind]:
+                ours, theirs = flags[method][kind][level], flags[baseline][kind][level]
+                estimate, low, high = bootstrap_interval((ours, theirs), lambda a, b: a.mean(-1) - b.mean(-1))
+                out[kind][level] = {"estimate": estimate, "interval": [low, high],
+                                    "significant": not low <= 0.0 <= high}
+        return out
+
+    if {"sde", "rex"} <= runs.keys():
+        result["sde_minus_rex"] = difference("sde", "rex")
+    if estimator == "all":
+        result["differences"] = {f"{a} − {b}": difference(a, b) for a, b in VERSUS if {a, b} <= runs.keys()}
     return result
 
 
@@ -154,17 +188,19 @@ def write_markdown(result: dict, path: Path) -> None:
                          f"{_percent(final)} % [{_percent(f_low)}, {_percent(f_high)}]"
                          + (f" (paper {paper} %)" if paper is not None else ""))
         lines.append(f"| {explorer.upper()} | {stats['runs']} | " + " | ".join(cells) + " |")
-    if "sde_minus_rex" in result:
+    differences = result.get("differences") or (
+        {"sde − rex": result["sde_minus_rex"]} if "sde_minus_rex" in result else {})
+    for name, versus in differences.items():
         cells = []
         for level in (f"{level}" for level in LEVELS):
             parts = []
             for kind in ("best", "final"):
-                d = result["sde_minus_rex"][kind][level]
+                d = versus[kind][level]
                 low, high = d["interval"]
                 parts.append(f"{100 * d['estimate']:+.0f} [{100 * low:+.0f}, {100 * high:+.0f}]"
                              + ("*" if d["significant"] else ""))
             cells.append(" / ".join(parts))
-        lines.append("| SDE − REX (points) |  | " + " | ".join(cells) + " |")
+        lines.append(f"| {name.upper()} (points) |  | " + " | ".join(cells) + " |")
     for explorer, stats in result["explorers"].items():
         if stats["improvement"]:
             change = stats["improvement"]["change"]
@@ -172,7 +208,7 @@ def write_markdown(result: dict, path: Path) -> None:
                       f"{stats['improvement']['final_mean']:.3f} (final); mean change per run {change[0]:+.3f} "
                       f"[{change[1]:+.3f}, {change[2]:+.3f}]"]
     lines += ["", "Cells: percent of runs whose best / final deterministic evaluation reached the level, with its "
-              "95 % Wilson interval; the paper's count out of 100 runs where it states one. SDE − REX: the "
+              "95 % Wilson interval; the paper's count out of 100 runs where it states one. A − B: the "
               "difference in percentage points with its 95 % bootstrap interval over runs; * where the interval "
               "excludes 0."]
     path.write_text("\n".join(lines) + "\n")
@@ -200,9 +236,11 @@ def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str)
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.4))
-    styles = {"sde": {"color": "tab:blue", "ls": "-"}, "rex": {"color": "tab:red", "ls": "--"}}
+    styles = {"sde": {"color": "tab:blue", "ls": "-"}, "rex": {"color": "tab:red", "ls": "--"},
+              "sde+gpomdp": {"color": "tab:green", "ls": "-."}, "pgpe": {"color": "tab:purple", "ls": ":"}}
     labels = [str(level) for level in LEVELS]
-    for shift, (explorer, by_run) in zip((-0.06, 0.06), sorted(runs.items()), strict=False):
+    shifts = [0.12 * (i - (len(runs) - 1) / 2) for i in range(len(runs))]
+    for shift, (explorer, by_run) in zip(shifts, sorted(runs.items()), strict=True):
         style = styles.get(explorer, {})
         x, curve = mean_curve(by_run)
         left.plot(x, [m for m, _, _ in curve], label=explorer.upper(), **style)
@@ -213,8 +251,8 @@ def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str)
         low = [100 * stats["best_interval"][f"{level}"][0] for level in LEVELS]
         high = [100 * stats["best_interval"][f"{level}"][1] for level in LEVELS]
         positions = [i + shift for i in range(len(LEVELS))]
-        right.errorbar(positions, fraction, yerr=[[f - lo for f, lo in zip(fraction, low, strict=True)],
-                                                  [hi - f for f, hi in zip(fraction, high, strict=True)]],
+        right.errorbar(positions, fraction, yerr=[[max(f - lo, 0) for f, lo in zip(fraction, low, strict=True)],
+                                                  [max(hi - f, 0) for f, hi in zip(fraction, high, strict=True)]],
                        marker="o", capsize=3, label=f"{explorer.upper()} ({stats['runs']} runs)", **style)
         paper = [(i, stats["paper"][f"{level}"]) for i, level in enumerate(LEVELS) if f"{level}" in stats["paper"]]
         if paper:
@@ -245,7 +283,8 @@ def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:
     result = report(runs, args.estimator, load_initial(args.sweeps, args.estimator))
     (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
     write_markdown(result, args.out / f"{name}.md")
-    plot(runs, result, args.out / f"{name}.png", f"ball catching, {args.estimator.upper()}")
+    method = "REINFORCE settings" if args.estimator == "all" else args.estimator.upper()
+    plot(runs, result, args.out / f"{name}.png", f"ball catching, {method}")
     return 0
 
 

@@ -15,7 +15,7 @@ fig5 = load_script("fig5")
 
 
 def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]],
-               summed_over: int | None = None) -> None:
+               summed_over: int | None = None, estimator: str = "reinforce") -> None:
     """A run directory as train.py writes it: evaluations every 20 updates; with ``summed_over=T``,
     as a job with ``estimator.episode_return=sum`` over ``T`` steps reports the same returns."""
     factor = summed_over or 1
@@ -29,7 +29,7 @@ def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[
                     writer.writerow({"run": first_run + offset, "update": update, "episodes": update + 20,
                                      "return_mean": -2.0,
                                      "eval_return": factor * value if update == 20 * i + 19 else ""})
-    summary = {"estimator": "reinforce", "explorer": explorer, "first_run": first_run,
+    summary = {"estimator": estimator, "explorer": explorer, "first_run": first_run,
                "final_eval_return": [factor * curve[-1] for curve in evals]}
     if summed_over:
         summary |= {"episode_return": "sum", "settings": {"episode_length": summed_over}}
@@ -70,6 +70,27 @@ def test_counts_carry_intervals_and_the_sde_rex_difference_its_significance(tmp_
     assert slowed["estimate"] == 0 and not slowed["significant"]  # every run of both reached -2.0
     table = (tmp_path / "out" / "fig5.md").read_text()
     assert "75 % [60, 86]" in table and "+65 [" in table and "]*" in table
+
+
+def test_method_comparison_labels_each_estimator_and_differs_from_reinforce_sde(tmp_path):
+    jobs = {("sde", "reinforce"): [[-2.0, -0.95]] * 8 + [[-2.0, -2.4]] * 2,
+            ("rex", "reinforce"): [[-2.0, -1.3]] * 10,
+            ("sde", "gpomdp"): [[-2.0, -0.95]] * 3 + [[-2.0, -1.6]] * 7,
+            ("pgpe", "pgpe"): [[-2.0, -1.05]] * 10,
+            ("sde", "enac"): [[-2.0, -0.9]] * 10}  # another figure's: left out
+    for (explorer, estimator), curves in jobs.items():
+        _write_job(tmp_path / f"{explorer}_{estimator}", explorer, 0, curves, estimator=estimator)
+    assert fig5.main([str(tmp_path), "--estimator", "all", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "methods.json").read_text())
+    assert sorted(result["explorers"]) == ["pgpe", "rex", "sde", "sde+gpomdp"]
+    assert result["explorers"]["sde+gpomdp"]["best"]["-1.0"] == 3
+    assert result["explorers"]["pgpe"]["best"] == {"-2.0": 10, "-1.5": 10, "-1.1": 10, "-1.0": 0}
+    gpomdp = result["differences"]["sde+gpomdp − sde"]["best"]["-1.0"]
+    assert gpomdp["estimate"] == pytest.approx(0.3 - 0.8)
+    assert result["differences"]["pgpe − rex"]["best"]["-1.1"]["estimate"] == pytest.approx(1.0)
+    table = (tmp_path / "out" / "methods.md").read_text()
+    assert "| SDE+GPOMDP | 10 |" in table and "| PGPE − SDE (points) |" in table
+    assert (tmp_path / "out" / "methods.png").stat().st_size > 0
 
 
 def test_initial_evaluations_give_the_mean_change_per_run(tmp_path):
