@@ -35,6 +35,7 @@ import os
 import platform
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,9 @@ ZOO = {
     "clip_range": 0.4, "log_std_init": -2.0, "net_arch": [256, 256], "normalize": True,
 }
 CLIP, EPS = 10.0, 1e-8  # VecNormalize's clip_obs = clip_reward and epsilon
+#: What ClipPPOLoss reads of a minibatch (the SDE policy also checks that the noise is there).
+MINIBATCH_KEYS = ("observation", "action", "action_log_prob", "advantage", "value_target", "state_value",
+                  "sde_noise", "sde_age", "is_init")
 
 
 def _gym_make():
@@ -203,7 +207,7 @@ def train_torchrl(method: str, seed: int, steps: int) -> dict:
         curve += [[done_frames, float(r)] for r in batch["next", "episode_reward"].squeeze(-1)[finished]]
         with torch.no_grad():
             gae(batch)
-        flat = batch.reshape(-1)
+        flat = batch.reshape(-1).select(*MINIBATCH_KEYS, strict=False).contiguous()  # gather only what the loss reads
         for _ in range(ZOO["n_epochs"]):
             for idx in torch.randperm(flat.numel()).split(ZOO["batch_size"]):
                 out = loss(flat[idx])
@@ -328,17 +332,19 @@ def _plot(runs: dict[str, list[dict]], names: dict[str, str], path: Path) -> Non
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4))
-    bin_steps = 25_000
+    bin_steps = 50_000
     for method, method_runs in runs.items():
         if not method_runs:
             continue
         total = max(r["env_steps"] for r in method_runs)
         curves = np.stack([binned_curve(r, bin_steps, total) for r in method_runs])
         x = (np.arange(curves.shape[1]) + 1) * bin_steps
-        mean = np.nanmean(curves, 0)
+        with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
         ax.plot(x, mean, label=f"{names[method]} ({len(method_runs)} seeds)")
         if len(method_runs) > 1:
-            ax.fill_between(x, np.nanmin(curves, 0), np.nanmax(curves, 0), alpha=0.2)
+            ax.fill_between(x, low, high, alpha=0.2)
     ax.set_xlabel("env steps")
     ax.set_ylabel("training episode return (raw)")
     ax.set_title(f"PPO on {ENV_ID} (rl-zoo settings); band: min-max over seeds")

@@ -1,0 +1,85 @@
+"""analysis/bench_ppo.py: SB3's normalisation rule, a short real PPO run with the SDE policy, the report."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from _helpers import REPO, load_script
+
+bench = load_script("bench_ppo")
+
+
+def test_running_statistics_match_stable_baselines3():
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    reference, rng = RunningMeanStd(shape=(3,)), np.random.default_rng(0)
+    mean, var, count = torch.zeros(3, dtype=torch.float64), torch.ones(3, dtype=torch.float64), torch.tensor(1e-4)
+    for _ in range(5):
+        batch = rng.normal(2.0, 3.0, size=(16, 3))
+        reference.update(batch)
+        mean, var, count = bench._running_update(mean, var, count.double(), torch.from_numpy(batch))
+    np.testing.assert_allclose(mean.numpy(), reference.mean, rtol=1e-12)
+    np.testing.assert_allclose(var.numpy(), reference.var, rtol=1e-12)
+
+
+def test_normalizer_scales_rewards_by_the_discounted_return_like_vecnormalize():
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+    from tensordict import TensorDict
+
+    gamma, normalizer, reference = 0.9, bench.make_normalizer(2, 0.9), RunningMeanStd(shape=())
+    returns = np.zeros(4)
+    for step in range(6):
+        reward, done = torch.full((4, 1), float(step + 1)), torch.tensor([[False]] * 3 + [[step == 2]])
+        td = TensorDict({"observation": torch.randn(4, 2), "reward": reward, "done": done}, [4])
+        out = normalizer._step(TensorDict({}, [4]), td)
+        returns = returns * gamma + reward.squeeze(-1).numpy()
+        reference.update(returns)
+        expected = np.clip(reward.squeeze(-1).numpy() / np.sqrt(reference.var + 1e-8), -10, 10)
+        np.testing.assert_allclose(out["reward"].squeeze(-1).numpy(), expected, rtol=1e-6)
+        returns[done.squeeze(-1).numpy()] = 0
+
+
+def test_a_short_sde_run_writes_its_result(tmp_path):
+    result = subprocess.run([sys.executable, "analysis/bench_ppo.py", "run", "--method", "sde", "--steps", "8192",
+                             "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    data = json.loads((tmp_path / "sde_seed0.json").read_text())
+    assert data["env_steps"] == 8192 and len(data["eval_returns"]) == bench.EVAL_EPISODES
+    assert np.isfinite(data["eval_returns"]).all() and data["env_steps_per_s"] > 0
+    assert data["final_return_mean"] == pytest.approx(np.mean(data["eval_returns"]))
+    assert "sde seed 0: final return" in result.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["plain", "sb3"])
+def test_a_short_run_of_the_other_methods(tmp_path, method):
+    bench.run(method, 1, 8192, tmp_path)
+    data = json.loads((tmp_path / f"{method}_seed1.json").read_text())
+    assert data["env_steps"] == 8192 and np.isfinite(data["eval_returns"]).all()
+
+
+def _fake_run(folder, method, seed, final, speed):
+    curve = [[16_000 * (k + 1), final * k / 30] for k in range(31)]
+    (folder / f"{method}_seed{seed}.json").write_text(json.dumps(
+        {"method": method, "seed": seed, "env_steps": 507_904, "curve": curve, "final_return_mean": final,
+         "env_steps_per_s": speed, "eval_returns": [final]}))
+
+
+def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
+    for seed, (sde, sb3) in enumerate([(1800, 2000), (2000, 2200), (2200, 2400)]):
+        _fake_run(tmp_path, "sde", seed, sde, 600)
+        _fake_run(tmp_path, "sb3", seed, sb3, 1000)
+    table = bench.report(tmp_path, tmp_path / "out")
+    assert "| TorchRL PPO, SDE (ours) | 3 | 507,904 | 2000 ± 200 | 1800, 2000, 2200 | 600 |" in table
+    assert "final return 0.91×" in table and "env steps per second 0.60×" in table
+    assert (tmp_path / "out" / "bench_ppo.png").stat().st_size > 0
+
+
+def test_report_without_runs_says_what_to_run(tmp_path):
+    with pytest.raises(SystemExit, match="bench_ppo.py run"):
+        bench.report(tmp_path, tmp_path / "out")
