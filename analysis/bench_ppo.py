@@ -10,7 +10,9 @@ Three methods, the same hyperparameters (rl-baselines3-zoo's tuned PPO + gSDE se
   from the actor's last hidden layer (detached, as gSDE's ``learn_features=False``), noise matrix
   redrawn every ``sde_sample_freq`` steps and at every reset (``schedule="every_n"``),
   ``p`` initialised to ``log_std_init`` (``σ̂ = expln(p) = exp(p)`` for ``p ≤ 0``);
-* ``sb3``: Stable-Baselines3 ``PPO(use_sde=True)`` (optional extra ``.[bench]``).
+* ``sb3``: Stable-Baselines3 ``PPO(use_sde=True)`` (optional extra ``.[bench]``);
+* ``sb3_gauss``: the same without gSDE (SB3's state-independent Gaussian), to compare PPO loops
+  apart from the exploration.
 
 Each run writes ``<out>/<method>_seed<k>.json``: the deterministic return of 10 evaluation
 episodes at the end (frozen observation statistics, raw rewards), the training episodes' raw
@@ -24,7 +26,7 @@ Usage::
 
 Examples:
     >>> sorted(METHODS)
-    ['plain', 'sb3', 'sde']
+    ['plain', 'sb3', 'sb3_gauss', 'sde']
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ import numpy as np
 import torch
 
 ENV_ID = "HalfCheetahBulletEnv-v0"
-METHODS = ("plain", "sde", "sb3")
+METHODS = ("plain", "sde", "sb3", "sb3_gauss")
 EVAL_EPISODES = 10
 # rl-baselines3-zoo hyperparams/ppo.yml, "HalfCheetahBulletEnv-v0" (tuned, PPO + gSDE)
 ZOO = {
@@ -223,7 +225,7 @@ def train_torchrl(method: str, seed: int, steps: int) -> dict:
 
 
 # ---------------------------------------------------------------------------------------- SB3 side
-def train_sb3(seed: int, steps: int) -> dict:
+def train_sb3(seed: int, steps: int, use_sde: bool = True) -> dict:
     try:
         from stable_baselines3 import PPO
         from stable_baselines3.common.callbacks import BaseCallback
@@ -243,7 +245,7 @@ def train_sb3(seed: int, steps: int) -> dict:
     env = VecNormalize(make_vec_env(_gym_make, n_envs=ZOO["n_envs"], seed=seed), gamma=ZOO["gamma"])
     model = PPO(
         "MlpPolicy", env, n_steps=ZOO["n_steps"], batch_size=ZOO["batch_size"], gamma=ZOO["gamma"],
-        gae_lambda=ZOO["gae_lambda"], n_epochs=ZOO["n_epochs"], ent_coef=ZOO["ent_coef"], use_sde=True,
+        gae_lambda=ZOO["gae_lambda"], n_epochs=ZOO["n_epochs"], ent_coef=ZOO["ent_coef"], use_sde=use_sde,
         sde_sample_freq=ZOO["sde_sample_freq"], max_grad_norm=ZOO["max_grad_norm"], vf_coef=ZOO["vf_coef"],
         learning_rate=ZOO["learning_rate"], clip_range=ZOO["clip_range"], seed=seed, device="cpu",
         policy_kwargs={"log_std_init": ZOO["log_std_init"], "ortho_init": False, "activation_fn": torch.nn.ReLU,
@@ -263,7 +265,10 @@ def train_sb3(seed: int, steps: int) -> dict:
 # ------------------------------------------------------------------------------------------ command
 def run(method: str, seed: int, steps: int, out: Path) -> Path:
     torch.set_num_threads(1)  # one core per run: two runs side by side on a 2-core machine
-    result = train_sb3(seed, steps) if method == "sb3" else train_torchrl(method, seed, steps)
+    if method.startswith("sb3"):
+        result = train_sb3(seed, steps, use_sde=method == "sb3")
+    else:
+        result = train_torchrl(method, seed, steps)
     import torchrl
 
     result.update(method=method, seed=seed, env_id=ENV_ID, settings=ZOO,
@@ -299,7 +304,8 @@ def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
 
 def report(folder: Path, out: Path) -> str:
     runs = load_runs(folder)
-    names = {"plain": "TorchRL PPO, Gaussian", "sde": "TorchRL PPO, SDE (ours)", "sb3": "SB3 PPO, gSDE"}
+    names = {"plain": "TorchRL PPO, Gaussian", "sde": "TorchRL PPO, SDE (ours)", "sb3": "SB3 PPO, gSDE",
+             "sb3_gauss": "SB3 PPO, Gaussian"}
     rows, stats = [], {}
     for method in METHODS:
         if not runs[method]:

@@ -56,7 +56,7 @@ def test_a_short_sde_run_writes_its_result(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["plain", "sb3"])
+@pytest.mark.parametrize("method", ["plain", "sb3", "sb3_gauss"])
 def test_a_short_run_of_the_other_methods(tmp_path, method):
     bench.run(method, 1, 8192, tmp_path)
     data = json.loads((tmp_path / f"{method}_seed1.json").read_text())
