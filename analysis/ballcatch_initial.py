@@ -22,6 +22,7 @@ from pathlib import Path
 from sde_torchrl.build import build_trainer
 from sde_torchrl.compose import compose
 from sde_torchrl.config import validate
+from sde_torchrl.summary import per_step_factor
 
 
 def initial_evaluation(overrides: list[str]) -> dict:
@@ -33,7 +34,7 @@ def initial_evaluation(overrides: list[str]) -> dict:
         returns = trainer.evaluate()
     finally:
         trainer.close()
-    scale = 1.0 / conf.env.episode_length if conf.estimator.episode_return == "sum" else 1.0
+    scale = per_step_factor(conf.estimator.episode_return, conf.env.episode_length)
     return {"explorer": choices.explorer, "estimator": choices.estimator, "overrides": overrides,
             "first_run": conf.first_run, "initial_eval_return": (scale * returns).tolist()}
 

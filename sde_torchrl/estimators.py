@@ -192,7 +192,7 @@ class EpisodeLogLikelihood(nn.Module):
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
+        >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
         >>> log_likelihood.in_keys
@@ -436,7 +436,7 @@ class EpisodicEstimator(LossModule):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
+        >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
         >>> from sde_torchrl.rollout import collect_episodes
         >>> explorer = StateDependentExplorer(1, 1)
@@ -671,7 +671,7 @@ class ReinforceEstimator(EpisodicEstimator):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
+        >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> from sde_torchrl.envs import make_minimize_env
         >>> explorer = StateDependentExplorer(1, 1)
@@ -718,7 +718,7 @@ def step_scores(log_likelihood: EpisodeLogLikelihood, episodes: TensorDictBase) 
         ``{parameter name: score}`` with each score shaped ``[*runs, N, T, *parameter_shape[len(runs):]]``.
 
     Examples:
-        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
+        >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
         >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action_sample": torch.randn(4, 10, 2)}, [4, 10])
@@ -802,7 +802,7 @@ class GPOMDPEstimator(EpisodicEstimator):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
+        >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer
         >>> from sde_torchrl.envs import make_minimize_env
         >>> explorer = StateDependentExplorer(1, 1)

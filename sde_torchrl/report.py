@@ -21,8 +21,9 @@ class Reporter:
         done: updates already done (a resumed job).
         steps_per_update: env steps of one update (all runs), for the speed figure.
         progress: show a progress bar (:mod:`sde_torchrl.progress`).
-        summed_over: for returns that sum this many steps' rewards (``estimator.episode_return=sum``),
-            the log line adds them per step, the paper's mean-reward units; ``None``: nothing added.
+        per_step: the factor to the paper's mean reward per step
+            (:func:`~sde_torchrl.summary.per_step_factor`); unless 1, the log line adds the returns
+            in those units.
 
     Examples:
         >>> import torch
@@ -32,9 +33,9 @@ class Reporter:
     """
 
     def __init__(self, logger: Any, updates: int, done: int, steps_per_update: int, progress: bool = False,
-                 summed_over: int | None = None) -> None:
+                 per_step: float = 1.0) -> None:
         self.logger, self.updates, self.steps_per_update = logger, updates, steps_per_update
-        self.summed_over = summed_over
+        self.per_step = per_step
         self.bar = Progress(updates, done, enabled=progress)
         self.rate = RateMeter()
 
@@ -48,8 +49,8 @@ class Reporter:
                 self.logger.log_scalar("eval_return", float(eval_return.mean()), step=episodes)
         if eval_return is not None:
             evaluation = float(eval_return.mean())
-            per_step = "" if self.summed_over is None else \
-                f"  (per step: return {mean / self.summed_over:.3f}  eval {evaluation / self.summed_over:.3f})"
+            per_step = "" if self.per_step == 1.0 else \
+                f"  (per step: return {mean * self.per_step:.3f}  eval {evaluation * self.per_step:.3f})"
             log.info("update %d/%d  return %.3f  eval %.3f%s  %.0f env steps/s", k + 1, self.updates, mean,
                      evaluation, per_step, speed)
         self.bar.step(mean, speed)

@@ -90,6 +90,17 @@ def summarize(
     }
 
 
+def per_step_factor(episode_return: str, episode_length: int) -> float:
+    """What turns a return in the ``episode_return`` definition into the paper's mean reward per
+    step: ``1 / episode_length`` for summed rewards (the authors' learner), else 1.
+
+    Examples:
+        >>> per_step_factor("sum", 500), per_step_factor("mean", 500)
+        (0.002, 1.0)
+    """
+    return 1.0 / episode_length if episode_return == "sum" else 1.0
+
+
 def mean_reward_factor(summary: dict[str, Any]) -> float:
     """What turns the returns that ``summary.json`` and ``metrics.csv`` report into the paper's
     mean reward per step: ``1 / episode_length`` for a job that regressed on summed rewards
@@ -104,4 +115,6 @@ def mean_reward_factor(summary: dict[str, Any]) -> float:
         >>> mean_reward_factor({"episode_return": "mean", "settings": {"episode_length": 500}})
         1.0
     """
-    return 1.0 / summary["settings"]["episode_length"] if summary.get("episode_return") == "sum" else 1.0
+    if summary.get("episode_return") != "sum":
+        return 1.0  # a mean-return job need not record its episode length
+    return per_step_factor("sum", summary["settings"]["episode_length"])

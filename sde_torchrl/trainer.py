@@ -33,7 +33,7 @@ from sde_torchrl.report import Reporter, close_logger
 from sde_torchrl.rollout import collect_episodes
 from sde_torchrl.run_dir import RunDirectory, metric_rows
 from sde_torchrl.settings import TrainingSettings
-from sde_torchrl.summary import LoopState, summarize
+from sde_torchrl.summary import LoopState, per_step_factor, summarize
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +165,7 @@ class Trainer:
         session_start, session_wall = time.perf_counter(), state.wall_s
         reporter = Reporter(self.logger, s.updates, state.update,
                             self.runs * s.episodes_per_update * s.episode_length, progress,
-                            summed_over=s.episode_length if self.estimator.episode_return == "sum" else None)
+                            per_step=per_step_factor(self.estimator.episode_return, s.episode_length))
         with run_dir.open_metrics(self._recorded_rows(state)) as metrics, DeferredInterrupt() as interrupt:
             try:
                 for k in range(state.update, s.updates):
