@@ -10,7 +10,7 @@ register_ballcatch()  # gymnasium.make("sde_torchrl/BallCatch-v0"); pybullet loa
 #: does not import torch, so that ``train.py`` can lock its run directory first
 #: (:mod:`sde_torchrl.lock`), and the ball-catching modules do not import pybullet before use.
 _LAZY = {
-    **dict.fromkeys(("LinearActor", "MLPActor"), "sde_torchrl.actors"),
+    **dict.fromkeys(("LatentMLPActor", "LinearActor", "MLPActor"), "sde_torchrl.actors"),
     **dict.fromkeys(("SDENormal", "TanhSDENormal"), "sde_torchrl.distribution"),
     **dict.fromkeys(("MinimizeEnv", "make_minimize_env"), "sde_torchrl.envs.minimize"),
     **dict.fromkeys(("ENACEstimator", "GPOMDPEstimator", "ReinforceEstimator", "episode_returns", "episode_scores"),
@@ -36,6 +36,7 @@ __all__ = [
     "BatchedBallCatchEnv",
     "ENACEstimator",
     "GPOMDPEstimator",
+    "LatentMLPActor",
     "LinearActor",
     "MLPActor",
     "MinimizeEnv",

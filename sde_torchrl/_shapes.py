@@ -51,6 +51,29 @@ def stacked_matvec(matrix: torch.Tensor, x: torch.Tensor, run_dims: int) -> torc
     return (rows @ matrix.transpose(-1, -2)).reshape(*x.shape[:-1], matrix.shape[-2])
 
 
+def compact_broadcast(tensor: torch.Tensor, core_dims: int) -> torch.Tensor:
+    """A view of ``tensor`` with every expanded (stride-0) leading dimension cut to size 1.
+
+    ``SDEParams`` writes one ``σ̂`` expanded to the batch so that a tensordict can hold it;
+    squaring that view would materialise one copy per row. The compact view still broadcasts to
+    the same shape and carries gradients to the same parameter.
+
+    Args:
+        tensor: ``[*lead, *core]``.
+        core_dims: number of trailing dimensions to keep whole.
+
+    Returns:
+        ``tensor`` indexed to size 1 along each leading dimension of stride 0.
+
+    Examples:
+        >>> compact_broadcast(torch.ones(2, 3).expand(5, 2, 3), core_dims=2).shape
+        torch.Size([1, 2, 3])
+    """
+    lead = tensor.dim() - core_dims
+    index = tuple(slice(0, 1) if stride == 0 else slice(None) for stride in tensor.stride()[:lead])
+    return tensor[index]
+
+
 def _check_run_dims(batch_dims: int, run_dims: int) -> None:
     if batch_dims < run_dims:
         raise ValueError(

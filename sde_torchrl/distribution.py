@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch.distributions import Distribution, constraints
 
-from sde_torchrl._shapes import stacked_matvec
+from sde_torchrl._shapes import compact_broadcast, stacked_matvec
 
 #: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
 MIN_VARIANCE = 1e-12
@@ -130,8 +130,8 @@ def sde_variance(
         >>> sde_variance(torch.full((4, 2, 3), 0.5), torch.ones(4, 10, 3), run_dims=1).shape
         torch.Size([4, 10, 2])
     """
-    if run_dims is None:
-        variance = (sigma_hat.square() * features.square().unsqueeze(-2)).sum(-1)
+    if run_dims is None:  # one contraction over S, without squaring a σ̂ expanded to the batch
+        variance = torch.einsum("...as,...s->...a", compact_broadcast(sigma_hat, 2).square(), features.square())
     else:
         variance = stacked_matvec(sigma_hat.square(), features.square(), run_dims)
     if gaussian_scale is not None:

@@ -6,7 +6,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from sde_torchrl import LinearActor, MLPActor
+from sde_torchrl import LatentMLPActor, LinearActor, MLPActor
 from sde_torchrl._shapes import stacked_matvec
 from sde_torchrl.rng import RunStreams
 
@@ -78,3 +78,55 @@ def test_stacked_matvec_is_theta_x_per_run(run_shape, batch):
 def test_stacked_matvec_needs_a_run_dimension_in_the_data():
     with pytest.raises(ValueError, match="cannot hold 1 run dims"):
         stacked_matvec(torch.randn(3, 4, 3), torch.randn(3), run_dims=1)
+
+
+# ------------------------------------------------------------------- latent features (gSDE-style)
+
+def _latent_actor(learn_features=False, runs=None):
+    torch.manual_seed(0)
+    return LatentMLPActor(3, 2, hidden=[5, 4], activation="relu", learn_features=learn_features, runs=runs)
+
+
+def test_latent_actor_writes_the_mlp_output_and_its_last_hidden_layer():
+    actor = _latent_actor()
+    x = torch.randn(6, 3)
+    td = actor(TensorDict({"observation": x}, [6]))
+    first, second, out = actor.net.layers
+    hidden = torch.relu(second(torch.relu(first(x))))
+    torch.testing.assert_close(td["sde_features"], hidden)
+    torch.testing.assert_close(td["loc"], out(hidden))
+    torch.testing.assert_close(td["loc"], actor.net(x))
+
+
+@pytest.mark.parametrize("learn_features", [False, True])
+def test_latent_features_pass_the_sde_gradient_only_when_learned(learn_features):
+    from sde_torchrl import SDEParams, make_sde_actor
+
+    actor = _latent_actor(learn_features)
+    policy = make_sde_actor(actor, SDEParams(2, 4, feature_key="sde_features"))
+    td = TensorDict({"observation": torch.randn(6, 3), "sde_noise": torch.randn(6, 2, 4)}, [6])
+    dist = policy.get_dist(td)
+    variance = (policy.module[0].module[1].sde_sigma.square() * td["sde_features"].square().unsqueeze(-2)).sum(-1)
+    torch.testing.assert_close(dist.scale.square(), variance)  # eq. (20) with x = h
+    dist.scale.sum().backward()  # the scale depends on the mean's layers only through h
+    first_layer_grad = actor.net.layers[0].weight.grad
+    assert (first_layer_grad is not None and first_layer_grad.abs().sum() > 0) == learn_features
+
+
+def test_latent_actor_stacks_runs_and_without_hidden_layers_uses_the_observation():
+    stacked = _latent_actor(runs=3)
+    x = torch.randn(3, 4, 3)
+    td = stacked(TensorDict({"observation": x}, [3, 4]))
+    assert td["loc"].shape == (3, 4, 2) and td["sde_features"].shape == (3, 4, 4)
+    plain = LatentMLPActor(3, 2, hidden=[])
+    assert plain.feature_dim == 3
+    torch.testing.assert_close(plain(TensorDict({"observation": x[0]}, [4]))["sde_features"], x[0])
+
+
+def test_actors_doctests():
+    import doctest
+
+    import sde_torchrl.actors
+
+    result = doctest.testmod(sde_torchrl.actors, optionflags=doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0

@@ -258,6 +258,29 @@ def test_run_stacked_variance_equals_the_broadcast_one():
     assert sde_variance(torch.zeros(A, S), torch.zeros(S)).min() > 0  # floored: a finite likelihood at x = 0
 
 
+def test_variance_of_a_sigma_hat_expanded_to_the_batch_is_the_per_row_sum_and_its_gradient():
+    """σ_j² = Σ_i (x_i σ̂_ji)² (eq. 20) for σ̂ written as SDEParams writes it: one matrix expanded to the batch."""
+    p = torch.randn(A, S, dtype=torch.float64, requires_grad=True)
+    x = torch.randn(6, S, dtype=torch.float64)
+    variance = sde_variance(p.exp().expand(6, A, S), x)
+    per_row = torch.stack([(p.exp().square() * x[n].square()).sum(-1) for n in range(6)])
+    torch.testing.assert_close(variance, per_row)
+    (grad,) = torch.autograd.grad(variance.sum(), p)
+    torch.testing.assert_close(grad, 2 * p.exp().square() * x.square().sum(0))  # d/dp Σ_n Σ_i x_ni² e^(2p)
+    materialised = sde_variance(p.exp().expand(6, A, S).clone(), x)
+    torch.testing.assert_close(materialised, per_row)
+
+
+def test_compact_broadcast_cuts_only_expanded_dimensions():
+    from sde_torchrl._shapes import compact_broadcast
+
+    base = torch.randn(1, A, S)
+    assert compact_broadcast(base.expand(3, 4, A, S), 2).shape == (1, 1, A, S)
+    dense = torch.randn(3, A, S)
+    assert torch.equal(compact_broadcast(dense, 2), dense)
+    assert compact_broadcast(dense.unsqueeze(1).expand(3, 5, A, S), 2).shape == (3, 1, A, S)
+
+
 def test_stored_noise_reproduces_the_taken_action_and_log_prob():
     torch.manual_seed(1)
     sde = SDEParams(1, 3, gaussian_init_param=None)
