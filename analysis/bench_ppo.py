@@ -45,6 +45,7 @@ import torch
 
 ENV_ID = "HalfCheetahBulletEnv-v0"
 METHODS = ("plain", "sde", "sb3", "sb3_gauss")
+SPEED_VARIANTS = ("plain", "plain+compile", "sde", "sde+compile", "sb3", "sb3_gauss")
 EVAL_EPISODES = 10
 # rl-baselines3-zoo hyperparams/ppo.yml, "HalfCheetahBulletEnv-v0" (tuned, PPO + gSDE)
 ZOO = {
@@ -133,31 +134,32 @@ def make_torchrl_env(n_envs: int, seed: int, normalizer, primer=None):
 
 
 def make_torchrl_policy(method: str, obs_dim: int, action_dim: int):
-    """The actor (``plain`` Gaussian or ``sde``) and the critic, SB3's architecture (no shared layers)."""
+    """The actor (``plain`` Gaussian or ``sde``) and the critic, SB3's architecture (no shared layers).
+
+    Both actors are ``2 × 256`` ReLU MLPs with a linear output (``torch.nn.Linear``'s initial
+    distribution, as SB3 with ``ortho_init=False``); the SDE one also writes its last hidden
+    layer, detached, as the exploration features (:class:`~sde_torchrl.actors.LatentMLPActor`).
+    """
     from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictSequential
     from torch import nn
     from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
 
-    from sde_torchrl import SDEParams, make_sde_actor
+    from sde_torchrl import LatentMLPActor, MLPActor, SDEParams, make_sde_actor
 
     hidden = ZOO["net_arch"]
-    body = TensorDictModule(MLP(in_features=obs_dim, out_features=hidden[-1], num_cells=hidden[:-1],
-                                activation_class=nn.ReLU, activate_last_layer=True),
-                            in_keys=["observation"], out_keys=["latent"])
-    head = TensorDictModule(nn.Linear(hidden[-1], action_dim), in_keys=["latent"], out_keys=["loc"])
     critic = ValueOperator(MLP(in_features=obs_dim, out_features=1, num_cells=hidden, activation_class=nn.ReLU),
                            in_keys=["observation"])
     if method == "plain":
         scale = TensorDictModule(AddStateIndependentNormalScale(action_dim, init_value=ZOO["log_std_init"]),
                                  in_keys=["loc"], out_keys=["loc", "scale"])
-        policy = ProbabilisticActor(TensorDictSequential(body, head, scale), in_keys=["loc", "scale"],
+        actor = MLPActor(obs_dim, action_dim, hidden, activation="relu")
+        policy = ProbabilisticActor(TensorDictSequential(actor, scale), in_keys=["loc", "scale"],
                                     distribution_class=IndependentNormal, return_log_prob=True)
         return policy, critic, None
-    detach = TensorDictModule(torch.Tensor.detach, in_keys=["latent"], out_keys=["sde_features"])
-    sde = SDEParams(action_dim, hidden[-1], schedule="every_n", every_n=ZOO["sde_sample_freq"],
+    actor = LatentMLPActor(obs_dim, action_dim, hidden, activation="relu", feature_key="sde_features")
+    sde = SDEParams(action_dim, actor.feature_dim, schedule="every_n", every_n=ZOO["sde_sample_freq"],
                     init_param=ZOO["log_std_init"], feature_key="sde_features")
-    return make_sde_actor(TensorDictSequential(body, detach, head, selected_out_keys=["loc", "sde_features"]),
-                          sde), critic, sde
+    return make_sde_actor(actor, sde), critic, sde
 
 
 def evaluate_torchrl(policy, normalizer, seed: int) -> list[float]:
@@ -183,7 +185,24 @@ def _max_episode_steps() -> int:
     return int(steps)
 
 
-def train_torchrl(method: str, seed: int, steps: int) -> dict:
+def make_update(loss, optim: torch.optim.Optimizer, compile_update: bool = False):
+    """One PPO minibatch step: ``ClipPPOLoss``, backward, SB3's gradient-norm clip, the optimiser step.
+
+    With ``compile_update`` the step is ``torch.compile`` d as a whole, as TorchRL's own PPO
+    scripts do with their ``compile`` option; the first calls compile (tens of seconds).
+    """
+
+    def update(minibatch):
+        optim.zero_grad()
+        out = loss(minibatch)
+        (out["loss_objective"] + out["loss_critic"]).backward()
+        torch.nn.utils.clip_grad_norm_(loss.parameters(), ZOO["max_grad_norm"])
+        optim.step()
+
+    return torch.compile(update) if compile_update else update
+
+
+def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = False, evaluate: bool = True) -> dict:
     from torchrl.collectors import Collector
     from torchrl.objectives import ClipPPOLoss
     from torchrl.objectives.value import GAE
@@ -202,7 +221,10 @@ def train_torchrl(method: str, seed: int, steps: int) -> dict:
     frames = ZOO["n_envs"] * ZOO["n_steps"]
     collector = Collector(env, policy, frames_per_batch=frames, total_frames=steps,
                           auto_register_policy_transforms=True)
+
+    step = make_update(loss, optim, compile_update)
     curve, done_frames, start = [], 0, time.perf_counter()
+    iteration_ends = []
     for batch in collector:
         done_frames += batch.numel()
         finished = batch["next", "done"].squeeze(-1)
@@ -212,20 +234,16 @@ def train_torchrl(method: str, seed: int, steps: int) -> dict:
         flat = batch.reshape(-1).select(*MINIBATCH_KEYS, strict=False).contiguous()  # gather only what the loss reads
         for _ in range(ZOO["n_epochs"]):
             for idx in torch.randperm(flat.numel()).split(ZOO["batch_size"]):
-                out = loss(flat[idx])
-                total = out["loss_objective"] + out["loss_critic"]
-                optim.zero_grad()
-                total.backward()
-                torch.nn.utils.clip_grad_norm_(loss.parameters(), ZOO["max_grad_norm"])
-                optim.step()
+                step(flat[idx])
+        iteration_ends.append(time.perf_counter() - start)
     wall = time.perf_counter() - start
     collector.shutdown()
-    return {"wall_s": wall, "env_steps": done_frames, "curve": curve,
-            "eval_returns": evaluate_torchrl(policy, normalizer, 10_000 + seed)}
+    return {"wall_s": wall, "env_steps": done_frames, "curve": curve, "iteration_ends_s": iteration_ends,
+            "eval_returns": evaluate_torchrl(policy, normalizer, 10_000 + seed) if evaluate else []}
 
 
 # ---------------------------------------------------------------------------------------- SB3 side
-def train_sb3(seed: int, steps: int, use_sde: bool = True) -> dict:
+def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True) -> dict:
     try:
         from stable_baselines3 import PPO
         from stable_baselines3.common.callbacks import BaseCallback
@@ -237,7 +255,13 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True) -> dict:
 
     curve: list[list[float]] = []
 
+    iteration_ends: list[float] = []
+
     class EpisodeReturns(BaseCallback):
+        def _on_rollout_start(self) -> None:  # the previous iteration's update has ended
+            if self.num_timesteps:
+                iteration_ends.append(time.perf_counter() - start)
+
         def _on_step(self) -> bool:
             curve.extend([self.num_timesteps, float(i["episode"]["r"])] for i in self.locals["infos"] if "episode" in i)
             return True
@@ -254,24 +278,28 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True) -> dict:
     start = time.perf_counter()
     model.learn(total_timesteps=steps, callback=EpisodeReturns())
     wall = time.perf_counter() - start
+    iteration_ends.append(wall)
+    if not evaluate:
+        return {"wall_s": wall, "env_steps": int(model.num_timesteps), "iteration_ends_s": iteration_ends}
     eval_env = VecNormalize(make_vec_env(_gym_make, n_envs=1, seed=10_000 + seed), training=False, norm_reward=False)
     eval_env.obs_rms = env.obs_rms
     returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=EVAL_EPISODES, deterministic=True,
                                  return_episode_rewards=True)
-    return {"wall_s": wall, "env_steps": int(model.num_timesteps), "curve": curve,
+    return {"wall_s": wall, "env_steps": int(model.num_timesteps), "curve": curve, "iteration_ends_s": iteration_ends,
             "eval_returns": [float(r) for r in returns]}
 
 
 # ------------------------------------------------------------------------------------------ command
-def run(method: str, seed: int, steps: int, out: Path) -> Path:
+def run(method: str, seed: int, steps: int, out: Path, compile_update: bool = False) -> Path:
     torch.set_num_threads(1)  # one core per run: two runs side by side on a 2-core machine
     if method.startswith("sb3"):
         result = train_sb3(seed, steps, use_sde=method == "sb3")
     else:
-        result = train_torchrl(method, seed, steps)
+        result = train_torchrl(method, seed, steps, compile_update)
     import torchrl
 
-    result.update(method=method, seed=seed, env_id=ENV_ID, settings=ZOO,
+    result.update(method=method, seed=seed, compiled=compile_update and not method.startswith("sb3"),
+                  env_id=ENV_ID, settings=ZOO,
                   env_steps_per_s=result["env_steps"] / result["wall_s"],
                   final_return_mean=float(np.mean(result["eval_returns"])),
                   versions={"torch": torch.__version__, "torchrl": torchrl.__version__,
@@ -282,6 +310,27 @@ def run(method: str, seed: int, steps: int, out: Path) -> Path:
     tmp.write_text(json.dumps(result))
     os.replace(tmp, path)
     return path
+
+
+def speed(variants: list[str], rollouts: int) -> str:
+    """Env steps per second of one training iteration (collect ``n_envs × n_steps``, then update).
+
+    Each variant (``sde``, ``sde+compile``, ``plain``, ``plain+compile``, ``sb3``, ``sb3_gauss``) trains
+    ``rollouts`` iterations in this process, one after the other on one thread; the first
+    iteration (warm-up, compilation) is left out and the median of the others is reported.
+    """
+    torch.set_num_threads(1)
+    frames = ZOO["n_envs"] * ZOO["n_steps"]
+    lines = ["| variant | median s / iteration | env steps / s | iterations timed |", "| --- | --- | --- | --- |"]
+    for variant in variants:
+        method, _, option = variant.partition("+")
+        if method.startswith("sb3"):
+            result = train_sb3(0, rollouts * frames, use_sde=method == "sb3", evaluate=False)
+        else:
+            result = train_torchrl(method, 0, rollouts * frames, compile_update=option == "compile", evaluate=False)
+        seconds = float(np.median(np.diff(result["iteration_ends_s"])))
+        lines.append(f"| {variant} | {seconds:.2f} | {frames / seconds:.0f} | {rollouts - 1} |")
+    return "\n".join(lines) + "\n"
 
 
 def load_runs(folder: Path) -> dict[str, list[dict]]:
@@ -368,6 +417,10 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--seed", type=int, default=0)
     run_p.add_argument("--steps", type=int, default=500_000)
     run_p.add_argument("--out", type=Path, default=Path("docs/ppo/runs"))
+    run_p.add_argument("--compile", action="store_true", help="torch.compile the TorchRL update (loss and backward)")
+    speed_p = sub.add_parser("speed", help="env steps per second of single iterations, one variant after another")
+    speed_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
+    speed_p.add_argument("--rollouts", type=int, default=4, help="iterations per variant (the first is not timed)")
     rep_p = sub.add_parser("report", help="table and plot from a folder of runs")
     rep_p.add_argument("folder", type=Path)
     rep_p.add_argument("--out", type=Path, default=Path("docs/ppo"))
@@ -375,10 +428,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "run":
         if args.steps <= 0:
             parser.error(f"--steps must be positive, got {args.steps}")
-        path = run(args.method, args.seed, args.steps, args.out)
+        if args.compile and args.method.startswith("sb3"):
+            parser.error("--compile applies to the TorchRL methods (plain, sde), not to SB3")
+        path = run(args.method, args.seed, args.steps, args.out, args.compile)
         data = json.loads(path.read_text())
         print(f"{args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")
+    elif args.command == "speed":
+        if args.rollouts < 2:
+            parser.error(f"--rollouts must be at least 2 (the first is not timed), got {args.rollouts}")
+        sys.stdout.write(speed(args.variants, args.rollouts))
     else:
         sys.stdout.write(report(args.folder, args.out))
     return 0

@@ -63,6 +63,45 @@ def test_a_short_run_of_the_other_methods(tmp_path, method):
     assert data["env_steps"] == 8192 and np.isfinite(data["eval_returns"]).all()
 
 
+def _fresh_loss():
+    from torchrl.objectives import ClipPPOLoss
+
+    torch.manual_seed(0)
+    policy, critic, _ = bench.make_torchrl_policy("sde", 26, 6)
+    return ClipPPOLoss(policy, critic, clip_epsilon=0.4, entropy_bonus=False, critic_coeff=0.5,
+                       loss_critic_type="l2", normalize_advantage=True)
+
+
+def _parameters_after_two_updates(minibatch, compile_update):
+    from tensordict import TensorDict
+
+    loss = _fresh_loss()
+    step = bench.make_update(loss, torch.optim.Adam(loss.parameters(), lr=1e-2, eps=1e-5), compile_update)
+    for _ in range(2):  # the second step runs on Adam's state, with the ratio away from 1
+        step(minibatch.clone())
+    return TensorDict.from_module(loss).detach()
+
+
+def test_the_compiled_update_equals_the_eager_one():
+    """``run --compile`` changes how the step runs, not what it computes."""
+    from tensordict import TensorDict
+
+    torch.manual_seed(1)
+    n = 64
+    policy = bench.make_torchrl_policy("sde", 26, 6)[0]
+    batch = TensorDict({"observation": torch.randn(n, 26), "sde_noise": torch.randn(n, 6, 256),
+                        "advantage": torch.randn(n, 1), "value_target": torch.randn(n, 1)}, [n])
+    with torch.no_grad():
+        policy(batch)  # the action and its log-prob, as collected
+    minibatch = batch.select(*bench.MINIBATCH_KEYS, strict=False)
+    initial = TensorDict.from_module(_fresh_loss()).detach()
+    eager = _parameters_after_two_updates(minibatch, compile_update=False)
+    compiled = _parameters_after_two_updates(minibatch, compile_update=True)
+    assert max((eager - initial).abs().max().values(True, True)) > 1e-3  # the steps moved the parameters
+    for key, value in eager.items(True, True):
+        torch.testing.assert_close(compiled[key], value, rtol=1e-4, atol=1e-5, msg=str(key))
+
+
 def _fake_run(folder, method, seed, final, speed):
     curve = [[16_000 * (k + 1), final * k / 30] for k in range(31)]
     (folder / f"{method}_seed{seed}.json").write_text(json.dumps(
