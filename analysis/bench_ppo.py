@@ -122,14 +122,24 @@ def make_normalizer(obs_dim: int, gamma: float):
 
 
 def make_torchrl_env(n_envs: int, seed: int, normalizer, primer=None):
-    """16 Bullet envs in one gymnasium ``SyncVectorEnv``, wrapped by TorchRL, raw returns summed."""
+    """16 Bullet envs in one gymnasium ``SyncVectorEnv``, wrapped by TorchRL, raw returns summed.
+
+    The env steps with the action clipped to its bounds while the batch keeps the sampled one,
+    as SB3 does (``np.clip`` before ``env.step``, the unclipped action in the rollout buffer):
+    pybullet's locomotion envs clip the torque but charge their electricity and stall costs on
+    the action they are given, so an unclipped action outside ``[-1, 1]`` is a different reward.
+    """
     import gymnasium as gym
-    from torchrl.envs import Compose, GymWrapper, RewardSum, TransformedEnv
+    from torchrl.envs import ClipTransform, Compose, GymWrapper, RewardSum, TransformedEnv
 
     vec = gym.vector.SyncVectorEnv([_gym_make] * n_envs, autoreset_mode=gym.vector.AutoresetMode.DISABLED)
+    low, high = vec.single_action_space.low, vec.single_action_space.high
+    if low.min() != low.max() or high.min() != high.max():
+        raise ValueError(f"{ENV_ID}: action bounds differ per dimension ({low}, {high}); ClipTransform takes scalars")
     base = GymWrapper(vec)
     base.set_seed(seed)
-    transforms = [RewardSum(in_keys=["reward"], out_keys=["episode_reward"]), normalizer]
+    clip = ClipTransform(in_keys_inv=["action"], out_keys_inv=["action"], low=float(low[0]), high=float(high[0]))
+    transforms = [clip, RewardSum(in_keys=["reward"], out_keys=["episode_reward"]), normalizer]
     return TransformedEnv(base, Compose(*transforms, *([primer] if primer is not None else [])))
 
 

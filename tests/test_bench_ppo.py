@@ -44,6 +44,24 @@ def test_normalizer_scales_rewards_by_the_discounted_return_like_vecnormalize():
         returns[done.squeeze(-1).numpy()] = 0
 
 
+def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_one():
+    """SB3 clips before ``env.step``; pybullet charges its energy costs on the action it is given."""
+    env = bench.make_torchrl_env(2, 0, bench.make_normalizer(26, 0.99))
+    reference = bench.make_torchrl_env(2, 0, bench.make_normalizer(26, 0.99))
+    try:
+        td = env.reset()
+        td["action"] = torch.tensor([[3.0, -3.0, 0.5, 1.0, -1.0, 0.0]] * 2)
+        out = env.step(td)
+        ref = reference.reset()
+        ref["action"] = td["action"].clamp(-1, 1)
+        expected = reference.step(ref)["next", "episode_reward"]
+    finally:
+        env.close()
+        reference.close()
+    assert torch.equal(out["action"], td["action"])  # what the loss scores: the sampled action
+    torch.testing.assert_close(out["next", "episode_reward"], expected)  # what the env got: the clipped one
+
+
 def test_a_short_sde_run_writes_its_result(tmp_path):
     result = subprocess.run([sys.executable, "analysis/bench_ppo.py", "run", "--method", "sde", "--steps", "8192",
                              "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
