@@ -43,6 +43,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sde_torchrl.intervals import bootstrap_interval
+
 ENV_ID = "HalfCheetahBulletEnv-v0"
 METHODS = ("plain", "sde", "sb3", "sb3_gauss")
 SPEED_VARIANTS = ("plain", "plain+compile", "sde", "sde+compile", "sb3", "sb3_gauss")
@@ -361,10 +363,17 @@ def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
     return np.array([points[which == b, 1].mean() if (which == b).any() else np.nan for b in range(len(edges) - 1)])
 
 
+def _ratio_of_means(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    return ours.mean(-1) / theirs.mean(-1)
+
+
 def report(folder: Path, out: Path) -> str:
     runs = load_runs(folder)
     names = {"plain": "TorchRL PPO, Gaussian", "sde": "TorchRL PPO, SDE (ours)", "sb3": "SB3 PPO, gSDE",
              "sb3_gauss": "SB3 PPO, Gaussian"}
+    for method in ("plain", "sde"):
+        if runs[method] and all(r.get("compiled") for r in runs[method]):
+            names[method] += ", compiled update"
     rows, stats = [], {}
     for method in METHODS:
         if not runs[method]:
@@ -378,10 +387,14 @@ def report(folder: Path, out: Path) -> str:
     lines = ["| method | seeds | env steps | final deterministic return (mean ± sd over seeds) | per seed "
              "| env steps / s |", "| --- | --- | --- | --- | --- | --- |", *rows]
     if "sde" in stats and "sb3" in stats:
-        ret = np.mean(stats["sde"]["final"]) / np.mean(stats["sb3"]["final"])
-        spd = np.mean(stats["sde"]["speed"]) / np.mean(stats["sb3"]["speed"])
-        lines += ["", f"SDE / SB3 gSDE: final return {ret:.2f}× (target ≥ 0.90), env steps per second "
-                      f"{spd:.2f}× (target ≥ 0.8)."]
+        ratios = {}
+        for quantity in ("final", "speed"):
+            ratios[quantity] = bootstrap_interval((stats["sde"][quantity], stats["sb3"][quantity]), _ratio_of_means)
+        stats["sde_over_sb3"] = {q: ratio._asdict() for q, ratio in ratios.items()}
+        ret, spd = ratios["final"], ratios["speed"]
+        lines += ["", f"SDE / SB3 gSDE: final return {ret.estimate:.2f}× [{ret.low:.2f}, {ret.high:.2f}] "
+                      f"(target ≥ 0.90), env steps per second {spd.estimate:.2f}× [{spd.low:.2f}, {spd.high:.2f}] "
+                      "(target ≥ 0.8); [95 % bootstrap intervals over seeds]."]
     table = "\n".join(lines) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_ppo.md").write_text(table)

@@ -133,7 +133,10 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
         _fake_run(tmp_path, "sb3", seed, sb3, 1000)
     table = bench.report(tmp_path, tmp_path / "out")
     assert "| TorchRL PPO, SDE (ours) | 3 | 507,904 | 2000 ± 200 | 1800, 2000, 2200 | 600 |" in table
-    assert "final return 0.91×" in table and "env steps per second 0.60×" in table
+    assert "final return 0.91×" in table and "env steps per second 0.60× [0.60, 0.60]" in table  # equal speeds
+    ratios = json.loads((tmp_path / "out" / "bench_ppo.json").read_text())["sde_over_sb3"]
+    assert ratios["final"]["estimate"] == pytest.approx(2000 / 2200)
+    assert ratios["final"]["low"] < ratios["final"]["estimate"] < ratios["final"]["high"]
     assert (tmp_path / "out" / "bench_ppo.png").stat().st_size > 0
 
 
