@@ -70,7 +70,20 @@ def test_a_short_sde_run_writes_its_result(tmp_path):
     assert data["env_steps"] == 8192 and len(data["eval_returns"]) == bench.EVAL_EPISODES
     assert np.isfinite(data["eval_returns"]).all() and data["env_steps_per_s"] > 0
     assert data["final_return_mean"] == pytest.approx(np.mean(data["eval_returns"]))
+    assert len(data["iteration_ends_s"]) == 1 and 0 < data["iteration_ends_s"][0] <= data["wall_s"]
+    assert data["compiled"] is False
     assert "sde seed 0: final return" in result.stdout
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["speed", "sde", "--rollouts", "1"], "--rollouts must be at least 2"),
+    (["run", "--method", "sb3", "--compile"], "--compile applies to the TorchRL methods"),
+    (["speed", "sde+fast"], "invalid choice"),
+])
+def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
 @pytest.mark.slow
