@@ -324,23 +324,33 @@ def run(method: str, seed: int, steps: int, out: Path, compile_update: bool = Fa
     return path
 
 
+def _iteration_seconds(variant: str, rollouts: int) -> float:
+    """Median wall time of one training iteration of ``variant``, the first iteration left out."""
+    torch.set_num_threads(1)
+    frames = ZOO["n_envs"] * ZOO["n_steps"]
+    method, _, option = variant.partition("+")
+    if method.startswith("sb3"):
+        result = train_sb3(0, rollouts * frames, use_sde=method == "sb3", evaluate=False)
+    else:
+        result = train_torchrl(method, 0, rollouts * frames, compile_update=option == "compile", evaluate=False)
+    return float(np.median(np.diff(result["iteration_ends_s"])))
+
+
 def speed(variants: list[str], rollouts: int) -> str:
     """Env steps per second of one training iteration (collect ``n_envs × n_steps``, then update).
 
-    Each variant (``sde``, ``sde+compile``, ``plain``, ``plain+compile``, ``sb3``, ``sb3_gauss``) trains
-    ``rollouts`` iterations in this process, one after the other on one thread; the first
-    iteration (warm-up, compilation) is left out and the median of the others is reported.
+    Each variant (``sde``, ``sde+compile``, ``plain``, ``plain+compile``, ``sb3``, ``sb3_gauss``)
+    trains ``rollouts`` iterations on one thread in a fresh process of its own (in one process,
+    whatever runs later runs slower), one variant after the other; the first iteration (warm-up,
+    compilation) is left out and the median of the others is reported.
     """
-    torch.set_num_threads(1)
+    import multiprocessing
+
     frames = ZOO["n_envs"] * ZOO["n_steps"]
     lines = ["| variant | median s / iteration | env steps / s | iterations timed |", "| --- | --- | --- | --- |"]
     for variant in variants:
-        method, _, option = variant.partition("+")
-        if method.startswith("sb3"):
-            result = train_sb3(0, rollouts * frames, use_sde=method == "sb3", evaluate=False)
-        else:
-            result = train_torchrl(method, 0, rollouts * frames, compile_update=option == "compile", evaluate=False)
-        seconds = float(np.median(np.diff(result["iteration_ends_s"])))
+        with multiprocessing.get_context("spawn").Pool(1) as pool:
+            seconds = pool.apply(_iteration_seconds, (variant, rollouts))
         lines.append(f"| {variant} | {seconds:.2f} | {frames / seconds:.0f} | {rollouts - 1} |")
     return "\n".join(lines) + "\n"
 
@@ -425,7 +435,7 @@ def _plot(runs: dict[str, list[dict]], names: dict[str, str], path: Path) -> Non
             ax.fill_between(x, low, high, alpha=0.2)
     ax.set_xlabel("env steps")
     ax.set_ylabel("training episode return (raw)")
-    ax.set_title(f"PPO on {ENV_ID} (rl-zoo settings); band: min-max over seeds")
+    ax.set_title(f"PPO on {ENV_ID} (rl-zoo settings); band: min-max over seeds", fontsize=9)
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
