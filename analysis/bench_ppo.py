@@ -200,8 +200,8 @@ def _max_episode_steps() -> int:
 def make_update(loss, optim: torch.optim.Optimizer, compile_update: bool = False):
     """One PPO minibatch step: ``ClipPPOLoss``, backward, SB3's gradient-norm clip, the optimiser step.
 
-    With ``compile_update`` the step is ``torch.compile`` d as a whole, as TorchRL's own PPO
-    scripts do with their ``compile`` option; the first calls compile (tens of seconds).
+    With ``compile_update`` the whole step goes through ``torch.compile``, as in TorchRL's own PPO
+    scripts with their ``compile`` option; the first calls compile (tens of seconds).
     """
 
     def update(minibatch):
@@ -233,10 +233,8 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
     frames = ZOO["n_envs"] * ZOO["n_steps"]
     collector = Collector(env, policy, frames_per_batch=frames, total_frames=steps,
                           auto_register_policy_transforms=True)
-
     step = make_update(loss, optim, compile_update)
-    curve, done_frames, start = [], 0, time.perf_counter()
-    iteration_ends = []
+    curve, iteration_ends, done_frames, start = [], [], 0, time.perf_counter()
     for batch in collector:
         done_frames += batch.numel()
         finished = batch["next", "done"].squeeze(-1)
@@ -266,7 +264,6 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
         raise SystemExit(f"bench_ppo: method sb3 needs Stable-Baselines3: pip install -e '.[bench]' ({err})") from err
 
     curve: list[list[float]] = []
-
     iteration_ends: list[float] = []
 
     class EpisodeReturns(BaseCallback):
@@ -450,7 +447,8 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--seed", type=int, default=0)
     run_p.add_argument("--steps", type=int, default=500_000)
     run_p.add_argument("--out", type=Path, default=Path("docs/ppo/runs"))
-    run_p.add_argument("--compile", action="store_true", help="torch.compile the TorchRL update (loss and backward)")
+    run_p.add_argument("--compile", action="store_true",
+                       help="torch.compile the whole TorchRL update (loss, backward, clip, Adam)")
     speed_p = sub.add_parser("speed", help="env steps per second of single iterations, one variant after another")
     speed_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
     speed_p.add_argument("--rollouts", type=int, default=4, help="iterations per variant (the first is not timed)")
