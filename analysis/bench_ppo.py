@@ -123,13 +123,14 @@ def make_normalizer(obs_dim: int, gamma: float):
     return ZooNormalize()
 
 
-def make_torchrl_env(n_envs: int, seed: int, normalizer, primer=None):
+def make_torchrl_env(n_envs: int, seed: int, normalizer, primer=None, clip_actions: bool = True):
     """16 Bullet envs in one gymnasium ``SyncVectorEnv``, wrapped by TorchRL, raw returns summed.
 
     The env steps with the action clipped to its bounds while the batch keeps the sampled one,
     as SB3 does (``np.clip`` before ``env.step``, the unclipped action in the rollout buffer):
     pybullet's locomotion envs clip the torque but charge their electricity and stall costs on
     the action they are given, so an unclipped action outside ``[-1, 1]`` is a different reward.
+    ``clip_actions=False`` steps with the sampled action (the first sweep's setup, for the ablation).
     """
     import gymnasium as gym
     from torchrl.envs import ClipTransform, Compose, GymWrapper, RewardSum, TransformedEnv
@@ -141,7 +142,8 @@ def make_torchrl_env(n_envs: int, seed: int, normalizer, primer=None):
     base = GymWrapper(vec)
     base.set_seed(seed)
     clip = ClipTransform(in_keys_inv=["action"], out_keys_inv=["action"], low=float(low[0]), high=float(high[0]))
-    transforms = [clip, RewardSum(in_keys=["reward"], out_keys=["episode_reward"]), normalizer]
+    transforms = [*([clip] if clip_actions else []), RewardSum(in_keys=["reward"], out_keys=["episode_reward"]),
+                  normalizer]
     return TransformedEnv(base, Compose(*transforms, *([primer] if primer is not None else [])))
 
 
@@ -174,14 +176,14 @@ def make_torchrl_policy(method: str, obs_dim: int, action_dim: int):
     return make_sde_actor(actor, sde), critic, sde
 
 
-def evaluate_torchrl(policy, normalizer, seed: int) -> list[float]:
+def evaluate_torchrl(policy, normalizer, seed: int, clip_actions: bool = True) -> list[float]:
     """Deterministic returns of ``EVAL_EPISODES`` episodes, frozen observation statistics, raw rewards."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     frozen = make_normalizer(normalizer.obs_mean.shape[0], ZOO["gamma"])
     frozen.load_state_dict(normalizer.state_dict())
     frozen.training_stats, frozen.normalize_reward = False, False
-    env = make_torchrl_env(EVAL_EPISODES, seed, frozen)
+    env = make_torchrl_env(EVAL_EPISODES, seed, frozen, clip_actions=clip_actions)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.rollout(_max_episode_steps(), policy, auto_cast_to_device=False, break_when_any_done=False)
     env.close()
@@ -214,7 +216,8 @@ def make_update(loss, optim: torch.optim.Optimizer, compile_update: bool = False
     return torch.compile(update) if compile_update else update
 
 
-def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = False, evaluate: bool = True) -> dict:
+def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = False, evaluate: bool = True,
+                  clip_actions: bool = True) -> dict:
     from torchrl.collectors import Collector
     from torchrl.objectives import ClipPPOLoss
     from torchrl.objectives.value import GAE
@@ -225,7 +228,8 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
     probe.close()
     policy, critic, sde = make_torchrl_policy(method, obs_dim, action_dim)
     normalizer = make_normalizer(obs_dim, ZOO["gamma"])
-    env = make_torchrl_env(ZOO["n_envs"], seed, normalizer, sde.make_tensordict_primer() if sde else None)
+    env = make_torchrl_env(ZOO["n_envs"], seed, normalizer, sde.make_tensordict_primer() if sde else None,
+                           clip_actions=clip_actions)
     loss = ClipPPOLoss(policy, critic, clip_epsilon=ZOO["clip_range"], entropy_bonus=ZOO["ent_coef"] > 0,
                        critic_coeff=ZOO["vf_coef"], loss_critic_type="l2", normalize_advantage=True)
     gae = GAE(gamma=ZOO["gamma"], lmbda=ZOO["gae_lambda"], value_network=critic, average_gae=False)
@@ -249,7 +253,7 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
     wall = time.perf_counter() - start
     collector.shutdown()
     return {"wall_s": wall, "env_steps": done_frames, "curve": curve, "iteration_ends_s": iteration_ends,
-            "eval_returns": evaluate_torchrl(policy, normalizer, 10_000 + seed) if evaluate else []}
+            "eval_returns": evaluate_torchrl(policy, normalizer, 10_000 + seed, clip_actions) if evaluate else []}
 
 
 # ---------------------------------------------------------------------------------------- SB3 side
@@ -299,15 +303,17 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
 
 
 # ------------------------------------------------------------------------------------------ command
-def run(method: str, seed: int, steps: int, out: Path, compile_update: bool = False) -> Path:
+def run(method: str, seed: int, steps: int, out: Path, compile_update: bool = False, clip_actions: bool = True) -> Path:
     torch.set_num_threads(1)  # one core per run: two runs side by side on a 2-core machine
     if method.startswith("sb3"):
         result = train_sb3(seed, steps, use_sde=method == "sb3")
     else:
-        result = train_torchrl(method, seed, steps, compile_update)
+        result = train_torchrl(method, seed, steps, compile_update, clip_actions=clip_actions)
     import torchrl
 
-    result.update(method=method, seed=seed, compiled=compile_update and not method.startswith("sb3"),
+    torchrl_method = not method.startswith("sb3")
+    result.update(method=method, seed=seed, compiled=compile_update and torchrl_method,
+                  clipped_actions=clip_actions or not torchrl_method,  # SB3 always clips
                   env_id=ENV_ID, settings=ZOO,
                   env_steps_per_s=result["env_steps"] / result["wall_s"],
                   final_return_mean=float(np.mean(result["eval_returns"])),
@@ -449,6 +455,8 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--out", type=Path, default=Path("docs/ppo/runs"))
     run_p.add_argument("--compile", action="store_true",
                        help="torch.compile the whole TorchRL update (loss, backward, clip, Adam)")
+    run_p.add_argument("--unclipped-actions", action="store_true",
+                       help="ablation: step the TorchRL env with the sampled, unclipped action")
     speed_p = sub.add_parser("speed", help="env steps per second of single iterations, one variant after another")
     speed_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
     speed_p.add_argument("--rollouts", type=int, default=4, help="iterations per variant (the first is not timed)")
@@ -459,9 +467,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "run":
         if args.steps <= 0:
             parser.error(f"--steps must be positive, got {args.steps}")
-        if args.compile and args.method.startswith("sb3"):
-            parser.error("--compile applies to the TorchRL methods (plain, sde), not to SB3")
-        path = run(args.method, args.seed, args.steps, args.out, args.compile)
+        if (args.compile or args.unclipped_actions) and args.method.startswith("sb3"):
+            parser.error("--compile and --unclipped-actions apply to the TorchRL methods (plain, sde), not to SB3")
+        path = run(args.method, args.seed, args.steps, args.out, args.compile, not args.unclipped_actions)
         data = json.loads(path.read_text())
         print(f"{args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")

@@ -60,6 +60,12 @@ def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_o
         reference.close()
     assert torch.equal(out["action"], td["action"])  # what the loss scores: the sampled action
     torch.testing.assert_close(out["next", "episode_reward"], expected)  # what the env got: the clipped one
+    unclipped = bench.make_torchrl_env(2, 0, bench.make_normalizer(26, 0.99), clip_actions=False)
+    try:
+        raw = unclipped.step(unclipped.reset().update({"action": td["action"]}))["next", "episode_reward"]
+    finally:
+        unclipped.close()
+    assert (raw < expected - 0.5).all()  # the ablation's env charges the energy costs on the raw action
 
 
 def test_a_short_sde_run_writes_its_result(tmp_path):
@@ -71,13 +77,14 @@ def test_a_short_sde_run_writes_its_result(tmp_path):
     assert np.isfinite(data["eval_returns"]).all() and data["env_steps_per_s"] > 0
     assert data["final_return_mean"] == pytest.approx(np.mean(data["eval_returns"]))
     assert len(data["iteration_ends_s"]) == 1 and 0 < data["iteration_ends_s"][0] <= data["wall_s"]
-    assert data["compiled"] is False
+    assert data["compiled"] is False and data["clipped_actions"] is True
     assert "sde seed 0: final return" in result.stdout
 
 
 @pytest.mark.parametrize("argv, message", [
     (["speed", "sde", "--rollouts", "1"], "--rollouts must be at least 2"),
-    (["run", "--method", "sb3", "--compile"], "--compile applies to the TorchRL methods"),
+    (["run", "--method", "sb3", "--compile"], "apply to the TorchRL methods"),
+    (["run", "--method", "sb3_gauss", "--unclipped-actions"], "apply to the TorchRL methods"),
     (["speed", "sde+fast"], "invalid choice"),
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
