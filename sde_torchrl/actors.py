@@ -193,7 +193,7 @@ class LatentMLPActor(TensorDictModuleBase):
     sees ``h`` instead of the raw state, the latent features of gSDE (Raffin et al., 2021).
     ``h`` is detached unless ``learn_features`` (gSDE's ``learn_features=False`` default), so
     the SDE likelihood then trains only ``σ̂`` and the mean. One module writing both keys:
-    cheaper per call than a sequence of ``TensorDictModule`` s.
+    cheaper per call than a chain of ``TensorDictModule`` objects.
 
     Args:
         in_features: observation size.
@@ -227,11 +227,11 @@ class LatentMLPActor(TensorDictModuleBase):
         self.net = MLP(in_features, out_features, list(hidden), activation=activation, runs=runs, init=init)
         self.learn_features = learn_features
         self.feature_dim = hidden[-1] if len(hidden) else in_features
-        self.in_key, self.loc_key, self.feature_key = in_key, loc_key, feature_key
         self.in_keys, self.out_keys = [in_key], [loc_key, feature_key]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        features, loc = self.net.hidden_and_output(tensordict.get(self.in_key))
-        tensordict.set(self.loc_key, loc)
-        tensordict.set(self.feature_key, features if self.learn_features else features.detach())
+        features, loc = self.net.hidden_and_output(tensordict.get(self.in_keys[0]))
+        loc_key, feature_key = self.out_keys
+        tensordict.set(loc_key, loc)
+        tensordict.set(feature_key, features if self.learn_features else features.detach())
         return tensordict
