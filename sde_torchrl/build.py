@@ -1,7 +1,7 @@
 """From a composed Hydra config to a ready :class:`~sde_torchrl.trainer.Trainer`.
 
 The config is checked and typed once (:func:`~sde_torchrl.config.validate`); its groups ``env``,
-``actor``, ``explorer``, ``estimator`` and ``logger`` each hold a ``_target_`` and its options.
+``actor``, ``explorer``, ``estimator``, ``optimizer`` and ``logger`` each hold a ``_target_`` and its options.
 This module supplies what only the job knows (batch sizes, the number of runs, dimensions read
 off the env, per-run random streams) and wires the pieces.
 """
@@ -9,7 +9,7 @@ off the env, per-run random streams) and wires the pieces.
 from __future__ import annotations
 
 import logging
-from dataclasses import fields
+from dataclasses import asdict, fields
 from typing import Any
 
 import torch
@@ -21,6 +21,7 @@ from torchrl.envs import TransformedEnv
 from sde_torchrl.config import PGPEExplorerConf, TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.estimators import ENACEstimator
+from sde_torchrl.optim import make_optimizer
 from sde_torchrl.rng import RunStreams
 from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.trainer import Trainer
@@ -28,7 +29,7 @@ from sde_torchrl.trainer import Trainer
 log = logging.getLogger(__name__)
 
 #: Config groups whose chosen option labels a run's summary.
-LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator")
+LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator", "optimizer")
 
 
 def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
@@ -49,7 +50,7 @@ def training_settings(conf: TrainConf) -> TrainingSettings:
 
 
 def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Trainer:
-    """Builds env, policy, estimator, optimiser and logger for one job.
+    """Builds env, policy, estimator, optimiser (and its learning-rate schedule) and logger for one job.
 
     Args:
         cfg: the composed config (see ``conf/config.yaml``), or the :class:`TrainConf` that
@@ -89,11 +90,12 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     # the estimator's own non-finite checks (for direct Python use) would only pre-empt it.
     estimator = instantiate(conf.estimator, policy=policy, allow_nonfinite=True)
     warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
-    optimizer = torch.optim.SGD(policy.parameters(), lr=conf.lr)
+    optimizer, lr_schedule = make_optimizer(policy.parameters(), conf.lr, asdict(conf.optimizer), conf.updates)
     logger = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
-    return Trainer(env, eval_env, policy, estimator, optimizer, training_settings(conf), logger)
+    return Trainer(env, eval_env, policy, estimator, optimizer, training_settings(conf), logger,
+                   lr_schedule=lr_schedule)
 
 
 def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:

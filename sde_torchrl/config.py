@@ -29,6 +29,7 @@ from sde_torchrl.checks import (
     positive_int,
     show,
 )
+from sde_torchrl.optim import LR_SCHEDULES
 
 # ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP006, UP007, UP035, UP045
@@ -355,6 +356,79 @@ class EstimatorConf:
 
 
 @dataclass
+class SGDOptimizerConf:
+    """``optimizer=sgd|momentum``: ``torch.optim.SGD`` on the policy gradient, with ``α = lr``.
+    Without momentum it is the paper's plain ascent ``θ ← θ + α g`` (eq. 1); with momentum ``β``
+    torch's heavy ball ``v ← β v + g``, ``θ ← θ + α v`` (steps ``1 / (1 - β)`` times longer once
+    the gradients agree).
+
+    Attributes:
+        momentum: ``β`` in ``[0, 1)``; 0 is eq. 1.
+        nesterov: Nesterov's variant (needs ``momentum > 0``).
+        lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay
+            (:func:`sde_torchrl.optim.lr_factor`).
+        final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
+
+    Examples:
+        >>> SGDOptimizerConf(momentum=0.9).lr_schedule
+        'constant'
+    """
+
+    _target_: str = "torch.optim.SGD"
+    momentum: float = 0.0
+    nesterov: bool = False
+    lr_schedule: str = "constant"
+    final_lr_fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_fraction("optimizer.momentum", self.momentum, below_one=True)
+        if self.nesterov and self.momentum == 0:
+            raise ArgumentError("optimizer.nesterov", True, "false unless optimizer.momentum > 0")
+        _check_schedule(self)
+
+
+@dataclass
+class AdamOptimizerConf:
+    """``optimizer=adam``: ``torch.optim.Adam`` on the policy gradient, with ``α = lr``: a step
+    of about ``α`` per parameter whatever the gradient's scale (sums or means of rewards alike).
+
+    Attributes:
+        betas: the decay rates of the first and second moment estimates, each in ``[0, 1)``.
+        eps: added to the root of the second moment, ``> 0``.
+        lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay.
+        final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
+
+    Examples:
+        >>> AdamOptimizerConf().betas
+        [0.9, 0.999]
+    """
+
+    _target_: str = "torch.optim.Adam"
+    betas: List[float] = field(default_factory=lambda: [0.9, 0.999])
+    eps: float = 1e-8
+    lr_schedule: str = "constant"
+    final_lr_fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        if len(self.betas) != 2:
+            raise ArgumentError("optimizer.betas", list(self.betas), "two numbers in [0, 1)")
+        for beta in self.betas:
+            _check_fraction("optimizer.betas", beta, below_one=True)
+        finite("optimizer.eps", self.eps, minimum=0, strict=True)
+        _check_schedule(self)
+
+
+def _check_fraction(name: str, value: Any, below_one: bool = False) -> None:
+    if not is_finite_number(value) or not (0 <= value < 1 if below_one else 0 <= value <= 1):
+        raise ArgumentError(name, value, "a number in [0, 1)" if below_one else "a number in [0, 1]")
+
+
+def _check_schedule(conf: Any) -> None:
+    one_of("optimizer.lr_schedule", conf.lr_schedule, LR_SCHEDULES)
+    _check_fraction("optimizer.final_lr_fraction", conf.final_lr_fraction)
+
+
+@dataclass
 class CSVLoggerConf:
     """``logger=csv``: TorchRL's ``CSVLogger``, run-averaged curves under the run directory.
 
@@ -406,13 +480,15 @@ class TrainConf:
         actor: the ``actor`` group's schema.
         explorer: the ``explorer`` group's schema.
         estimator: the ``estimator`` group's schema.
+        optimizer: the ``optimizer`` group's schema (``sgd``: eq. 1).
         logger: the ``logger`` group's schema; empty or ``null`` for none.
         seed: job seed; run ``r``'s streams derive from ``(seed, first_run + r)``.
         runs: independent learners trained side by side in this process.
         first_run: global index of the first run (shards of a sweep).
         updates: policy updates.
         episodes_per_update: ``N``, fresh episodes per run and update.
-        lr: ``α`` in ``θ ← θ + α g`` (eq. 1), plain gradient ascent.
+        lr: ``α``, the base learning rate of the ``optimizer`` (with ``optimizer=sgd``, eq. 1's
+            plain gradient ascent ``θ ← θ + α g``).
         eval_period: deterministic evaluation every this many updates (and after the last); 0:
             only after the last.
         eval_episodes: deterministic episodes per evaluation and run.
@@ -435,6 +511,7 @@ class TrainConf:
     actor: Any = None
     explorer: Any = None
     estimator: Any = None
+    optimizer: Any = None
     logger: Any = None
     seed: int = 0
     runs: int = 1
@@ -526,6 +603,8 @@ SCHEMAS: dict[str, type] = {
     "explorer/sde": ExplorerConf,
     "explorer/pgpe": PGPEExplorerConf,
     "estimator/episodic": EstimatorConf,
+    "optimizer/sgd": SGDOptimizerConf,
+    "optimizer/adam": AdamOptimizerConf,
     "logger/csv": CSVLoggerConf,
     "logger/tensorboard": TensorboardLoggerConf,
     "logger/wandb": WandbLoggerConf,

@@ -2,7 +2,9 @@
 
 Every update collects ``N`` fresh episodes per run (a TensorDict ``[runs, N, T]``; or renews the
 episode queue, :mod:`sde_torchrl.episode_queue`), turns them into one gradient per run with an
-episodic estimator and takes one plain gradient-ascent step ``θ ← θ + α g`` (eq. 1). Every
+episodic estimator and takes one optimiser step: with ``SGD(lr=α)``, the paper's plain
+gradient ascent ``θ ← θ + α g`` (eq. 1); momentum, Adam and a decaying rate are options
+(:mod:`sde_torchrl.optim`). Every
 ``eval_period`` updates (and after the last) each run's policy is evaluated without
 exploration. What is around the loop has a module of its own: the non-finite guard
 (:mod:`~sde_torchrl.guard`), the run directory (:mod:`~sde_torchrl.run_dir`), checkpoints
@@ -28,12 +30,13 @@ from sde_torchrl.episode_queue import EpisodeQueue
 from sde_torchrl.estimators import EpisodicEstimator
 from sde_torchrl.guard import FiniteGuard
 from sde_torchrl.interrupt import DeferredInterrupt, TrainingInterrupted
+from sde_torchrl.optim import LearningRateSchedule
 from sde_torchrl.pgpe_estimator import PGPEEstimator
 from sde_torchrl.report import Reporter, close_logger
 from sde_torchrl.rollout import collect_episodes
 from sde_torchrl.run_dir import RunDirectory, metric_rows
 from sde_torchrl.settings import TrainingSettings
-from sde_torchrl.summary import LoopState, per_step_factor, summarize
+from sde_torchrl.summary import LoopState, exploration_state, per_step_factor, summarize
 
 log = logging.getLogger(__name__)
 
@@ -47,9 +50,11 @@ class Trainer:
         policy: ``TensorDictSequential(actor, explorer)`` with run-stacked parameters.
         estimator: an :class:`~sde_torchrl.estimators.EpisodicEstimator` over ``policy``, or a
             :class:`~sde_torchrl.pgpe_estimator.PGPEEstimator` (``explorer=pgpe``).
-        optimizer: optimiser over the policy's parameters (``SGD(lr=α)`` is eq. 1).
+        optimizer: optimiser over the policy's parameters (``SGD(lr=α)`` is eq. 1); an
+            element-wise one (SGD, momentum, Adam) keeps stacked runs independent.
         settings: the job's :class:`TrainingSettings`.
         logger: optional TorchRL logger (``log_scalar``) for run-averaged curves.
+        lr_schedule: sets the optimiser's learning rate before each update (``None``: constant).
 
     Examples:
         See ``train.py`` and :func:`sde_torchrl.build.build_trainer`.
@@ -58,9 +63,9 @@ class Trainer:
     def __init__(
         self, env: EnvBase, eval_env: EnvBase, policy: TensorDictSequential,
         estimator: EpisodicEstimator | PGPEEstimator, optimizer: torch.optim.Optimizer,
-        settings: TrainingSettings, logger: Any = None,
+        settings: TrainingSettings, logger: Any = None, lr_schedule: LearningRateSchedule | None = None,
     ) -> None:
-        self.env, self.eval_env, self.policy = env, eval_env, policy
+        self.env, self.eval_env, self.policy, self.lr_schedule = env, eval_env, policy, lr_schedule
         self.estimator, self.optimizer, self.settings, self.logger = estimator, optimizer, settings, logger
         self.runs = env.batch_size[0]
         self.guard = FiniteGuard(policy, estimator, self.runs, settings.first_run)
@@ -84,7 +89,8 @@ class Trainer:
         return self.estimator.returns(episodes).mean(-1)
 
     def update(self, episodes: TensorDictBase, update: int) -> dict[str, torch.Tensor]:
-        """One estimator pass and one optimiser step (eq. 1), guarded against non-finite values.
+        """One estimator pass and one optimiser step (eq. 1 with ``SGD``) at update ``update``'s
+        learning rate, guarded against non-finite values.
 
         Raises:
             NonFiniteError: for a non-finite episode return, score, gradient or (after the
@@ -95,9 +101,12 @@ class Trainer:
         self.guard.check_estimate(update, out, episodes)
         self.optimizer.zero_grad(set_to_none=True)
         out["loss_objective"].backward()
+        if self.lr_schedule is not None:
+            self.lr_schedule.apply(update)
         self.optimizer.step()
         self.guard.check_parameters(update)
-        return {"return_mean": out["return_mean"], "grad_norm": out["gradient_norm"]}
+        return {"return_mean": out["return_mean"], "grad_norm": out["gradient_norm"],
+                "exploration": exploration_state(self.policy, self.runs)}
 
     def episodes_after(self, update: int) -> int:
         """Episodes each run has collected by the end of update ``update`` (0-based)."""
@@ -173,13 +182,15 @@ class Trainer:
                     stats = self.update(episodes, k)
                     state.returns.append(stats["return_mean"])
                     state.grad_norms.append(stats["grad_norm"])
+                    state.explorations.append(stats["exploration"])
                     if s.r_lim is not None:
                         state.reached |= stats["return_mean"] > s.r_lim
                     is_last = k == s.updates - 1 or (s.stop_at_threshold and bool(state.reached.all()))
                     eval_return = None
                     if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
                         eval_return = state.evals[k] = self.guard.check_evaluation(k, self.evaluate())
-                    metrics.write(self._rows(k, stats["return_mean"], eval_return, stats["grad_norm"]))
+                    metrics.write(self._rows(k, stats["return_mean"], eval_return, stats["grad_norm"],
+                                             stats["exploration"]))
                     state.update, state.finished = k + 1, is_last
                     state.wall_s = session_wall + time.perf_counter() - session_start
                     reporter.update(k, self.episodes_after(k), stats["return_mean"], eval_return)
@@ -196,14 +207,16 @@ class Trainer:
         self._save(run_dir, state, config)
 
     def _rows(self, k: int, return_mean: torch.Tensor, eval_return: torch.Tensor | None,
-              grad_norm: torch.Tensor) -> list[dict[str, Any]]:
+              grad_norm: torch.Tensor, exploration: torch.Tensor) -> list[dict[str, Any]]:
         """The ``metrics.csv`` rows of update ``k``, one per run."""
-        return metric_rows(self.settings.first_run, k, self.episodes_after(k), return_mean, eval_return, grad_norm)
+        return metric_rows(self.settings.first_run, k, self.episodes_after(k), return_mean, eval_return, grad_norm,
+                           exploration)
 
     def _recorded_rows(self, state: LoopState) -> list[dict[str, Any]]:
         """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
         return [row for k in range(state.update)
-                for row in self._rows(k, state.returns[k], state.evals.get(k), state.grad_norms[k])]
+                for row in self._rows(k, state.returns[k], state.evals.get(k), state.grad_norms[k],
+                                      state.explorations[k])]
 
     def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
         if self.queue is not None:
