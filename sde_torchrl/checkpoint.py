@@ -38,7 +38,7 @@ CHECKPOINT = "checkpoint.pt"
 #: then costs the updates since it, not the whole job.
 PREVIOUS = "checkpoint.prev.pt"
 #: Bumped when the checkpoint layout changes; older checkpoints are refused.
-FORMAT = 2
+FORMAT = 3
 #: Config keys that do not change the numbers a job produces: they may differ on resume.
 NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress")
 
@@ -67,7 +67,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
         >>> path = Path(tempfile.mkdtemp()) / "checkpoint.pt"
         >>> save_checkpoint(path, {"format": FORMAT, "updates": 3})
         >>> load_checkpoint(path)
-        {'format': 2, 'updates': 3}
+        {'format': 3, 'updates': 3}
     """
     path = Path(path)
     remedy = (f"nothing was resumed from it; to train the job again from the start, delete {path.name} "

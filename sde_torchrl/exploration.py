@@ -191,6 +191,11 @@ class SDESigma(TensorDictModuleBase):
         sigma = expln(self.sigma_param)
         return sigma.expand(*sigma.shape[:-2], self.action_dim, self.feature_dim)
 
+    def exploration_scale(self) -> torch.Tensor:
+        """Every ``σ̂`` element per run, ``[*runs, A·S]``: what ``metrics.csv`` reports as
+        ``sigma_min`` / ``sigma_max`` (a collapsed exploration shows as ``σ̂ ≈ 0``)."""
+        return self.sde_sigma.detach().flatten(-2)
+
     def gaussian_scale(self, batch_dims: int) -> torch.Tensor | None:
         """``σ_gauss = expln(q)`` (eqs. 22, 23) viewed to broadcast against ``[*batch, A]`` data
         with ``batch_dims`` batch dimensions (runs first), or ``None`` for pure SDE."""

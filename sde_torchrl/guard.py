@@ -26,8 +26,8 @@ class NonFiniteError(RuntimeError):
         runs: global indices of the runs concerned.
 
     Examples:
-        >>> str(NonFiniteError(3, "return", [1]))[:36]
-        'non-finite return at update 3 in ru'
+        >>> str(NonFiniteError(3, "return", [1])).startswith("non-finite return at update 3 in run 1")
+        True
     """
 
     def __init__(self, update: int, what: str, runs: list[int], parameter: str | None = None,

@@ -136,6 +136,11 @@ class ParameterExplorer(TensorDictModuleBase):
         lead = self.sigma.shape[:-1]
         return torch.cat([params[n].reshape(*lead, -1) for n in self.parameter_names], -1)
 
+    def exploration_scale(self) -> torch.Tensor:
+        """``|σ|`` per run and parameter, ``[*runs, K]`` (the density is even in ``σ``): what
+        ``metrics.csv`` reports as ``sigma_min`` / ``sigma_max``."""
+        return self.sigma.detach().abs()
+
     def make_tensordict_primer(self) -> Compose:
         """Primer that gives every (partially) reset env a ``pgpe_noise`` entry (redrawn by the
         explorer where ``is_init`` is set; append it with ``InitTracker`` to the env)."""

@@ -35,12 +35,14 @@ from sde_torchrl.lock import hold_run_directory
 
 log = logging.getLogger(__name__)
 
-METRIC_FIELDS = ("run", "update", "episodes", "return_mean", "eval_return", "grad_norm")
+#: The exploration state after each update (:func:`~sde_torchrl.summary.exploration_state`).
+EXPLORATION_FIELDS = ("sigma_min", "sigma_max", "weight_max")
+METRIC_FIELDS = ("run", "update", "episodes", "return_mean", "eval_return", "grad_norm", *EXPLORATION_FIELDS)
 
 
 def metric_rows(
     first_run: int, update: int, episodes: int, return_mean: torch.Tensor,
-    eval_return: torch.Tensor | None, grad_norm: torch.Tensor,
+    eval_return: torch.Tensor | None, grad_norm: torch.Tensor, exploration: torch.Tensor,
 ) -> list[dict[str, Any]]:
     """The ``metrics.csv`` rows of one update, one per run.
 
@@ -51,16 +53,20 @@ def metric_rows(
         return_mean: mean exploratory return per run ``[runs]``.
         eval_return: mean deterministic return per run, or ``None`` (not evaluated).
         grad_norm: gradient norm per run ``[runs]``.
+        exploration: the :data:`EXPLORATION_FIELDS` per run after the update, ``[3, runs]``.
 
     Examples:
-        >>> metric_rows(2, 0, 10, torch.tensor([-1.5]), None, torch.tensor([0.25]))
-        [{'run': 2, 'update': 0, 'episodes': 10, 'return_mean': -1.5, 'eval_return': '', 'grad_norm': 0.25}]
+        >>> metric_rows(2, 0, 10, torch.tensor([-1.5]), None, torch.tensor([0.25]),
+        ...             torch.tensor([[0.125], [0.5], [2.0]]))  # doctest: +NORMALIZE_WHITESPACE
+        [{'run': 2, 'update': 0, 'episodes': 10, 'return_mean': -1.5, 'eval_return': '', 'grad_norm': 0.25,
+          'sigma_min': 0.125, 'sigma_max': 0.5, 'weight_max': 2.0}]
     """
     return [{
         "run": first_run + r, "update": update, "episodes": episodes,
         "return_mean": float(return_mean[r]),
         "eval_return": "" if eval_return is None else float(eval_return[r]),
         "grad_norm": float(grad_norm[r]),
+        **{name: float(exploration[i, r]) for i, name in enumerate(EXPLORATION_FIELDS)},
     } for r in range(len(return_mean))]
 
 
@@ -69,9 +75,12 @@ def csv_lines(rows: Sequence[dict[str, Any]]) -> list[bytes]:
     :class:`MetricsFile` writes them.
 
     Examples:
-        >>> lines = csv_lines(metric_rows(0, 3, 40, torch.tensor([-1.0]), torch.tensor([-0.5]), torch.tensor([2.0])))
-        >>> [line.decode().rstrip() for line in lines]
-        ['run,update,episodes,return_mean,eval_return,grad_norm', '0,3,40,-1.0,-0.5,2.0']
+        >>> lines = csv_lines(metric_rows(0, 3, 40, torch.tensor([-1.0]), torch.tensor([-0.5]), torch.tensor([2.0]),
+        ...                               torch.tensor([[0.25], [0.5], [1.0]])))
+        >>> for line in lines:
+        ...     print(line.decode().rstrip())
+        run,update,episodes,return_mean,eval_return,grad_norm,sigma_min,sigma_max,weight_max
+        0,3,40,-1.0,-0.5,2.0,0.25,0.5,1.0
     """
     text = io.StringIO(newline="")
     writer = csv.DictWriter(text, fieldnames=METRIC_FIELDS)
@@ -252,9 +261,10 @@ class MetricsFile:
         >>> import tempfile
         >>> path = Path(tempfile.mkdtemp()) / "metrics.csv"
         >>> with MetricsFile(path, csv_lines([])) as metrics:
-        ...     metrics.write(metric_rows(0, 0, 5, torch.tensor([-1.0]), None, torch.tensor([2.0])))
+        ...     metrics.write(metric_rows(0, 0, 5, torch.tensor([-1.0]), None, torch.tensor([2.0]),
+        ...                               torch.tensor([[0.5], [0.5], [1.0]])))
         >>> path.read_text().splitlines()[1]
-        '0,0,5,-1.0,,2.0'
+        '0,0,5,-1.0,,2.0,0.5,0.5,1.0'
     """
 
     def __init__(self, path: Path, kept: list[bytes]) -> None:

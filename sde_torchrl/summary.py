@@ -18,8 +18,10 @@ class LoopState:
         update: updates done.
         reached: per run, whether an update's mean return exceeded ``r_lim``.
         returns: per update, the mean exploratory return of each run ``[runs]``.
-        grad_norms: per update, each run's gradient norm ``[runs]`` (with ``returns`` and
-            ``evals``, what ``metrics.csv`` is verified against, and rebuilt from).
+        grad_norms: per update, each run's gradient norm ``[runs]``.
+        explorations: per update, each run's :func:`exploration_state` after it, ``[3, runs]``
+            (with ``returns``, ``grad_norms`` and ``evals``, what ``metrics.csv`` is verified
+            against, and rebuilt from).
         evals: update index → mean deterministic return of each run ``[runs]``.
         wall_s: training time of earlier sessions of this job (resumed jobs).
         finished: the job ran to its end.
@@ -35,6 +37,7 @@ class LoopState:
     reached: torch.Tensor
     returns: list[torch.Tensor] = field(default_factory=list)
     grad_norms: list[torch.Tensor] = field(default_factory=list)
+    explorations: list[torch.Tensor] = field(default_factory=list)
     evals: dict[int, torch.Tensor] = field(default_factory=dict)
     wall_s: float = 0.0
     finished: bool = False
@@ -47,13 +50,52 @@ class LoopState:
         return {"update": self.update, "reached": self.reached.clone(),
                 "returns": torch.stack(self.returns) if self.returns else empty,
                 "grad_norms": torch.stack(self.grad_norms) if self.grad_norms else empty,
+                "explorations": (torch.stack(self.explorations) if self.explorations
+                                 else empty.new_zeros((0, 3, len(self.reached)))),
                 "evals": {k: v.clone() for k, v in self.evals.items()},
                 "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue}
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any]) -> LoopState:
-        records = {key: list(state[key].unbind(0)) for key in ("returns", "grad_norms")}
+        records = {key: list(state[key].unbind(0)) for key in ("returns", "grad_norms", "explorations")}
         return cls(**{**state, **records})
+
+
+def exploration_state(policy: nn.Module, runs: int) -> torch.Tensor:
+    """Per run: the smallest and the largest exploration scale and the largest controller
+    parameter in magnitude, ``[3, runs]`` (``metrics.csv``'s ``sigma_min``, ``sigma_max``,
+    ``weight_max``).
+
+    The scales are the explorer's ``exploration_scale()``: SDE's ``σ̂`` (eq. 23) element by
+    element, PGPE's ``|σ|``. A run whose ``sigma_max`` has fallen to about 0 no longer explores
+    (its gradient is then noise-free and tiny, or, with the authors' rescale, arbitrary); a
+    growing ``weight_max`` shows a controller pushed into the tanh's flat ends.
+
+    Args:
+        policy: the policy; parameters of its exploring module (the one with
+            ``exploration_scale``) are not counted as controller parameters.
+        runs: the job's runs (the leading dimension of stacked parameters).
+
+    Examples:
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, StateDependentExplorer
+        >>> policy = TensorDictSequential(LinearActor(3, 2, init=-0.5, runs=2),
+        ...                               StateDependentExplorer(2, 3, init_param=-2.0, runs=2))
+        >>> exploration_state(policy, 2)
+        tensor([[0.1353, 0.1353],
+                [0.1353, 0.1353],
+                [0.5000, 0.5000]])
+    """
+    explorer = next((m for m in policy.modules() if hasattr(m, "exploration_scale")), None)
+    own = {id(p) for p in explorer.parameters()} if explorer is not None else set()
+    weights = [p.detach().reshape(runs, -1).abs() for p in policy.parameters() if id(p) not in own]
+    nan = torch.full((runs,), float("nan"))
+    scale = explorer.exploration_scale().reshape(runs, -1) if explorer is not None else None
+    return torch.stack([
+        scale.min(-1).values if scale is not None else nan,
+        scale.max(-1).values if scale is not None else nan,
+        torch.cat(weights, -1).max(-1).values if weights else nan,
+    ]).float()
 
 
 def summarize(

@@ -23,7 +23,10 @@ import torch
 from _helpers import REPO, build
 from omegaconf import OmegaConf
 
-METRIC_FIELDS = ["run", "update", "episodes", "return_mean", "eval_return", "grad_norm"]
+from sde_torchrl import expln
+
+METRIC_FIELDS = ["run", "update", "episodes", "return_mean", "eval_return", "grad_norm", "sigma_min", "sigma_max",
+                 "weight_max"]
 SUMMARY_KEYS = {
     "explorer", "estimator", "env", "actor", "seed", "runs", "first_run", "settings",
     "initial_return", "final_return", "final_eval_return", "episodes_to_threshold",
@@ -222,6 +225,12 @@ def test_short_job_writes_documented_outputs(jobs):
     assert summary["initial_return"] == pytest.approx([float(r["return_mean"]) for r in first])
     assert summary["final_return"] == pytest.approx([float(r["return_mean"]) for r in last])
     assert summary["final_eval_return"] == pytest.approx([float(r["eval_return"]) for r in last])
+    # The exploration state after the last update: σ̂ = expln(p) of the one element, |θ|.
+    final = summary["final_parameters"]
+    for run, row in enumerate(last):
+        sigma = float(expln(torch.tensor(final["module.1.sigma_param"][run][0])))
+        assert float(row["sigma_min"]) == float(row["sigma_max"]) == pytest.approx(sigma, rel=1e-6)
+        assert float(row["weight_max"]) == pytest.approx(abs(final["module.0.module.weight"][run][0]), rel=1e-6)
     for run in range(SHORT_RUNS):
         above = [k for k in range(SHORT_UPDATES) if float(by_update[k][run]["return_mean"]) > -1.8]
         expected = (above[0] + 1) * EPISODES if above else None
