@@ -1,0 +1,193 @@
+"""The learner selection for ball catching (issue 22), by the rule in
+``docs/ballcatch/learner_selection.md``: the same 8 candidates for every method, one job of 8
+runs each on the tuning seed, the candidate with the most final catches chosen per method.
+
+``run`` trains the (method, candidate) jobs through ``train.py``, a few at a time, into
+``OUT/<method>/<candidate>`` (a rerun resumes or skips what is there); ``report`` reads them and
+writes ``tuning.md`` and ``tuning.json``: per method and candidate the final catches, good
+catches and mean final evaluation (the paper's mean reward per step), and the chosen candidate.
+
+Usage:
+    python analysis/ballcatch_tuning.py run --out docs/ballcatch/tuning [--methods reinforce_sde ...]
+    python analysis/ballcatch_tuning.py report --out docs/ballcatch docs/ballcatch/tuning
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SEED, RUNS = 1000, 8
+CATCH, GOOD_CATCH = -1.1, -1.0
+
+#: method → (label, the command's overrides, α₀): the rule's table "The methods", in its order.
+METHODS = {
+    "reinforce_sde": ("REINFORCE + SDE", ["+experiment=ballcatch"], 1e-4),
+    "reinforce_rex": ("REINFORCE + REX", ["+experiment=ballcatch", "explorer=rex"], 1e-4),
+    "enac_sde": ("ENAC + SDE", ["+experiment=ballcatch_enac"], 0.01),
+    "enac_rex": ("ENAC + REX", ["+experiment=ballcatch_enac", "explorer=rex"], 0.01),
+    "gpomdp_sde": ("GPOMDP + SDE", ["+experiment=ballcatch", "estimator=gpomdp"], 1e-4),
+    "pgpe": ("PGPE", ["+experiment=ballcatch", "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=false"], 1e-4),
+}
+_DECAY = ["optimizer.lr_schedule=linear", "optimizer.final_lr_fraction=0"]
+#: candidate → (description, overrides given α₀): the rule's table "The grid".
+CANDIDATES = {
+    "C1": ("sum, sgd, α₀, constant", lambda a: ["estimator.episode_return=sum", "optimizer=sgd", f"lr={a:g}"]),
+    "C2": ("mean, sgd, α₀, constant", lambda a: ["estimator.episode_return=mean", "optimizer=sgd", f"lr={a:g}"]),
+    "C3": ("mean, sgd, α₀, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=sgd", f"lr={a:g}",
+                                                    *_DECAY]),
+    "C4": ("mean, sgd, 10 α₀, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=sgd",
+                                                       f"lr={10 * a:g}", *_DECAY]),
+    "C5": ("mean, momentum 0.9, α₀, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=momentum",
+                                                             f"lr={a:g}", *_DECAY]),
+    "C6": ("mean, adam, 1e-3, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=adam", "lr=0.001",
+                                                       *_DECAY]),
+    "C7": ("mean, adam, 3e-3, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=adam", "lr=0.003",
+                                                       *_DECAY]),
+    "C8": ("mean, adam, 1e-2, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=adam", "lr=0.01",
+                                                       *_DECAY]),
+}
+
+log = logging.getLogger("ballcatch_tuning")
+
+
+def job_overrides(method: str, candidate: str) -> list[str]:
+    """The ``train.py`` overrides of one tuning job.
+
+    Examples:
+        >>> job_overrides("enac_rex", "C4")[:4]
+        ['+experiment=ballcatch_enac', 'explorer=rex', 'estimator.episode_return=mean', 'optimizer=sgd']
+        >>> job_overrides("enac_rex", "C4")[4]
+        'lr=0.1'
+    """
+    _, base, alpha = METHODS[method]
+    return [*base, *CANDIDATES[candidate][1](alpha), f"seed={SEED}", f"runs={RUNS}", "first_run=0",
+            "eval_period=50", "checkpoint_period=50", "logger=none"]
+
+
+def run_job(out: Path, method: str, candidate: str) -> int:
+    """Trains (or resumes, or only re-summarises) one job; returns ``train.py``'s exit code."""
+    run_dir = out / method / candidate
+    command = [sys.executable, "train.py", *job_overrides(method, candidate), f"hydra.run.dir={run_dir}"]
+    log.info("start %s %s", method, candidate)
+    code = subprocess.run(command, cwd=REPO, capture_output=True, text=True).returncode
+    for checkpoint in run_dir.glob("checkpoint*.pt"):  # run outputs are committed, checkpoints are not
+        if code == 0:
+            checkpoint.unlink()
+    log.info("done %s %s: exit %d", method, candidate, code)
+    return code
+
+
+def final_evaluations(run_dir: Path) -> list[float] | None:
+    """The runs' final deterministic evaluations in mean reward per step, or ``None`` for a job
+    without a summary (failed or not run)."""
+    from sde_torchrl.run_dir import read_summary
+    from sde_torchrl.summary import mean_reward_factor
+
+    path = run_dir / "summary.json"
+    if not path.exists():
+        return None
+    summary = read_summary(path)
+    return [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
+
+
+def select(results: dict[str, list[float] | None]) -> str | None:
+    """The chosen candidate: most final catches, then the higher mean final evaluation, then the
+    earlier candidate; a failed job counts as no catch (``None`` if no job has a summary).
+
+    Examples:
+        >>> select({"C1": [-1.0, -2.0], "C2": [-1.05, -1.5], "C3": None})
+        'C1'
+        >>> select({"C1": [-1.2, -2.0], "C2": [-1.5, -1.6]})
+        'C2'
+    """
+    def key(item: tuple[int, tuple[str, list[float] | None]]) -> tuple:
+        index, (_, finals) = item
+        if finals is None:
+            return (-1, float("-inf"), -index)
+        return (sum(value >= CATCH for value in finals), sum(finals) / len(finals), -index)
+
+    ran = [(i, item) for i, item in enumerate(results.items()) if item[1] is not None]
+    return max(ran, key=key)[1][0] if ran else None
+
+
+def report(tuning: Path, out: Path) -> dict:
+    """Writes ``tuning.json`` and ``tuning.md`` into ``out``; returns the numbers."""
+    numbers: dict = {"seed": SEED, "runs": RUNS, "methods": {}}
+    for method, (label, _, alpha) in METHODS.items():
+        results = {c: final_evaluations(tuning / method / c) for c in CANDIDATES}
+        if all(r is None for r in results.values()):
+            continue
+        numbers["methods"][method] = {
+            "label": label, "alpha0": alpha, "chosen": select(results),
+            "candidates": {c: None if r is None else {
+                "catches": sum(v >= CATCH for v in r), "good_catches": sum(v >= GOOD_CATCH for v in r),
+                "mean_final": sum(r) / len(r), "finals": r} for c, r in results.items()},
+        }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tuning.json").write_text(json.dumps(numbers, indent=1) + "\n")
+    (out / "tuning.md").write_text(markdown(numbers))
+    return numbers
+
+
+def markdown(numbers: dict) -> str:
+    """The tables of ``tuning.md``: one row per candidate, one column per method."""
+    methods = numbers["methods"]
+    lines = [
+        "# Ball catching: the learner selection (issue 22)",
+        "",
+        f"Written by `analysis/ballcatch_tuning.py report` from the jobs under `docs/ballcatch/tuning/` "
+        f"(rule: `learner_selection.md`; seed {numbers['seed']}, {numbers['runs']} runs per job, 500 updates). "
+        "A cell: runs whose final deterministic evaluation is a catch (R ≥ -1.1) / a good catch (R ≥ -1.0), "
+        "and the mean final evaluation (mean reward per step); **bold**: the method's chosen candidate; "
+        "- : not run.",
+        "",
+        "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
+        "| --- |" + " --- |" * len(methods),
+    ]
+    for candidate, (description, _) in CANDIDATES.items():
+        cells = []
+        for m in methods.values():
+            c = m["candidates"][candidate]
+            cell = "-" if c is None else f"{c['catches']} / {c['good_catches']}, {c['mean_final']:.2f}"
+            cells.append(f"**{cell}**" if m["chosen"] == candidate else cell)
+        lines.append(f"| {candidate}: {description} | " + " | ".join(cells) + " |")
+    lines += ["", "α₀: " + ", ".join(f"{m['label']} {m['alpha0']:g}" for m in methods.values()) + ".", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="train the tuning jobs")
+    run.add_argument("--out", type=Path, required=True)
+    run.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
+    run.add_argument("--candidates", nargs="+", choices=list(CANDIDATES), default=list(CANDIDATES))
+    run.add_argument("--workers", type=int, default=2)
+    rep = sub.add_parser("report", help="write tuning.md / tuning.json")
+    rep.add_argument("tuning", type=Path)
+    rep.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    if args.command == "report":
+        report(args.tuning, args.out)
+        return 0
+    if args.workers < 1:
+        parser.error(f"--workers={args.workers}: a positive integer")
+    jobs = [(m, c) for m in args.methods for c in args.candidates]
+    with ThreadPoolExecutor(args.workers) as pool:
+        codes = list(pool.map(lambda job: run_job(args.out, *job), jobs))
+    failed = [f"{m}/{c}" for (m, c), code in zip(jobs, codes, strict=True) if code]
+    if failed:
+        log.error("failed jobs (their error.txt says why): %s", ", ".join(failed))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

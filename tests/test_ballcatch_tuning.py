@@ -1,0 +1,36 @@
+"""The learner selection's jobs and rule (analysis/ballcatch_tuning.py, docs/ballcatch/learner_selection.md)."""
+
+from __future__ import annotations
+
+import pytest
+from _helpers import compose_config, load_script
+
+from sde_torchrl.config import validate
+
+tuning = load_script("ballcatch_tuning")
+
+
+@pytest.mark.parametrize("method", list(tuning.METHODS))
+def test_every_job_is_a_valid_config_with_the_rules_learner(method):
+    alpha0 = tuning.METHODS[method][2]
+    expected = {  # candidate → (return, optimiser class, lr, schedule, momentum)
+        "C1": ("sum", "SGD", alpha0, "constant", 0.0), "C2": ("mean", "SGD", alpha0, "constant", 0.0),
+        "C3": ("mean", "SGD", alpha0, "linear", 0.0), "C4": ("mean", "SGD", 10 * alpha0, "linear", 0.0),
+        "C5": ("mean", "SGD", alpha0, "linear", 0.9), "C6": ("mean", "Adam", 1e-3, "linear", None),
+        "C7": ("mean", "Adam", 3e-3, "linear", None), "C8": ("mean", "Adam", 1e-2, "linear", None),
+    }
+    for candidate, (episode_return, optimizer, lr, schedule, momentum) in expected.items():
+        conf = validate(compose_config(*tuning.job_overrides(method, candidate)))
+        assert conf.estimator.episode_return == episode_return, candidate
+        assert conf.optimizer._target_ == f"torch.optim.{optimizer}", candidate
+        assert conf.lr == pytest.approx(lr) and conf.optimizer.lr_schedule == schedule, candidate
+        assert getattr(conf.optimizer, "momentum", None) == momentum, candidate
+        assert (conf.seed, conf.runs, conf.updates, conf.episode_queue) == (1000, 8, 500, 20), candidate
+        assert conf.env.model == "pybrain" and conf.explorer.squash, candidate
+
+
+def test_selection_counts_catches_then_mean_then_order():
+    assert tuning.select({"C1": [-1.2, -1.2], "C2": [-1.05, -3.0], "C3": [-1.09, -2.5]}) == "C3"
+    assert tuning.select({"C1": [-1.05, -2.0], "C2": [-1.05, -2.0]}) == "C1"
+    assert tuning.select({"C1": None, "C2": [-2.9, -2.9]}) == "C2"
+    assert tuning.select({"C1": None}) is None
