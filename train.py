@@ -15,7 +15,10 @@ Errors are reported in one line on stderr, and the exit code says which kind:
 - 4: a file of the run directory is damaged (``checkpoint.pt``, ``metrics.csv``,
   ``summary.json``): the line names the file, what is wrong and the least destructive remedy;
   nothing was resumed from it;
-- 130: interrupted (Ctrl-C), with a checkpoint.
+- 130: interrupted by Ctrl-C, with a checkpoint; 143 (SIGTERM, how schedulers preempt) and 140
+  (SIGUSR2, submitit's signal before a time limit, outside submitit) likewise: the job finishes
+  its update, checkpoints, names the signal and the update, and the same command resumes it.
+  Under submitit (``hydra/launcher=slurm``) SIGUSR2 checkpoints and then lets submitit requeue.
 
 A job holds its run directory (:mod:`sde_torchrl.lock`) from before anything is written there
 (Hydra's ``.hydra/`` files included, which is why this script writes them) to its end. A failed
@@ -152,9 +155,9 @@ def cli() -> int:
     try:
         main()
     except TrainingInterrupted as stop:
-        sys.stderr.write(f"interrupted: checkpoint after update {stop.updates_done} in {stop.out_dir}; "
-                         f"run the same command with hydra.run.dir={stop.out_dir} to resume\n")
-        return EXIT_INTERRUPTED
+        sys.stderr.write(f"interrupted by {stop.signal_name}: checkpoint after update {stop.updates_done} in "
+                         f"{stop.out_dir}; run the same command with hydra.run.dir={stop.out_dir} to resume\n")
+        return stop.exit_code
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")
         return EXIT_INTERRUPTED

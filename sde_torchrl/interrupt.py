@@ -1,4 +1,13 @@
-"""Ctrl-C during training: finish the current update, save a checkpoint, then stop."""
+"""Stopping a job cleanly: Ctrl-C, a scheduler's SIGTERM, or the signal submitit sends before a
+Slurm time limit or at preemption (SIGUSR2): finish the current update, save a checkpoint, then
+stop, or hand over to the handler that was there before.
+
+After the checkpoint, a signal whose earlier handler was Python's (submitit's requeue on
+SIGUSR2, which exits the process; submitit's logging of SIGTERM, which returns) is passed on to
+it, and training goes on if it returns; a signal that would have ended the process (Ctrl-C, or a
+default SIGTERM / SIGUSR2) raises :class:`TrainingInterrupted`, whose ``exit_code`` is the
+shell's: 130 for Ctrl-C, ``128 + signal number`` otherwise (143 for SIGTERM).
+"""
 
 from __future__ import annotations
 
@@ -10,18 +19,42 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 
+#: The signals that stop a job cleanly.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR2)
+
 
 class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C during training: a checkpoint was saved after the last finished update."""
+    """A stop signal during training: a checkpoint was saved after the last finished update.
 
-    def __init__(self, updates_done: int, out_dir: Path) -> None:
-        self.updates_done, self.out_dir = updates_done, out_dir
-        super().__init__(f"interrupted after update {updates_done}; checkpoint saved in {out_dir}")
+    Args:
+        updates_done: updates done (the checkpoint's).
+        out_dir: the run directory.
+        signum: the signal (``SIGINT`` for Ctrl-C).
+
+    Examples:
+        >>> stop = TrainingInterrupted(12, Path("run"), signal.SIGTERM)
+        >>> stop.signal_name, stop.exit_code
+        ('SIGTERM', 143)
+    """
+
+    def __init__(self, updates_done: int, out_dir: Path, signum: int = signal.SIGINT) -> None:
+        self.updates_done, self.out_dir, self.signum = updates_done, out_dir, signum
+        super().__init__(f"{self.signal_name} after update {updates_done}; checkpoint saved in {out_dir}")
+
+    @property
+    def signal_name(self) -> str:
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """130 for Ctrl-C (as a shell reports it), ``128 + signal number`` for the others."""
+        return 130 if self.signum == signal.SIGINT else 128 + self.signum
 
 
 class DeferredInterrupt:
-    """Turns the first Ctrl-C into a request the loop honours after the current update;
-    a second Ctrl-C interrupts at once. A no-op outside the main thread.
+    """Turns the first stop signal into a request the loop honours after the current update
+    (:data:`STOP_SIGNALS`); a second Ctrl-C interrupts at once, a repeated SIGTERM or SIGUSR2
+    is only logged. A no-op outside the main thread.
 
     Examples:
         >>> with DeferredInterrupt() as interrupt:
@@ -30,20 +63,46 @@ class DeferredInterrupt:
     """
 
     def __init__(self) -> None:
-        self.requested = False
-        self._previous: Any = None
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    @property
+    def requested(self) -> bool:
+        """A stop signal arrived since the last :meth:`stop`."""
+        return self.signum is not None
 
     def _handle(self, signum: int, frame: Any) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
-        log.warning("Ctrl-C: saving a checkpoint after this update (Ctrl-C again to abort now)")
+        name = signal.Signals(signum).name
+        if self.signum is not None:
+            if signum == signal.SIGINT == self.signum:
+                raise KeyboardInterrupt
+            log.warning("%s again: the checkpoint after this update is on its way", name)
+            return
+        self.signum = signum
+        again = " (Ctrl-C again to abort now)" if signum == signal.SIGINT else ""
+        log.warning("%s: saving a checkpoint after this update%s", "Ctrl-C" if signum == signal.SIGINT else name,
+                    again)
+
+    def stop(self, updates_done: int, out_dir: Path) -> None:
+        """Called once the checkpoint after update ``updates_done`` is saved: raises
+        :class:`TrainingInterrupted`, or passes the signal on to the earlier Python handler
+        (which may exit; if it returns, training goes on)."""
+        signum, self.signum = self.signum, None
+        previous = self._previous.get(signum)
+        log.warning("%s: checkpoint after update %d saved in %s", signal.Signals(signum).name, updates_done, out_dir)
+        if callable(previous) and previous is not signal.default_int_handler:
+            previous(signum, None)
+            return
+        if previous is signal.SIG_IGN:
+            return
+        raise TrainingInterrupted(updates_done, out_dir, signum)
 
     def __enter__(self) -> DeferredInterrupt:
         if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._previous = {signum: signal.signal(signum, self._handle) for signum in STOP_SIGNALS}
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous if previous is not None else signal.SIG_DFL)
+        self._previous = {}

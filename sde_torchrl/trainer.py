@@ -9,7 +9,7 @@ gradient ascent ``θ ← θ + α g`` (eq. 1); momentum, Adam and a decaying rate
 exploration. What is around the loop has a module of its own: the non-finite guard
 (:mod:`~sde_torchrl.guard`), the run directory (:mod:`~sde_torchrl.run_dir`), checkpoints
 (:mod:`~sde_torchrl.checkpoint`), the summary (:mod:`~sde_torchrl.summary`), reporting
-(:mod:`~sde_torchrl.report`) and Ctrl-C (:mod:`~sde_torchrl.interrupt`).
+(:mod:`~sde_torchrl.report`) and stop signals (:mod:`~sde_torchrl.interrupt`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from sde_torchrl.checkpoint import job_streams, restore_job, result_config, save
 from sde_torchrl.episode_queue import EpisodeQueue
 from sde_torchrl.estimators import EpisodicEstimator
 from sde_torchrl.guard import FiniteGuard
-from sde_torchrl.interrupt import DeferredInterrupt, TrainingInterrupted
+from sde_torchrl.interrupt import DeferredInterrupt
 from sde_torchrl.optim import LearningRateSchedule
 from sde_torchrl.pgpe_estimator import PGPEEstimator
 from sde_torchrl.report import Reporter, close_logger
@@ -147,7 +147,8 @@ class Trainer:
 
         Raises:
             NonFiniteError: a non-finite value; ``metrics.csv`` keeps the updates before it.
-            TrainingInterrupted: on Ctrl-C, after saving a checkpoint.
+            TrainingInterrupted: on Ctrl-C, SIGTERM or SIGUSR2, after saving a checkpoint
+                (:mod:`~sde_torchrl.interrupt`).
             CheckpointMismatchError: ``out_dir`` holds another job's checkpoint.
             RunDirectoryInUse: another process holds ``out_dir`` (nothing is changed).
             DamagedFileError: ``checkpoint.pt`` or ``metrics.csv`` is damaged (nothing is resumed).
@@ -200,7 +201,7 @@ class Trainer:
                         metrics.sync()
                         self._save(run_dir, state, config)
                     if interrupt.requested:
-                        raise TrainingInterrupted(state.update, run_dir.path)
+                        interrupt.stop(state.update, run_dir.path)
             finally:
                 reporter.close()
             metrics.sync()
@@ -233,6 +234,8 @@ class Trainer:
                            streams=job_streams(self.policy, self.env, self.eval_env))
         state = LoopState.from_state_dict(loop)
         run_dir.check_metrics(self._recorded_rows(state), state.finished)
+        if not state.finished:  # an earlier session's summary (a checkpoint replaced by an older one)
+            run_dir.summary.unlink(missing_ok=True)
         if self.queue is not None:
             s = self.settings
             self.queue.load_state_dict(state.queue, [self.runs, s.episode_queue, s.episode_length])

@@ -102,10 +102,11 @@ def rows_in(path: Path) -> int:
         return 0
 
 
-def start_and_signal(run_dir: Path, sig: int, after_rows: int) -> subprocess.CompletedProcess:
-    """Starts ``train.py`` with :data:`CLI`, sends ``sig`` once metrics.csv has ``after_rows``
+def start_and_signal(run_dir: Path, sig: int, after_rows: int,
+                     cli: tuple[str, ...] = CLI) -> subprocess.CompletedProcess:
+    """Starts ``train.py`` with ``cli``, sends ``sig`` once metrics.csv has ``after_rows``
     rows, and waits for the process to end."""
-    proc = subprocess.Popen(train_command(*CLI, run_dir=run_dir), cwd=REPO, stdout=subprocess.PIPE,
+    proc = subprocess.Popen(train_command(*cli, run_dir=run_dir), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while rows_in(run_dir / "metrics.csv") < after_rows:
@@ -127,7 +128,7 @@ def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
         stopped = start_and_signal(run_dir, signal.SIGINT, after_rows=40)
         assert stopped.returncode == 130, stopped.stderr[-2000:]
         lines = own_stderr_lines(stopped.stderr)
-        assert len(lines) == 1 and lines[0].startswith("interrupted: checkpoint after update "), lines
+        assert len(lines) == 1 and lines[0].startswith("interrupted by SIGINT: checkpoint after update "), lines
         assert f"hydra.run.dir={run_dir}" in lines[0]
         done = load_checkpoint(run_dir / "checkpoint.pt")["updates"]
         assert rows_in(run_dir / "metrics.csv") == 2 * done  # saved exactly where it stopped
@@ -152,3 +153,33 @@ def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
     scalars = Path("sde_torchrl", "scalars", "return_mean.csv")  # TorchRL's CSV logger too
     assert (run_dir / scalars).read_bytes() == (ref_dir / scalars).read_bytes()
     assert not list(run_dir.glob("*.tmp"))
+
+
+def test_sigterm_without_periodic_checkpoints_loses_nothing(tmp_path):
+    """A scheduler's SIGTERM is handled as Ctrl-C is, also with ``checkpoint_period=0``: the job
+    checkpoints after its update, names the signal, exits 143, and the same command resumes it
+    to the uninterrupted outputs. SIGTERM before the job has started (imports) loses nothing
+    either: there is nothing yet."""
+    cli = (*CLI[:-1], "checkpoint_period=0")
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        reference = pool.submit(run_cli, *cli, run_dir=tmp_path / "ref")
+        run_dir = tmp_path / "terminated"
+        early = subprocess.Popen(train_command(*cli, run_dir=run_dir), cwd=REPO, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE)
+        time.sleep(0.3)
+        early.send_signal(signal.SIGTERM)
+        early.communicate(timeout=60)
+        assert rows_in(run_dir / "metrics.csv") == 0
+
+        stopped = start_and_signal(run_dir, signal.SIGTERM, after_rows=60, cli=cli)
+        assert stopped.returncode == 143, stopped.stderr[-2000:]
+        lines = own_stderr_lines(stopped.stderr)
+        assert len(lines) == 1 and lines[0].startswith("interrupted by SIGTERM: checkpoint after update "), lines
+        done = load_checkpoint(run_dir / "checkpoint.pt")["updates"]
+        assert rows_in(run_dir / "metrics.csv") == 2 * done >= 60
+
+        finished = run_cli(*cli, run_dir=run_dir)
+        assert finished.returncode == 0, finished.stderr[-2000:]
+        assert reference.result().returncode == 0
+    assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
+    assert summary_without_wall(run_dir) == summary_without_wall(tmp_path / "ref")

@@ -8,17 +8,21 @@ the launcher and checks that the merged shards equal one process.
 
 from __future__ import annotations
 
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
 from test_sweeps import _metrics, _train
 
 pytestmark = pytest.mark.launchers
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _free_port() -> int:
@@ -75,3 +79,32 @@ def ray_head():
 
 def test_ray_cluster_shards_equal_one_process(tmp_path, ray_head):
     _shards_equal_one_process(tmp_path, "hydra/launcher=ray_cluster", f"hydra.launcher.ray.init.address={ray_head}")
+
+
+def test_submitit_preemption_checkpoints_requeues_and_resumes(tmp_path):
+    """submitit's preemption / time-limit signal (SIGUSR2, as ``job._interrupt()`` sends it):
+    the job checkpoints after its update, submitit requeues it, and the requeued job resumes to
+    the outputs of an uninterrupted run, although it checkpoints nowhere else (checkpoint_period=0)."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    job = ("+experiment=minimize", "runs=2", "updates=300", "eval_period=10", "checkpoint_period=0", "logger=none")
+    reference = subprocess.Popen([sys.executable, "train.py", *job, f"hydra.run.dir={tmp_path / 'one'}"],
+                                 cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    sweep = tmp_path / "shards"
+    launched = subprocess.Popen(
+        [sys.executable, "train.py", "-m", *job, "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
+         f"hydra.sweep.dir={sweep}"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    metrics, deadline = sweep / "0" / "metrics.csv", time.monotonic() + 180
+    while not metrics.exists() or len(metrics.read_bytes().splitlines()) < 60:
+        assert launched.poll() is None, launched.communicate()[1][-2000:]
+        assert time.monotonic() < deadline, "no progress"
+        time.sleep(0.02)
+    tasks = [int(pid) for pid in subprocess.run(["pgrep", "-f", "submitit.core._submit"], capture_output=True,
+                                                text=True).stdout.split()]
+    assert len(tasks) == 1, tasks
+    os.kill(tasks[0], signal.SIGUSR2)
+    _, stderr = launched.communicate(timeout=300)
+    assert launched.returncode == 0, stderr[-2000:]
+    assert reference.wait(timeout=300) == 0, reference.stderr.read()[-2000:]
+    log = (sweep / "0" / "train.log").read_text()
+    assert "SIGUSR2: checkpoint after update" in log and "resuming" in log, log[-2000:]
+    assert metrics.read_bytes() == (tmp_path / "one" / "metrics.csv").read_bytes()
