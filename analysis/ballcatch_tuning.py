@@ -87,13 +87,12 @@ def run_job(out: Path, method: str, candidate: str) -> int:
 def final_evaluations(run_dir: Path) -> list[float] | None:
     """The runs' final deterministic evaluations in mean reward per step, or ``None`` for a job
     without a summary (failed or not run)."""
-    from sde_torchrl.run_dir import read_summary
+    from sde_torchrl.run_dir import read_finished_run
     from sde_torchrl.summary import mean_reward_factor
 
-    path = run_dir / "summary.json"
-    if not path.exists():
+    if not (run_dir / "summary.json").exists():
         return None
-    summary = read_summary(path)
+    summary = read_finished_run(run_dir).summary
     return [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from sde_torchrl.envs.ballcatch import BallCatchEnv, episode_return
 from sde_torchrl.envs.ballcatch.demo import write_gif
-from sde_torchrl.run_dir import read_summary
+from sde_torchrl.run_dir import finished_runs
 from sde_torchrl.summary import mean_reward_factor
 
 WEIGHT = "module.0.module.weight"
@@ -44,8 +44,8 @@ def find_runs(directories: list[Path], explorer: str, estimator: str) -> list[Ru
     """The runs of ``explorer`` with ``estimator`` under ``directories``."""
     runs = []
     for directory in directories:
-        for path in sorted(directory.rglob("summary.json")):
-            summary = read_summary(path)
+        for job in finished_runs(directory):
+            summary = job.summary
             if (summary.get("explorer"), summary.get("estimator"), summary.get("env")) != (
                     explorer, estimator, "ballcatch"):
                 continue

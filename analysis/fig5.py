@@ -12,7 +12,9 @@ of one estimator, and writes into ``--out DIR``:
   beside the paper's, and the SDE − REX differences with bootstrap intervals (significant
   where the interval excludes 0); with the ``initial.json`` files of
   ``analysis/ballcatch_initial.py`` under the sweep directories, the mean initial and final
-  evaluations and the mean change per run with its bootstrap interval.
+  evaluations and the mean change per run with its bootstrap interval; for runs whose
+  ``metrics.csv`` records the exploration state (``sigma_min``, ``sigma_max``), how many runs'
+  exploration collapsed (a scale below :data:`COLLAPSE`: some of it, or all of it) and when.
 
 With ``--estimator all`` it compares the methods of the REINFORCE sweeps (issue 16): SDE and
 REX with REINFORCE, SDE with GPOMDP (``sde+gpomdp``) and PGPE, written as ``methods.*``, with
@@ -27,7 +29,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from pathlib import Path
@@ -42,6 +43,9 @@ PAPER = {
 }
 PAPER["all"] = PAPER["reinforce"]
 FIGURE = {"reinforce": "fig5", "enac": "fig6", "all": "methods"}
+#: A run's exploration has collapsed where its scale (SDE's σ̂, PGPE's |σ|) fell below this: 1/135
+#: of the start σ̂₀ = e⁻², a noise of about 0.005 on a torque at the ball's distance of 5 units.
+COLLAPSE = 1e-3
 #: ``--estimator all``: the estimators compared on the REINFORCE sweeps' settings.
 COMPARED = ("reinforce", "gpomdp", "pgpe")
 #: ``--estimator all``: (method, baseline) pairs whose differences are reported.
@@ -65,32 +69,40 @@ def method_label(explorer: str, estimator: str, wanted: str) -> str | None:
 
 
 def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, dict]]:
-    """``explorer → global run index → {"evals": [(update, return)], "final": R}``, returns as
-    mean rewards per step (the paper's levels) whatever the job's ``episode_return``."""
-    from sde_torchrl.run_dir import read_summary  # names a damaged summary.json and the remedy
+    """``explorer → global run index → {"evals": [(update, return)], "final": R, "collapse": …}``,
+    returns as mean rewards per step (the paper's levels) whatever the job's ``episode_return``;
+    ``collapse`` is ``None`` for runs written before ``metrics.csv`` recorded the exploration
+    state, else the first update (0-based, or ``None``) at which ``any`` / ``all`` of the run's
+    exploration scales were below :data:`COLLAPSE`."""
+    from sde_torchrl.run_dir import finished_runs  # refuses a run directory mid-run, by name
     from sde_torchrl.summary import mean_reward_factor
 
     runs: dict[str, dict[int, dict]] = {}
     for directory in directories:
-        for summary_path in sorted(directory.rglob("summary.json")):
-            summary = read_summary(summary_path)
+        for job in finished_runs(directory):
+            summary = job.summary
             explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
             if explorer is None:
                 continue
             scale = mean_reward_factor(summary)
             evals: dict[int, list[tuple[int, float]]] = {}
-            with open(summary_path.parent / "metrics.csv") as f:
-                for row in csv.DictReader(f):
-                    if row["eval_return"]:
-                        evals.setdefault(int(row["run"]), []).append(
-                            (int(row["update"]), scale * float(row["eval_return"])))
+            collapse: dict[int, dict[str, int | None]] = {}
+            for row in job.rows:
+                if row["eval_return"]:
+                    evals.setdefault(int(row["run"]), []).append(
+                        (int(row["update"]), scale * float(row["eval_return"])))
+                if row.get("sigma_min"):
+                    first = collapse.setdefault(int(row["run"]), {"any": None, "all": None})
+                    for key, column in (("any", "sigma_min"), ("all", "sigma_max")):
+                        if first[key] is None and float(row[column]) < COLLAPSE:
+                            first[key] = int(row["update"])
             for offset, final in enumerate(summary["final_eval_return"]):
                 index = summary["first_run"] + offset
-                run = {"evals": evals[index], "final": scale * final}
+                run = {"evals": evals[index], "final": scale * final, "collapse": collapse.get(index)}
                 previous = runs.setdefault(explorer, {}).setdefault(index, run)
                 if previous != run:
                     raise ValueError(f"run {index} of {explorer} appears twice with different results "
-                                     f"(second copy in {summary_path.parent})")
+                                     f"(second copy in {job.path})")
     return runs
 
 
@@ -130,6 +142,21 @@ def reached(runs: dict[int, dict]) -> dict[str, dict[str, list[bool]]]:
             for kind, values in (("best", best), ("final", final))}
 
 
+def collapsed(by_run: dict[int, dict]) -> dict | None:
+    """Of the runs that record their exploration state: how many had some / all of their
+    exploration scales fall below :data:`COLLAPSE`, and the first such update (median, range,
+    1-based); ``None`` if no run records it."""
+    recorded = [run["collapse"] for run in by_run.values() if run.get("collapse") is not None]
+    if not recorded:
+        return None
+    out = {"level": COLLAPSE, "recorded": len(recorded)}
+    for key in ("any", "all"):
+        updates = sorted(first[key] + 1 for first in recorded if first[key] is not None)
+        out[key] = {"runs": len(updates), "median_update": updates[len(updates) // 2] if updates else None,
+                    "first_update": updates[0] if updates else None, "last_update": updates[-1] if updates else None}
+    return out
+
+
 def report(runs: dict[str, dict[int, dict]], estimator: str,
            initial: dict[str, dict[int, float]] | None = None) -> dict:
     """The figure's numbers: per explorer, run count, catch counts (best and final) with their
@@ -147,6 +174,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
             stats[f"{kind}_interval"] = {level: list(binomial_interval(k, n)[1:]) for level, k in stats[kind].items()}
         stats["paper"] = {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}
         stats["improvement"] = improvement(by_run, (initial or {}).get(explorer, {}))
+        stats["collapse"] = collapsed(by_run)
         explorers[explorer] = stats
     result = {"estimator": estimator, "explorers": explorers}
 
@@ -207,6 +235,14 @@ def write_markdown(result: dict, path: Path) -> None:
             lines += ["", f"{explorer.upper()}: mean evaluation {stats['improvement']['initial_mean']:.3f} (Θ0) → "
                       f"{stats['improvement']['final_mean']:.3f} (final); mean change per run {change[0]:+.3f} "
                       f"[{change[1]:+.3f}, {change[2]:+.3f}]"]
+    for explorer, stats in result["explorers"].items():
+        if stats.get("collapse"):
+            c = stats["collapse"]
+            parts = [f"{c[key]['runs']} of {c['recorded']} runs with {words} below {c['level']:g}"
+                     + (f" (from update {c[key]['median_update']} in the median run, {c[key]['first_update']}"
+                        f"-{c[key]['last_update']})" if c[key]["runs"] else "")
+                     for key, words in (("any", "some exploration scale"), ("all", "every exploration scale"))]
+            lines += ["", f"{explorer.upper()}: exploration collapsed: " + "; ".join(parts)]
     lines += ["", "Cells: percent of runs whose best / final deterministic evaluation reached the level, with its "
               "95 % Wilson interval; the paper's count out of 100 runs where it states one. A − B: the "
               "difference in percentage points with its 95 % bootstrap interval over runs; * where the interval "

@@ -46,7 +46,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import json
 import logging
@@ -154,17 +153,15 @@ def _expected_cost(job: tuple[str, list[str], str]) -> float:
 
 def load_runs(directory: Path) -> list[dict]:
     """Every finished run under ``directory``: its summary and per-update mean returns."""
-    from sde_torchrl.run_dir import read_summary  # names a damaged summary.json and the remedy
+    from sde_torchrl.run_dir import finished_runs  # refuses a run directory mid-run, by name
 
     runs = []
-    for summary_path in sorted(directory.rglob("summary.json")):
-        summary = read_summary(summary_path)
+    for job in finished_runs(directory):
+        summary = job.summary
         if summary.get("experiment") not in EXPERIMENTS:
             continue
-        with open(summary_path.parent / "metrics.csv") as f:
-            rows = list(csv.DictReader(f))
         curves: dict[int, list[float]] = {}
-        for row in rows:
+        for row in job.rows:
             curves.setdefault(int(row["run"]), []).append(float(row["return_mean"]))
         summary["curves"] = [curves[r] for r in sorted(curves)]  # [runs][updates]
         runs.append(summary)

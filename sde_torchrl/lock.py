@@ -80,6 +80,31 @@ def hold_run_directory(path: str | os.PathLike) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
+def held_by(path: str | os.PathLike) -> str | None:
+    """The pid of the live process that holds the run directory ``path``, or ``None`` (also
+    for a directory without a lock file); nothing is written, and no lock is kept.
+
+    Examples:
+        >>> import tempfile
+        >>> directory = tempfile.mkdtemp()
+        >>> held_by(directory) is None
+        True
+    """
+    lock = Path(path) / LOCK
+    if not lock.exists():
+        return None
+    fd = os.open(lock, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return _holder(fd)
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
 def _acquire(directory: Path) -> int:
     """Opens ``directory/.lock``, locks it without waiting and writes this process's pid."""
     directory.mkdir(parents=True, exist_ok=True)

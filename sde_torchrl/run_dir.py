@@ -24,14 +24,15 @@ import math
 import os
 from collections.abc import Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS
+from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS, load_checkpoint
 from sde_torchrl.files import DamagedFileError, write_atomically, write_json_atomic
-from sde_torchrl.lock import hold_run_directory
+from sde_torchrl.lock import held_by, hold_run_directory
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +183,96 @@ class RunDirectory:
 
     def _logger_csv_files(self) -> list[Path]:
         return sorted(self.path.glob("*/scalars/*.csv"))
+
+
+class UnfinishedRunError(ValueError):
+    """A run directory that does not hold a finished job: running, interrupted, failed, or
+    with files that disagree with each other.
+
+    Examples:
+        >>> str(UnfinishedRunError("runs/3", "it has no summary.json", "run its command again"))
+        'runs/3 is not a finished run: it has no summary.json; run its command again'
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str, remedy: str) -> None:
+        self.path, self.problem = Path(path), problem
+        super().__init__(f"{path} is not a finished run: {problem}; {remedy}")
+
+
+@dataclass(frozen=True)
+class FinishedRun:
+    """A finished job's outputs, read by :func:`read_finished_run`.
+
+    Attributes:
+        path: the run directory.
+        summary: ``summary.json``.
+        rows: ``metrics.csv``'s rows as strings, one per (update, run).
+    """
+
+    path: Path
+    summary: dict[str, Any]
+    rows: list[dict[str, str]]
+
+
+def read_finished_run(path: str | os.PathLike) -> FinishedRun:
+    """Reads a run directory that holds a finished job, after checking that its files agree:
+    no live process holds it, ``summary.json`` exists, ``metrics.csv`` has one row per run for
+    each of the summary's ``updates_done`` updates, and a ``checkpoint.pt`` (if kept) is the
+    finished job's at that update. The one reader for analysis scripts: a directory mid-run, or
+    left by an interrupted or failed job, is refused by name instead of read as a result.
+
+    Args:
+        path: the run directory.
+
+    Returns:
+        The summary and the metrics rows.
+
+    Raises:
+        UnfinishedRunError: the job is running, did not finish, or its files disagree.
+        DamagedFileError: ``summary.json`` is not valid JSON, or ``checkpoint.pt`` is damaged.
+
+    Examples:
+        >>> import tempfile
+        >>> read_finished_run(tempfile.mkdtemp())  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.run_dir.UnfinishedRunError: ... is not a finished run: it has no summary.json; ...
+    """
+    path = Path(path)
+    again = "run the job's command again to finish it (it resumes from its checkpoint)"
+    holder = held_by(path)
+    if holder is not None:
+        raise UnfinishedRunError(path, f"a job is running in it (pid {holder})", "read it once that job has ended")
+    if not (path / "summary.json").exists():
+        raise UnfinishedRunError(path, "it has no summary.json", again)
+    summary = read_summary(path / "summary.json")
+    with open(path / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    runs, updates = summary.get("runs"), summary.get("updates_done")
+    if not isinstance(runs, int) or not isinstance(updates, int):
+        raise UnfinishedRunError(path, "its summary.json names no runs and updates_done", again)
+    if len(rows) != runs * updates or (rows and int(rows[-1]["update"]) != updates - 1):
+        last = rows[-1]["update"] if rows else "none"
+        raise UnfinishedRunError(path, f"metrics.csv has {len(rows)} rows up to update {last}, summary.json says "
+                                       f"{runs} runs × {updates} updates", again)
+    if (path / CHECKPOINT).exists():
+        loop = load_checkpoint(path / CHECKPOINT)["loop"]
+        if loop.get("update") != updates or not loop.get("finished"):
+            raise UnfinishedRunError(path, f"its {CHECKPOINT} is at update {loop.get('update')}"
+                                           f"{'' if loop.get('finished') else ' (unfinished)'}, summary.json says "
+                                           f"{updates}", again)
+    return FinishedRun(path, summary, rows)
+
+
+def finished_runs(directory: str | os.PathLike) -> list[FinishedRun]:
+    """Every run directory under ``directory`` (each one holding a ``metrics.csv``), read by
+    :func:`read_finished_run`, in path order: one that is not finished refuses the whole set,
+    naming it, rather than giving results with a run missing or cut short.
+
+    Raises:
+        UnfinishedRunError: a run directory under ``directory`` is not finished.
+    """
+    return [read_finished_run(metrics.parent) for metrics in sorted(Path(directory).rglob("metrics.csv"))]
 
 
 def read_summary(path: str | os.PathLike) -> dict[str, Any]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -15,22 +16,30 @@ fig5 = load_script("fig5")
 
 
 def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]],
-               summed_over: int | None = None, estimator: str = "reinforce") -> None:
+               summed_over: int | None = None, estimator: str = "reinforce",
+               sigmas: list[tuple[float, float]] | None = None) -> None:
     """A run directory as train.py writes it: evaluations every 20 updates; with ``summed_over=T``,
-    as a job with ``estimator.episode_return=sum`` over ``T`` steps reports the same returns."""
+    as a job with ``estimator.episode_return=sum`` over ``T`` steps reports the same returns; with
+    ``sigmas``, per run the exploration scales (smallest, largest) start at 0.135 and shrink
+    geometrically to those values at the last update (without: a job from before they were recorded)."""
     factor = summed_over or 1
     directory.mkdir(parents=True)
+    fields = ["run", "update", "episodes", "return_mean", "eval_return"]
     with open(directory / "metrics.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=["run", "update", "episodes", "return_mean", "eval_return"])
+        writer = csv.DictWriter(f, fieldnames=fields + (["sigma_min", "sigma_max"] if sigmas else []))
         writer.writeheader()
         for offset, curve in enumerate(evals):
+            last = 20 * len(curve) - 1
             for i, value in enumerate(curve):
                 for update in range(20 * i, 20 * i + 20):
-                    writer.writerow({"run": first_run + offset, "update": update, "episodes": update + 20,
-                                     "return_mean": -2.0,
-                                     "eval_return": factor * value if update == 20 * i + 19 else ""})
-    summary = {"estimator": estimator, "explorer": explorer, "first_run": first_run,
-               "final_eval_return": [factor * curve[-1] for curve in evals]}
+                    row = {"run": first_run + offset, "update": update, "episodes": update + 20,
+                           "return_mean": -2.0, "eval_return": factor * value if update == 20 * i + 19 else ""}
+                    if sigmas:
+                        row["sigma_min"], row["sigma_max"] = (0.135 * (end / 0.135) ** (update / last)
+                                                              for end in sigmas[offset])
+                    writer.writerow(row)
+    summary = {"estimator": estimator, "explorer": explorer, "first_run": first_run, "runs": len(evals),
+               "updates_done": 20 * len(evals[0]), "final_eval_return": [factor * curve[-1] for curve in evals]}
     if summed_over:
         summary |= {"episode_return": "sum", "settings": {"episode_length": summed_over}}
     (directory / "summary.json").write_text(json.dumps(summary))
@@ -52,6 +61,24 @@ def test_counts_best_and_final_levels(tmp_path):
     assert sde["paper"] == {"-1.0": 68, "-1.1": 98} and sde["runs"] == 4
     assert (tmp_path / "out" / "fig5.png").stat().st_size > 0
     assert "(paper 68 %)" in (tmp_path / "out" / "fig5.md").read_text()
+
+
+def test_collapsed_exploration_is_counted_with_its_first_update(tmp_path):
+    # 60 updates each; σ = 0.135 (end/0.135)^(u/59) first falls below 1e-3 where u > 59 ln(135)/ln(0.135/end).
+    sigmas = [(1e-6, 1e-4), (1e-5, 0.2), (0.05, 0.3), (1e-4, 1e-4)]
+    _write_job(tmp_path / "sde", "sde", 0, CURVES["sde"], sigmas=sigmas)
+    _write_job(tmp_path / "rex", "rex", 0, CURVES["rex"])  # written before the columns existed
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "fig5.json").read_text())
+    collapse = result["explorers"]["sde"]["collapse"]
+    first = [int(59 * math.log(135) / math.log(0.135 / end)) + 2 for end in (1e-6, 1e-5, 1e-4)]  # 1-based
+    assert collapse["recorded"] == 4 and collapse["level"] == 1e-3
+    assert collapse["any"] == {"runs": 3, "median_update": sorted(first)[1], "first_update": min(first),
+                               "last_update": max(first)}
+    assert collapse["all"]["runs"] == 2  # runs 0 and 3: their largest scale fell too
+    assert result["explorers"]["rex"]["collapse"] is None
+    assert "SDE: exploration collapsed: 3 of 4 runs with some exploration scale below 0.001" in (
+        tmp_path / "out" / "fig5.md").read_text()
 
 
 def test_counts_carry_intervals_and_the_sde_rex_difference_its_significance(tmp_path):

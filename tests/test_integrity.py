@@ -430,3 +430,50 @@ def test_a_sweep_relaunched_with_other_values_leaves_the_finished_jobs_alone(tmp
     assert len(refusals) == 2 and all("hydra.sweep.dir" in line and "lr: 0.002 -> 0.01" in line for line in refusals)
     assert job_files() == before
     assert not list(tmp_path.rglob("error.txt"))
+
+
+# --------------------------------------------------------------------------- finished or not
+
+
+def test_a_rerun_from_an_older_checkpoint_removes_the_summary_until_it_finishes(tmp_path, reference):
+    """Finish a job, damage its checkpoint, put the previous one in its place (the printed
+    remedy), rerun and kill it: the old summary must not make the directory look finished."""
+    from sde_torchrl.run_dir import UnfinishedRunError, read_finished_run
+
+    run_dir = tmp_path / "job"
+    build(*BUDGET).train(run_dir, checkpoint_period=4)
+    assert read_finished_run(run_dir).summary["updates_done"] == 12
+    (run_dir / "checkpoint.pt").write_bytes(b"damaged")
+    os.replace(run_dir / "checkpoint.prev.pt", run_dir / "checkpoint.pt")
+    trainer = build(*BUDGET)
+    crash_at(trainer, 10)
+    with pytest.raises(Crash):
+        trainer.train(run_dir, checkpoint_period=4)
+    assert not (run_dir / "summary.json").exists()
+    with pytest.raises(UnfinishedRunError, match="it has no summary.json; run the job's command again"):
+        read_finished_run(run_dir)
+    build(*BUDGET).train(run_dir, checkpoint_period=4)
+    finished = read_finished_run(run_dir)
+    assert finished.summary["updates_done"] == 12 and len(finished.rows) == 2 * 12
+    assert (run_dir / "metrics.csv").read_bytes() == (reference / "metrics.csv").read_bytes()
+
+
+def test_readers_refuse_a_run_in_progress_or_files_that_disagree(tmp_path, reference):
+    from sde_torchrl.run_dir import UnfinishedRunError, finished_runs, read_finished_run
+
+    run_dir = tmp_path / "sweep" / "0"
+    run_dir.parent.mkdir()
+    build(*BUDGET).train(run_dir, checkpoint_period=4)
+    with hold_run_directory(run_dir):  # what a reader sees while a job (re)runs there
+        with pytest.raises(UnfinishedRunError, match=rf"a job is running in it \(pid {os.getpid()}\)"):
+            read_finished_run(run_dir)
+    assert len(finished_runs(tmp_path / "sweep")) == 1
+    lines = (run_dir / "metrics.csv").read_bytes().splitlines(keepends=True)
+    (run_dir / "metrics.csv").write_bytes(b"".join(lines[:-2]))  # the last update's rows lost
+    with pytest.raises(UnfinishedRunError, match="metrics.csv has 22 rows up to update 10, summary.json says "
+                                                 "2 runs × 12 updates"):
+        finished_runs(tmp_path / "sweep")
+    (run_dir / "metrics.csv").write_bytes(b"".join(lines))
+    os.replace(run_dir / "checkpoint.prev.pt", run_dir / "checkpoint.pt")
+    with pytest.raises(UnfinishedRunError, match="checkpoint.pt is at update 8 \\(unfinished\\)"):
+        read_finished_run(run_dir)
