@@ -40,7 +40,7 @@ PREVIOUS = "checkpoint.prev.pt"
 #: Bumped when the checkpoint layout changes; older checkpoints are refused.
 FORMAT = 3
 #: Config keys that do not change the numbers a job produces: they may differ on resume.
-NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress")
+NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress", "max_memory_gb")
 
 
 class CheckpointMismatchError(ValueError):

@@ -30,6 +30,7 @@ from sde_torchrl.checks import (
     show,
 )
 from sde_torchrl.optim import LR_SCHEDULES
+from sde_torchrl.resources import check_memory, launcher_request
 
 # ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP006, UP007, UP035, UP045
@@ -501,6 +502,8 @@ class TrainConf:
         progress: progress bar; ``null``: only on a terminal and outside a multirun.
         threads: torch intra-op threads per job (a job is a sequence of small ops; the jobs of a
             sweep share the cores).
+        max_memory_gb: refuse a job whose estimated memory (:mod:`sde_torchrl.resources`) exceeds
+            this; ``null``: the memory the machine has available when the job starts.
 
     Examples:
         >>> TrainConf(runs=4, r_lim=-1.8).episodes_per_update
@@ -528,6 +531,7 @@ class TrainConf:
     checkpoint_period: int = 25
     progress: Optional[bool] = None
     threads: int = 1
+    max_memory_gb: Optional[float] = None
 
     def __post_init__(self) -> None:
         for name in ("runs", "updates", "episodes_per_update", "eval_episodes", "threads"):
@@ -542,8 +546,12 @@ class TrainConf:
             raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
         if self.stop_at_threshold and self.r_lim is None:
             raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
+        if self.max_memory_gb is not None:
+            finite("max_memory_gb", self.max_memory_gb, minimum=0, strict=True)
         _check_can_learn(self)
         _check_pgpe(self)
+        if self.env is not None and self.estimator is not None:
+            check_memory(self)
 
 
 def _check_pgpe(conf: TrainConf) -> None:
@@ -620,10 +628,11 @@ def register_configs() -> None:
 
 
 def register_resolvers() -> None:
-    """Config resolvers (``${midway_r_lim:T,x0,s,noise_std,theta0}``, see ``midway_threshold``)
-    and the config schemas (:func:`register_configs`): call before composing a config. Light:
-    torch is imported when a value is resolved, not here (``train.py`` locks its run directory
-    before importing torch)."""
+    """Config resolvers and the config schemas (:func:`register_configs`): call before composing
+    a config. The resolvers: ``${midway_r_lim:T,x0,s,noise_std,theta0}`` (``midway_threshold``);
+    ``${sde_memory_gb:}``, ``${sde_memory_bytes:}`` and ``${sde_time_min:}``, a launcher's request
+    for the job (:func:`~sde_torchrl.resources.launcher_request`). Light: torch is imported when a
+    value is resolved, not here (``train.py`` locks its run directory before importing torch)."""
     register_configs()
 
     def midway_r_lim(T, x0, s, noise, theta0):  # noqa: N803 - the paper's symbols
@@ -632,6 +641,13 @@ def register_resolvers() -> None:
         return midway_threshold(int(T), float(x0), float(s), float(noise), float(theta0))
 
     OmegaConf.register_new_resolver("midway_r_lim", midway_r_lim, replace=True)
+    # The launchers' requests per job (conf/hydra/launcher/*.yaml), from the job's sizes.
+    OmegaConf.register_new_resolver("sde_memory_gb", lambda _root_: launcher_request(_root_)["mem_gb"],
+                                    replace=True)
+    OmegaConf.register_new_resolver("sde_time_min", lambda _root_: launcher_request(_root_)["timeout_min"],
+                                    replace=True)
+    OmegaConf.register_new_resolver("sde_memory_bytes", lambda _root_: int(launcher_request(_root_)["mem_gb"] * 1e9),
+                                    replace=True)
 
 
 def validate(cfg: DictConfig) -> TrainConf:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from typing import Any
 
@@ -39,6 +40,8 @@ from sde_torchrl.settings import TrainingSettings
 from sde_torchrl.summary import LoopState, exploration_state, per_step_factor, summarize
 
 log = logging.getLogger(__name__)
+#: A session whose first update takes longer than this says what it is doing.
+FIRST_UPDATE_NOTICE_S = 60.0
 
 
 class Trainer:
@@ -176,11 +179,15 @@ class Trainer:
         reporter = Reporter(self.logger, s.updates, state.update,
                             self.runs * s.episodes_per_update * s.episode_length, progress,
                             per_step=per_step_factor(self.estimator.episode_return, s.episode_length))
+        notice = threading.Timer(FIRST_UPDATE_NOTICE_S, log.info, [self._first_update_notice(state.update)])
+        notice.daemon = True
         with run_dir.open_metrics(self._recorded_rows(state)) as metrics, DeferredInterrupt() as interrupt:
+            notice.start()
             try:
                 for k in range(state.update, s.updates):
                     episodes = self.queue.next_batch(self.collect) if self.queue else self.collect()
                     stats = self.update(episodes, k)
+                    notice.cancel()
                     state.returns.append(stats["return_mean"])
                     state.grad_norms.append(stats["grad_norm"])
                     state.explorations.append(stats["exploration"])
@@ -203,9 +210,19 @@ class Trainer:
                     if interrupt.requested:
                         interrupt.stop(state.update, run_dir.path)
             finally:
+                notice.cancel()
                 reporter.close()
             metrics.sync()
         self._save(run_dir, state, config)
+
+    def _first_update_notice(self, update: int) -> str:
+        """What the session's first update does, for a job that has been silent for a while."""
+        s = self.settings
+        fill = self.queue is not None and update == 0
+        episodes = s.episode_queue if fill else s.episodes_per_update
+        return (f"update {update + 1} of {s.updates} still running after {FIRST_UPDATE_NOTICE_S:g} s: collecting "
+                f"{episodes} episodes of {s.episode_length} steps for each of {self.runs} runs"
+                f"{' (the episode queue is filled first)' if fill else ''}, then estimating the gradient")
 
     def _rows(self, k: int, return_mean: torch.Tensor, eval_return: torch.Tensor | None,
               grad_norm: torch.Tensor, exploration: torch.Tensor) -> list[dict[str, Any]]:

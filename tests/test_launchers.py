@@ -48,11 +48,38 @@ def test_slurm_config_composes_for_submitit(tmp_path):
     """The shipped Slurm config is a submitit_slurm launcher with our per-shard resources."""
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     result = subprocess.run(
-        [sys.executable, "train.py", "+experiment=ballcatch_sweep", "hydra/launcher=slurm", "--cfg", "hydra"],
-        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=120,
+        [sys.executable, "train.py", "+experiment=ballcatch_sweep", "hydra/launcher=slurm", "--cfg", "all",
+         "--resolve"], cwd=REPO, capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "SlurmLauncher" in result.stdout and "cpus_per_task: 1" in result.stdout
+    assert "mem_gb: 9" in result.stdout and "timeout_min: 162" in result.stdout
+
+
+SWEEPS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*sweep.yaml"))
+
+
+@pytest.mark.parametrize("launcher", ["slurm", "ray_cluster"])
+@pytest.mark.parametrize("sweep", SWEEPS)
+def test_every_sweep_requests_what_its_shards_are_estimated_to_use(sweep, launcher):
+    """Each sweep composed with each cluster launcher asks, per shard, for at least the memory
+    and the time that shard is estimated to need (sde_torchrl/resources.py)."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher" if launcher == "slurm"
+                        else "hydra_plugins.hydra_ray_launcher")
+    from omegaconf import OmegaConf
+
+    from sde_torchrl.compose import compose
+    from sde_torchrl.config import validate
+    from sde_torchrl.resources import GB, estimate_memory, estimate_minutes
+
+    overrides = [f"+experiment={sweep}", f"hydra/launcher={launcher}", "max_memory_gb=1000"]
+    request = OmegaConf.to_container(compose(overrides, return_hydra_config=True).hydra.launcher, resolve=True)
+    job = validate(compose(overrides))
+    if launcher == "slurm":
+        assert request["mem_gb"] >= estimate_memory(job).total / GB and request["mem_gb"] >= 1
+        assert request["timeout_min"] >= estimate_minutes(job)
+    else:
+        assert request["ray"]["remote"]["memory"] >= estimate_memory(job).total
 
 
 @pytest.fixture()
