@@ -44,7 +44,7 @@ from omegaconf import DictConfig, OmegaConf
 
 # Light imports only (no torch): a job locks its run directory before importing torch.
 from sde_torchrl.config import describe_error, register_resolvers, validate
-from sde_torchrl.files import DamagedFileError, write_atomically
+from sde_torchrl.files import DamagedFileError, DiskFullError, write_atomically
 from sde_torchrl.interrupt import TrainingInterrupted
 from sde_torchrl.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.progress import progress_wanted
@@ -85,6 +85,8 @@ def one_line(error: BaseException) -> tuple[str, int]:
         return described, EXIT_CONFIG
     if _is_foreign_checkpoint(error):
         return str(error), EXIT_CONFIG
+    if isinstance(error, DiskFullError):
+        return str(error), EXIT_FAILED
     if isinstance(error, (RunDirectoryInUse, DamagedFileError)):
         return str(error), EXIT_IN_USE if isinstance(error, RunDirectoryInUse) else EXIT_DAMAGED
     text = " ".join(str(error).split()) or type(error).__name__
@@ -137,8 +139,13 @@ def main(cfg: DictConfig) -> None:
             if _is_foreign_checkpoint(error):  # the directory is another job's: leave it as it is
                 FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
                 return
-            Path(out_dir, "error.txt").write_text(f"{message}\n\n{traceback.format_exc()}")
-            FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun))
+            try:
+                Path(out_dir, "error.txt").write_text(f"{message}\n\n{traceback.format_exc()}")
+            except OSError:  # a full disk: the message still reaches stderr
+                Path(out_dir, "error.txt").unlink(missing_ok=True)
+                FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
+            else:
+                FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun))
             log.error("job failed: %s (details in %s)", message, Path(out_dir, "error.txt"))
             if DEBUG and not multirun:
                 raise

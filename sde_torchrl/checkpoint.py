@@ -231,10 +231,14 @@ def keep_previous(path: Path, previous: Path) -> None:
     tmp = previous.with_name(previous.name + ".tmp")
     tmp.unlink(missing_ok=True)
     try:
-        os.link(path, tmp)
-    except OSError:  # no hard links here: copy
-        write_atomically(tmp, lambda f: f.write(path.read_bytes()))
-    os.replace(tmp, previous)
+        try:
+            os.link(path, tmp)
+        except OSError:  # no hard links here: copy
+            write_atomically(tmp, lambda f: f.write(path.read_bytes()))
+        os.replace(tmp, previous)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _pointing_to_previous(error: DamagedFileError, previous: Path) -> DamagedFileError:

@@ -31,7 +31,7 @@ from typing import Any
 import torch
 
 from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS, load_checkpoint
-from sde_torchrl.files import DamagedFileError, write_atomically, write_json_atomic
+from sde_torchrl.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
 from sde_torchrl.lock import held_by, hold_run_directory
 
 log = logging.getLogger(__name__)
@@ -371,14 +371,25 @@ class MetricsFile:
         return self
 
     def write(self, rows: list[dict[str, Any]]) -> None:
-        """Appends rows and flushes them to the OS."""
-        self._writer.writerows(rows)
-        self._file.flush()
+        """Appends rows and flushes them to the OS.
+
+        Raises:
+            DiskFullError: the device is full (the rows after the last checkpoint are redone
+                when the job resumes).
+        """
+        try:
+            self._writer.writerows(rows)
+            self._file.flush()
+        except OSError as error:
+            raise as_disk_full(self.path, error) from error
 
     def sync(self) -> None:
         """Makes the rows written so far durable (before a checkpoint refers to them)."""
-        self._file.flush()
-        os.fsync(self._file.fileno())
+        try:
+            self._file.flush()
+            os.fsync(self._file.fileno())
+        except OSError as error:
+            raise as_disk_full(self.path, error) from error
 
     def __exit__(self, *exc: Any) -> None:
         self._file.close()

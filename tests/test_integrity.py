@@ -477,3 +477,38 @@ def test_readers_refuse_a_run_in_progress_or_files_that_disagree(tmp_path, refer
     os.replace(run_dir / "checkpoint.prev.pt", run_dir / "checkpoint.pt")
     with pytest.raises(UnfinishedRunError, match="checkpoint.pt is at update 8 \\(unfinished\\)"):
         read_finished_run(run_dir)
+
+
+# --------------------------------------------------------------------------- a full disk
+
+
+@pytest.fixture
+def small_device(tmp_path):
+    """A 1 MiB tmpfs (a real full device, as root can mount one), unmounted afterwards."""
+    mount = tmp_path / "device"
+    mount.mkdir()
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mount)], capture_output=True)
+    if made.returncode:
+        pytest.skip(f"cannot mount a tmpfs here: {made.stderr.decode().strip()}")
+    yield mount
+    subprocess.run(["umount", str(mount)], check=True)
+
+
+@pytest.mark.parametrize("free_kib", [84, 40])
+def test_a_full_disk_is_named_leaves_no_temporary_file_and_resumes_once_freed(tmp_path, small_device, free_kib):
+    cli = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=7", "logger=none")
+    reference = run_cli(*cli, run_dir=tmp_path / "reference")
+    assert reference.returncode == 0, reference.stderr[-2000:]
+    ballast = small_device / "ballast"
+    ballast.write_bytes(bytes(1024 * (1024 - free_kib)))
+    run_dir = small_device / "run"
+    full = run_cli(*cli, run_dir=run_dir)
+    assert full.returncode == 1, full.stderr[-2000:]
+    lines = own_stderr_lines(full.stderr)
+    assert len(lines) == 1 and re.match(rf"error: {run_dir}/\S+ could not be written: no space left on its device "
+                                        r"\(\d+ KiB free\); free some space and run the same command again", lines[0])
+    assert not [p.name for p in run_dir.rglob("*.tmp")]
+    ballast.unlink()
+    resumed = run_cli(*cli, run_dir=run_dir)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "reference" / "metrics.csv").read_bytes()
