@@ -85,6 +85,10 @@ def one_line(error: BaseException) -> tuple[str, int]:
         return described, EXIT_CONFIG
     if _is_foreign_checkpoint(error):
         return str(error), EXIT_CONFIG
+    if isinstance(error, FileExistsError) and error.filename and Path(error.filename).is_file():
+        # Hydra makes the run directory before main(): a file of that name stops it there
+        return (f"{error.filename} is a file, not a run directory: give the job another hydra.run.dir "
+                "(hydra.sweep.dir for a sweep)"), EXIT_CONFIG
     if isinstance(error, DiskFullError):
         return str(error), EXIT_FAILED
     if isinstance(error, (RunDirectoryInUse, DamagedFileError)):

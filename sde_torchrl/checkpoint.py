@@ -252,17 +252,59 @@ def _pointing_to_previous(error: DamagedFileError, previous: Path) -> DamagedFil
         f"{error.path.name} with it (mv {previous} {error.path}) to resume from there"))
 
 
+def check_content(saved: dict[str, Any], policy: torch.nn.Module, updates: int | None) -> str | None:
+    """What makes a checkpoint's content unusable for this job, or ``None``: the update counter
+    outside ``[0, updates]`` or not the loop's, a policy entry missing, extra, or of another shape
+    or dtype than this job's, per-update records of another shape. A checksum only says the file
+    is what was written; this says that what was written fits the job.
+
+    Examples:
+        >>> policy = torch.nn.Linear(2, 1)
+        >>> loop = {"update": 3, "returns": torch.zeros(3, 1)}
+        >>> check_content({"updates": 3, "policy": policy.state_dict(), "loop": loop}, policy, 10) is None
+        True
+        >>> check_content({"updates": -3, "policy": policy.state_dict(), "loop": loop}, policy, 10)
+        'its update counter is -3, outside [0, 10]'
+    """
+    done = saved.get("updates")
+    if not isinstance(done, int) or isinstance(done, bool) or done < 0 or (updates is not None and done > updates):
+        return f"its update counter is {done!r}, outside [0, {updates}]"
+    loop = saved.get("loop")
+    if not isinstance(loop, dict) or loop.get("update") != done:
+        return f"its loop record is at update {loop.get('update') if isinstance(loop, dict) else None!r}, not {done}"
+    own, theirs = policy.state_dict(), saved.get("policy")
+    if not isinstance(theirs, dict) or set(theirs) != set(own):
+        names = sorted(set(own) ^ set(theirs or {}))
+        return f"its policy entries differ from this job's ({', '.join(names[:4])})"
+    for name, tensor in own.items():
+        stored = theirs[name]
+        if not isinstance(stored, torch.Tensor) or stored.shape != tensor.shape or stored.dtype != tensor.dtype:
+            what = (f"{tuple(stored.shape)} {stored.dtype}" if isinstance(stored, torch.Tensor)
+                    else type(stored).__name__)
+            return f"its policy entry {name!r} is {what}, this job's is {tuple(tensor.shape)} {tensor.dtype}"
+    for key in ("returns", "grad_norms", "explorations"):
+        record = loop.get(key)
+        if isinstance(record, torch.Tensor) and record.shape[:1] != (done,):
+            return f"its {key} record has {record.shape[0] if record.dim() else 0} updates, not {done}"
+    return None
+
+
 def restore_job(
     path: Path, *, config: dict[str, Any] | None, policy: torch.nn.Module,
-    optimizer: torch.optim.Optimizer, streams: dict[str, RunStreams | None],
+    optimizer: torch.optim.Optimizer, streams: dict[str, RunStreams | None], updates: int | None = None,
 ) -> dict[str, Any]:
     """Restores a job saved by :func:`save_job` and returns the loop's bookkeeping.
 
     Policy, optimiser, the per-run streams and the global generators are restored in place.
 
+    Args:
+        updates: the job's number of updates (the checkpoint's counter must not exceed it).
+
     Raises:
         CheckpointMismatchError: the checkpoint was written under another config, or holds
             streams this job does not have.
+        DamagedFileError: the file is damaged, or its content does not fit the job
+            (:func:`check_content`).
     """
     try:
         saved = load_checkpoint(path)
@@ -276,6 +318,11 @@ def restore_job(
                 "resume with the same overrides, or give this job another directory (hydra.run.dir, "
                 "or hydra.sweep.dir for a sweep), or delete the checkpoint"
             )
+    problem = check_content(saved, policy, updates)
+    if problem is not None:
+        error = DamagedFileError(path, problem, f"nothing was resumed from it; delete {path.name} to train the job "
+                                                "again from the start")
+        raise _pointing_to_previous(error, path.with_name(PREVIOUS))
     policy.load_state_dict(saved["policy"])
     optimizer.load_state_dict(saved["optimizer"])
     for name, own in streams.items():

@@ -441,6 +441,9 @@ class CSVLoggerConf:
     _target_: str = "torchrl.record.loggers.csv.CSVLogger"
     exp_name: str = "sde_torchrl"
 
+    def __post_init__(self) -> None:
+        _check_exp_name(self.exp_name)
+
 
 @dataclass
 class TensorboardLoggerConf:
@@ -454,6 +457,9 @@ class TensorboardLoggerConf:
 
     _target_: str = "torchrl.record.loggers.tensorboard.TensorboardLogger"
     exp_name: str = "sde_torchrl"
+
+    def __post_init__(self) -> None:
+        _check_exp_name(self.exp_name)
 
 
 @dataclass
@@ -470,6 +476,16 @@ class WandbLoggerConf:
     exp_name: str = "sde_torchrl"
     project: str = "sde_torchrl"
     offline: bool = True
+
+    def __post_init__(self) -> None:
+        _check_exp_name(self.exp_name)
+
+
+def _check_exp_name(name: str) -> None:
+    """A logger's folder name: it is created inside the run directory, and stays there."""
+    if not name or "/" in name or "\\" in name or name in (".", ".."):
+        raise ArgumentError("logger.exp_name", name, "a plain folder name (no '/', not '.' or '..'): the logger "
+                                                     "writes into <run directory>/<exp_name>")
 
 
 @dataclass

@@ -282,6 +282,40 @@ def flatten_scores(scores: dict[str, torch.Tensor], run_dims: int) -> torch.Tens
 EPISODE_RETURNS = ("sum", "mean")
 
 
+def check_rewards_runs_and_inputs(episodes: TensorDictBase, reward_key: NestedKey, runs: int | None,
+                                  input_keys: list[NestedKey]) -> None:
+    """What every estimator needs of its episodes beyond their keys: one reward per step, the
+    runs the policy's parameters are stacked over in the leading dimension, floating-point
+    inputs for the controller (those of ``input_keys`` the episodes hold).
+
+    Raises:
+        EpisodesError: naming the key or the shape, and the fix.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict({"next": {"reward": torch.zeros(2, 4, 5, 3)}}, [2, 4, 5])
+        >>> try:
+        ...     check_rewards_runs_and_inputs(td, ("next", "reward"), 2, [])
+        ... except EpisodesError as error:
+        ...     print(str(error).split(":")[0])
+        episodes key ('next', 'reward') has shape (2, 4, 5, 3), expected (2, 4, 5, 1)
+    """
+    shape = tuple(episodes.batch_size)
+    reward = episodes.get(reward_key)
+    if tuple(reward.shape) not in (shape, (*shape, 1)):
+        raise EpisodesError(f"episodes key {reward_key!r} has shape {tuple(reward.shape)}, expected {(*shape, 1)}: one "
+                            "reward per step (sum or select the reward terms into one number first)", reward_key)
+    if runs is not None and (len(shape) != 3 or shape[0] != runs):
+        raise EpisodesError(f"episodes have batch shape {shape}, but the policy's parameters are stacked over "
+                            f"runs={runs}: expected [{runs}, N, T], one row of episodes per run")
+    for key in input_keys:
+        value = episodes.get(key, None)
+        if value is not None and not value.is_floating_point():
+            raise EpisodesError(f"episodes key {key!r} is {value.dtype}; the controller needs floating-point inputs: "
+                                f"episodes.set({key!r}, episodes.get({key!r}).float()), or collect them through "
+                                "TorchRL's DTypeCastTransform", key)
+
+
 def episode_returns(
     episodes: TensorDictBase, reward_key: NestedKey = ("next", "reward"), kind: str = "mean",
 ) -> torch.Tensor:
@@ -538,8 +572,10 @@ class EpisodicEstimator(LossModule):
         Raises:
             TypeError: ``episodes`` is not a TensorDict.
             EpisodesError: an empty batch, a missing key (:class:`MissingEpisodesKeyError`),
-                features or action samples not shaped for the explorer, an actor input in another
-                dtype than the policy's parameters, or a row holding more than one episode.
+                a reward that is not one number per step, a leading dimension other than the
+                policy's runs, features or action samples not shaped for the explorer, an actor
+                input that is not floating point or in another dtype than the policy's
+                parameters, or a row holding more than one episode.
             NonFiniteEpisodesError: NaN or infinity in a key the estimator reads (unless
                 ``allow_nonfinite``).
         """
@@ -557,6 +593,7 @@ class EpisodicEstimator(LossModule):
                     f"episodes lack key {key!r}; the estimator reads {self.in_keys}: collect them with the policy "
                     "being trained, or name the keys they use with set_keys(...)", key)
         explorer = self.log_likelihood.explorer
+        check_rewards_runs_and_inputs(episodes, keys.reward, explorer.runs, list(self.log_likelihood.actor.in_keys))
         for key, size, name in ((keys.features, explorer.feature_dim, "feature_dim"),
                                 (keys.action_sample, explorer.action_dim, "action_dim")):
             if tuple(episodes.get(key).shape) != (*shape, size):  # a size-1 dimension would broadcast

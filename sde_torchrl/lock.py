@@ -19,6 +19,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from sde_torchrl.checks import ArgumentError
+
 LOCK = ".lock"
 
 #: Run directories this process holds: resolved path → (pid, descriptor, depth). Nested holds
@@ -51,6 +53,7 @@ def hold_run_directory(path: str | os.PathLike) -> Iterator[None]:
 
     Raises:
         RunDirectoryInUse: another process holds it (nothing in ``path`` is changed).
+        ArgumentError: ``path`` is a file.
         OSError: ``path`` cannot be created or its lock file opened (a read-only directory).
 
     Examples:
@@ -61,6 +64,7 @@ def hold_run_directory(path: str | os.PathLike) -> Iterator[None]:
         ...         pass
     """
     key = Path(path).resolve()
+    make_run_directory(path)
     held = _HELD.get(key)
     if held is not None and held[0] == os.getpid():
         _HELD[key] = (held[0], held[1], held[2] + 1)
@@ -78,6 +82,25 @@ def hold_run_directory(path: str | os.PathLike) -> Iterator[None]:
         del _HELD[key]
         os.ftruncate(fd, 0)  # no pid: nobody holds it
         os.close(fd)  # releases the lock
+
+
+def make_run_directory(path: str | os.PathLike) -> Path:
+    """Creates the run directory ``path`` (and its parents) if missing.
+
+    Raises:
+        ArgumentError: ``path`` is a file.
+
+    Examples:
+        >>> import tempfile
+        >>> make_run_directory(Path(tempfile.mkdtemp()) / "a" / "b").is_dir()
+        True
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ArgumentError("run directory", str(path), "a directory; this path is a file (give the job another "
+                                                        "hydra.run.dir, or hydra.sweep.dir for a sweep)")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def held_by(path: str | os.PathLike) -> str | None:
@@ -107,7 +130,6 @@ def held_by(path: str | os.PathLike) -> str | None:
 
 def _acquire(directory: Path) -> int:
     """Opens ``directory/.lock``, locks it without waiting and writes this process's pid."""
-    directory.mkdir(parents=True, exist_ok=True)
     fd = os.open(directory / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

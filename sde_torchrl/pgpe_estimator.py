@@ -41,6 +41,7 @@ from sde_torchrl.estimators import (
     EpisodesError,
     MissingEpisodesKeyError,
     NonFiniteEpisodesError,
+    check_rewards_runs_and_inputs,
     clip_per_run,
     episode_returns,
     rescale_largest_entry,
@@ -280,6 +281,8 @@ class PGPEEstimator(LossModule):
                 raise MissingEpisodesKeyError(
                     f"episodes lack key {key!r}; the estimator reads {self.in_keys}: collect them with the policy "
                     "being trained (TensorDictSequential(actor, ParameterExplorer(actor)))", key)
+        check_rewards_runs_and_inputs(episodes, self.tensor_keys.reward, self.explorer.runs,
+                                      list(self.explorer.actor_in_keys))
         key, size = self.tensor_keys.parameters, self.explorer.num_parameters
         theta = episodes.get(key)
         if tuple(theta.shape) != (*shape, size):

@@ -5,6 +5,8 @@
   resume, its rows up to the checkpoint must be exactly those the checkpoint recorded
   (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
 - ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
+- ``job_config.json``: the config the rows were written under, so that a rerun with another
+  config is refused before the first checkpoint as after it;
 - ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.checkpoint`;
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
@@ -30,9 +32,9 @@ from typing import Any
 
 import torch
 
-from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS, load_checkpoint
+from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS, CheckpointMismatchError, config_differences, load_checkpoint
 from sde_torchrl.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
-from sde_torchrl.lock import held_by, hold_run_directory
+from sde_torchrl.lock import held_by, hold_run_directory, make_run_directory
 
 log = logging.getLogger(__name__)
 
@@ -104,12 +106,12 @@ class RunDirectory:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
-        self.path = Path(path)
-        self.path.mkdir(parents=True, exist_ok=True)
+        self.path = make_run_directory(path)
         self.metrics = self.path / "metrics.csv"
         self.summary = self.path / "summary.json"
         self.error = self.path / "error.txt"
         self.checkpoint = self.path / CHECKPOINT
+        self.job_config = self.path / "job_config.json"
 
     def has_checkpoint(self) -> bool:
         return self.checkpoint.exists()
@@ -122,12 +124,30 @@ class RunDirectory:
         """
         return hold_run_directory(self.path)
 
-    def start_new_job(self) -> None:
+    def start_new_job(self, config: dict[str, Any] | None = None) -> None:
         """Removes an earlier job's metrics, summary, error file and TorchRL CSV logger files
-        (no checkpoint: nothing resumes; the logger would otherwise append to the old rows)."""
+        (no checkpoint: nothing resumes; the logger would otherwise append to the old rows), and
+        records ``config`` in ``job_config.json``.
+
+        Rows of an earlier job whose recorded config differs are not removed: such a directory
+        is refused as one with another config's checkpoint is.
+
+        Raises:
+            CheckpointMismatchError: ``metrics.csv`` holds rows of a job with another config.
+        """
+        if config is not None and self.job_config.exists() and self.metrics.exists() \
+                and len(self.metrics.read_bytes().splitlines()) > 1:
+            diff = config_differences(json.loads(self.job_config.read_text()), config)
+            if diff:
+                raise CheckpointMismatchError(
+                    f"{self.path} holds the rows of a job with another config ({'; '.join(diff[:5])}); they were left "
+                    "unchanged: rerun with the same overrides, or give this job another directory (hydra.run.dir, "
+                    "or hydra.sweep.dir for a sweep), or delete its metrics.csv")
         previous = self.path / PREVIOUS  # another job's: never a remedy for this one
         for stale in (self.metrics, self.summary, self.error, previous, *self._logger_csv_files()):
             stale.unlink(missing_ok=True)
+        if config is not None:
+            write_json_atomic(self.job_config, config)
 
     def clear_error(self) -> None:
         """Removes the error file of a failed session (the job is resumed)."""

@@ -245,10 +245,10 @@ class Trainer:
     def _resume(self, run_dir: RunDirectory, config: dict | None) -> LoopState:
         """A fresh :class:`LoopState`, or the checkpointed one with everything restored."""
         if not run_dir.has_checkpoint():
-            run_dir.start_new_job()
+            run_dir.start_new_job(config)
             return LoopState(update=0, reached=torch.zeros(self.runs, dtype=torch.bool))
         loop = restore_job(run_dir.checkpoint, config=config, policy=self.policy, optimizer=self.optimizer,
-                           streams=job_streams(self.policy, self.env, self.eval_env))
+                           streams=job_streams(self.policy, self.env, self.eval_env), updates=self.settings.updates)
         state = LoopState.from_state_dict(loop)
         run_dir.check_metrics(self._recorded_rows(state), state.finished)
         if not state.finished:  # an earlier session's summary (a checkpoint replaced by an older one)

@@ -54,6 +54,10 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
     (("r_lim=null", "stop_at_threshold=true"),
      "stop_at_threshold=true: needs a convergence threshold r_lim (not null)"),
     (("explorer.bogus=1",), "explorer.bogus: unknown key"),
+    (("logger.exp_name=../../x",), "logger.exp_name=../../x: a plain folder name (no '/', not '.' or '..'): the "
+                                   "logger writes into <run directory>/<exp_name>"),
+    (("logger=tensorboard", "logger.exp_name=.."), "logger.exp_name=..: a plain folder name (no '/', not '.' or "
+                                                   "'..'): the logger writes into <run directory>/<exp_name>"),
 ])
 def test_bad_value_gives_one_line_naming_key_value_and_allowed(overrides, expected):
     assert config_error_line(*overrides) == expected

@@ -11,6 +11,7 @@ from torchrl.envs import Compose, InitTracker, StepCounter, TransformedEnv
 
 from sde_torchrl import (
     ENACEstimator,
+    GPOMDPEstimator,
     LinearActor,
     MinimizeEnv,
     ReinforceEstimator,
@@ -314,3 +315,50 @@ def test_an_action_sample_that_would_broadcast_is_refused():
                            ("next", "reward"): torch.randn(4, 5, 1)}, [4, 5])
     with pytest.raises(EpisodesError, match=r"'action_sample' has shape \(4, 5, 1\), expected \(4, 5, 2\)"):
         ReinforceEstimator(policy)(episodes)
+
+
+@pytest.mark.parametrize("estimator_cls", [*ESTIMATORS, GPOMDPEstimator])
+def test_a_reward_that_is_not_one_number_per_step_is_refused(estimator_cls):
+    """A reward with three terms per step would be summed into three times the gradient."""
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes.set(("next", "reward"), episodes.get(("next", "reward")).expand(RUNS, EPISODES, LENGTH, 3).clone())
+    with pytest.raises(EpisodesError, match=r"episodes key \('next', 'reward'\) has shape \(2, 6, 4, 3\), expected "
+                                            r"\(2, 6, 4, 1\): one reward per step"):
+        estimator_cls(policy)(episodes)
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+def test_integer_observations_are_refused_with_the_fix(estimator_cls):
+    policy = _policy()
+    episodes = _episodes(policy)
+    episodes.set("observation", episodes.get("observation").round().long())
+    with pytest.raises(EpisodesError, match="episodes key 'observation' is torch.int64; the controller needs "
+                                            "floating-point inputs"):
+        estimator_cls(policy)(episodes)
+
+
+@pytest.mark.parametrize("estimator_cls", ESTIMATORS)
+def test_episodes_of_another_runs_count_are_refused(estimator_cls):
+    three = _policy(runs=3)
+    episodes = collect_episodes(_env(three, runs=3), three, LENGTH)
+    with pytest.raises(EpisodesError, match=r"episodes have batch shape \(3, 6, 4\), but the policy's parameters are "
+                                            r"stacked over runs=2: expected \[2, N, T\]"):
+        estimator_cls(_policy(runs=2))(episodes)
+
+
+def test_pgpe_refuses_a_reward_with_terms_and_another_runs_count():
+    from sde_torchrl import ParameterExplorer, PGPEEstimator
+
+    actor = LinearActor(1, 1, init=-2.0, runs=RUNS)
+    policy = TensorDictSequential(actor, ParameterExplorer(actor, runs=RUNS))
+    env = make_minimize_env(LENGTH, episodes=EPISODES, runs=RUNS, x0=2.0)
+    env.append_transform(policy.module[-1].make_tensordict_primer())
+    episodes = collect_episodes(env, policy, LENGTH)
+    PGPEEstimator(policy)(episodes)  # as collected: accepted
+    bad = episodes.clone()
+    bad.set(("next", "reward"), bad.get(("next", "reward")).expand(RUNS, EPISODES, LENGTH, 2).clone())
+    with pytest.raises(EpisodesError, match="one reward per step"):
+        PGPEEstimator(policy)(bad)
+    with pytest.raises(EpisodesError, match="stacked over runs=2"):
+        PGPEEstimator(policy)(episodes[:1])

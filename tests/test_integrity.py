@@ -512,3 +512,66 @@ def test_a_full_disk_is_named_leaves_no_temporary_file_and_resumes_once_freed(tm
     resumed = run_cli(*cli, run_dir=run_dir)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "reference" / "metrics.csv").read_bytes()
+
+
+def test_a_run_directory_that_is_a_file_is_a_config_error(tmp_path):
+    path = tmp_path / "taken"
+    path.write_text("not a directory\n")
+    result = run_cli("+experiment=minimize", "updates=2", run_dir=path)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert own_stderr_lines(result.stderr) == [f"error: {path} is a file, not a run directory: give the job another "
+                                               "hydra.run.dir (hydra.sweep.dir for a sweep)"]
+    assert path.read_text() == "not a directory\n"
+    with pytest.raises(ArgumentError, match="run directory=.*: a directory; this path is a file"):
+        build("updates=2").train(path)
+
+
+def test_another_config_before_the_first_checkpoint_is_refused_like_after_it(tmp_path):
+    run_dir = tmp_path / "run"
+    cli = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=0")
+    killed = subprocess.Popen(train_command(*cli, run_dir=run_dir), cwd=REPO, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    metrics, deadline = run_dir / "metrics.csv", time.monotonic() + 120
+    while not metrics.exists() or len(metrics.read_bytes().splitlines()) < 40:
+        assert killed.poll() is None and time.monotonic() < deadline
+        time.sleep(0.01)
+    killed.kill()
+    killed.wait()
+    rows = metrics.read_bytes()
+    other = run_cli(*cli[:-1], "checkpoint_period=0", "seed=7", run_dir=run_dir)
+    assert other.returncode == 2, other.stderr[-2000:]
+    lines = own_stderr_lines(other.stderr)
+    assert len(lines) == 1 and "holds the rows of a job with another config (seed: 0 -> 7)" in lines[0], lines
+    assert metrics.read_bytes() == rows  # nothing deleted
+    same = run_cli(*cli, run_dir=run_dir)  # the same config: no checkpoint, so it starts over
+    assert same.returncode == 0, same.stderr[-2000:]
+
+
+@pytest.mark.parametrize("damage, problem", [
+    ("negative update", "its update counter is -3, outside [0, 12]"),
+    ("int64 weights", "its policy entry 'module.0.module.weight' is (2, 1, 1) torch.int64, this job's is (2, 1, 1) "
+                      "torch.float32"),
+    ("wrong shape", "its policy entry 'module.0.module.weight' is (2, 1, 2) torch.float32, this job's is (2, 1, 1) "
+                    "torch.float32"),
+])
+def test_a_checkpoint_whose_content_does_not_fit_the_job_is_refused(crashed, damage, problem):
+    """Its checksum matches (it is what was written), but it cannot be this job's state."""
+    from sde_torchrl.checkpoint import save_checkpoint
+
+    path = crashed / "checkpoint.pt"
+    state = load_checkpoint(path)
+    weight = state["policy"]["module.0.module.weight"]
+    if damage == "negative update":
+        state["updates"] = state["loop"]["update"] = -3
+    elif damage == "int64 weights":
+        state["policy"]["module.0.module.weight"] = weight.long()
+    else:
+        state["policy"]["module.0.module.weight"] = torch.cat([weight, weight], -1)
+    save_checkpoint(path, state)
+    before = snapshot(crashed, skip=(".lock",))
+    with pytest.raises(DamagedFileError, match=re.escape(problem)):
+        build(*BUDGET).train(crashed, checkpoint_period=4)
+    assert snapshot(crashed, skip=(".lock",)) == before
+    result = run_cli("+experiment=minimize", *BUDGET, "checkpoint_period=4", run_dir=crashed)
+    assert result.returncode == 4, result.stderr[-2000:]
+    assert own_stderr_lines(result.stderr)[0].startswith(f"error: {path} is damaged: {problem}")
