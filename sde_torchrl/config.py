@@ -430,12 +430,16 @@ def _check_schedule(conf: Any) -> None:
 
 
 @dataclass
-class CSVLoggerConf:
-    """``logger=csv``: TorchRL's ``CSVLogger``, run-averaged curves under the run directory.
+class LoggerConf:
+    """What every ``logger`` option has: TorchRL's logger class and the folder it writes into,
+    ``<run dir>/<exp_name>``, which must stay inside the run directory.
 
     Examples:
-        >>> CSVLoggerConf().exp_name
-        'sde_torchrl'
+        >>> try:
+        ...     LoggerConf(exp_name="../x")
+        ... except ArgumentError as error:
+        ...     print(str(error).split(":")[0])
+        logger.exp_name=../x
     """
 
     _target_: str = "torchrl.record.loggers.csv.CSVLogger"
@@ -446,24 +450,30 @@ class CSVLoggerConf:
 
 
 @dataclass
-class TensorboardLoggerConf:
+class CSVLoggerConf(LoggerConf):
+    """``logger=csv``: TorchRL's ``CSVLogger``, run-averaged curves under the run directory.
+
+    Examples:
+        >>> CSVLoggerConf().exp_name
+        'sde_torchrl'
+    """
+
+
+@dataclass
+class TensorboardLoggerConf(LoggerConf):
     """``logger=tensorboard``: TorchRL's ``TensorboardLogger``, event files under
     ``<run dir>/<exp_name>`` (needs ``tensorboard``).
 
     Examples:
-        >>> TensorboardLoggerConf().exp_name
-        'sde_torchrl'
+        >>> TensorboardLoggerConf()._target_
+        'torchrl.record.loggers.tensorboard.TensorboardLogger'
     """
 
     _target_: str = "torchrl.record.loggers.tensorboard.TensorboardLogger"
-    exp_name: str = "sde_torchrl"
-
-    def __post_init__(self) -> None:
-        _check_exp_name(self.exp_name)
 
 
 @dataclass
-class WandbLoggerConf:
+class WandbLoggerConf(LoggerConf):
     """``logger=wandb``: TorchRL's ``WandbLogger``, offline by default (runs land in
     ``<run dir>/wandb``; ``wandb sync`` uploads them later).
 
@@ -473,12 +483,8 @@ class WandbLoggerConf:
     """
 
     _target_: str = "torchrl.record.loggers.wandb.WandbLogger"
-    exp_name: str = "sde_torchrl"
     project: str = "sde_torchrl"
     offline: bool = True
-
-    def __post_init__(self) -> None:
-        _check_exp_name(self.exp_name)
 
 
 def _check_exp_name(name: str) -> None:
