@@ -9,7 +9,8 @@ a mean reward per step (the paper's units). ``analysis/fig5.py`` finds these fil
 sweep directories it reads.
 
 Usage:
-    python analysis/ballcatch_initial.py --out SWEEP/initial_rex +experiment=ballcatch_sweep explorer=rex first_run=0
+    python analysis/ballcatch_initial.py --out SWEEP/initial_rex +experiment=ballcatch_paper_sweep explorer=rex \
+        first_run=0
 """
 
 from __future__ import annotations

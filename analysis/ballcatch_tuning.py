@@ -28,12 +28,13 @@ CATCH, GOOD_CATCH = -1.1, -1.0
 
 #: method → (label, the command's overrides, α₀): the rule's table "The methods", in its order.
 METHODS = {
-    "reinforce_sde": ("REINFORCE + SDE", ["+experiment=ballcatch"], 1e-4),
-    "reinforce_rex": ("REINFORCE + REX", ["+experiment=ballcatch", "explorer=rex"], 1e-4),
-    "enac_sde": ("ENAC + SDE", ["+experiment=ballcatch_enac"], 0.01),
-    "enac_rex": ("ENAC + REX", ["+experiment=ballcatch_enac", "explorer=rex"], 0.01),
-    "gpomdp_sde": ("GPOMDP + SDE", ["+experiment=ballcatch", "estimator=gpomdp"], 1e-4),
-    "pgpe": ("PGPE", ["+experiment=ballcatch", "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=false"], 1e-4),
+    "reinforce_sde": ("REINFORCE + SDE", ["+experiment=ballcatch_paper"], 1e-4),
+    "reinforce_rex": ("REINFORCE + REX", ["+experiment=ballcatch_paper", "explorer=rex"], 1e-4),
+    "enac_sde": ("ENAC + SDE", ["+experiment=ballcatch_enac_paper"], 0.01),
+    "enac_rex": ("ENAC + REX", ["+experiment=ballcatch_enac_paper", "explorer=rex"], 0.01),
+    "gpomdp_sde": ("GPOMDP + SDE", ["+experiment=ballcatch_paper", "estimator=gpomdp"], 1e-4),
+    "pgpe": ("PGPE", ["+experiment=ballcatch_paper", "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=false"],
+             1e-4),
 }
 _DECAY = ["optimizer.lr_schedule=linear", "optimizer.final_lr_fraction=0"]
 #: candidate → (description, overrides given α₀): the rule's table "The grid".
@@ -62,7 +63,7 @@ def job_overrides(method: str, candidate: str) -> list[str]:
 
     Examples:
         >>> job_overrides("enac_rex", "C4")[:4]
-        ['+experiment=ballcatch_enac', 'explorer=rex', 'estimator.episode_return=mean', 'optimizer=sgd']
+        ['+experiment=ballcatch_enac_paper', 'explorer=rex', 'estimator.episode_return=mean', 'optimizer=sgd']
         >>> job_overrides("enac_rex", "C4")[4]
         'lr=0.1'
     """

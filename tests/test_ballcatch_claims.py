@@ -25,7 +25,7 @@ def _sweep(tmp_path: Path, experiment: str, estimator: str) -> dict:
 @pytest.mark.slow
 def test_reinforce_sde_reaches_every_level_up_to_a_catch_more_often_than_rex(tmp_path):
     """README, Fig. 5: significantly more SDE runs than REX runs reach R ≥ -2, -1.5 and -1.1."""
-    result = _sweep(tmp_path, "ballcatch_sweep", "reinforce")
+    result = _sweep(tmp_path, "ballcatch_paper_sweep", "reinforce")
     assert result["explorers"]["sde"]["runs"] == result["explorers"]["rex"]["runs"] == 100
     for level in ("-2.0", "-1.5", "-1.1"):
         assert result["sde_minus_rex"]["best"][level]["significant"], level
@@ -34,7 +34,7 @@ def test_reinforce_sde_reaches_every_level_up_to_a_catch_more_often_than_rex(tmp
 
 @pytest.mark.slow
 def test_enac_sde_catches_more_often_than_rex(tmp_path):
-    result = _sweep(tmp_path, "ballcatch_enac_sweep", "enac")
+    result = _sweep(tmp_path, "ballcatch_enac_paper_sweep", "enac")
     explorers = result["explorers"]
     assert explorers["sde"]["runs"] == explorers["rex"]["runs"] == 100
     assert explorers["sde"]["best"]["-1.1"] > explorers["rex"]["best"]["-1.1"]

@@ -140,7 +140,7 @@ def test_initial_evaluations_give_the_mean_change_per_run(tmp_path):
 def test_initial_evaluation_of_a_summed_return_job_is_in_mean_rewards(tmp_path):
     """The same Θ0 and release jitter, regressed on sums or means: the same mean-reward returns."""
     initial = load_script("ballcatch_initial")
-    tiny = ["+experiment=ballcatch", "runs=2", "eval_episodes=1", "env.episode_length=120"]
+    tiny = ["+experiment=ballcatch_paper", "runs=2", "eval_episodes=1", "env.episode_length=120"]
     summed = initial.initial_evaluation(tiny)
     mean = initial.initial_evaluation([*tiny, "estimator.episode_return=mean"])
     assert summed["explorer"] == "sde" and summed["estimator"] == "reinforce"

@@ -48,7 +48,7 @@ def test_slurm_config_composes_for_submitit(tmp_path):
     """The shipped Slurm config is a submitit_slurm launcher with our per-shard resources."""
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     result = subprocess.run(
-        [sys.executable, "train.py", "+experiment=ballcatch_sweep", "hydra/launcher=slurm", "--cfg", "all",
+        [sys.executable, "train.py", "+experiment=ballcatch_paper_sweep", "hydra/launcher=slurm", "--cfg", "all",
          "--resolve"], cwd=REPO, capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 0, result.stderr[-2000:]
