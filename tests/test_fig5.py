@@ -183,7 +183,7 @@ def test_no_runs_of_the_estimator_is_an_error(tmp_path):
 def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
     """Real (short) ball-catching jobs: two shards over Hydra's joblib launcher and one process
     training both runs give the same fig5.json; the video script films the best run."""
-    tiny = ["+experiment=ballcatch", "updates=2", "episode_queue=2", "eval_period=1", "eval_episodes=1",
+    tiny = ["+experiment=ballcatch_paper", "updates=2", "episode_queue=2", "eval_period=1", "eval_episodes=1",
             "env.episode_length=40", "logger=none"]
     single = run_cli(*tiny, "runs=2", run_dir=tmp_path / "one", timeout=600)
     sharded = run_cli(*tiny, "runs=1", "first_run=0,1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
