@@ -34,3 +34,23 @@ def test_selection_counts_catches_then_mean_then_order():
     assert tuning.select({"C1": [-1.05, -2.0], "C2": [-1.05, -2.0]}) == "C1"
     assert tuning.select({"C1": None, "C2": [-2.9, -2.9]}) == "C2"
     assert tuning.select({"C1": None}) is None
+
+
+@pytest.mark.parametrize("method, experiment", [("reinforce_sde", "ballcatch"), ("reinforce_rex", "ballcatch_rex")])
+def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment):
+    """+experiment=ballcatch (ballcatch_rex) is the candidate docs/ballcatch/tuning.json chose,
+    but for the tuning job's own seed, runs and bookkeeping."""
+    import json
+
+    from _helpers import REPO
+    from omegaconf import OmegaConf
+
+    chosen = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())["methods"][method]["chosen"]
+    tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger")
+    job = [o for o in tuning.job_overrides(method, chosen) if o.split("=")[0] not in tuning_only]
+
+    def resolved(*overrides):
+        config = OmegaConf.to_container(compose_config(*overrides), resolve=True)
+        return {k: v for k, v in config.items() if k not in tuning_only}
+
+    assert resolved(f"+experiment={experiment}") == resolved(*job)

@@ -13,6 +13,7 @@ PAGES = {  # page stem → (script, its arguments before --out, the folder the p
     "methods": ("fig5", [str(BALLCATCH / "runs" / "fig5"), str(BALLCATCH / "runs" / "methods"), "--estimator", "all"],
                 BALLCATCH),
     "selected/fig5": ("fig5", [str(BALLCATCH / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected"),
+    "tuning": ("ballcatch_tuning", ["report", str(BALLCATCH / "tuning")], BALLCATCH),
 }
 
 
