@@ -36,11 +36,11 @@ def test_queue_must_be_a_multiple_of_the_new_episodes():
 def test_ballcatch_experiment_runs_end_to_end(tmp_path):
     from _helpers import run_cli, summary_without_wall
 
-    result = run_cli("+experiment=ballcatch", "runs=2", "updates=3", "episode_queue=2", "eval_period=2",
+    result = run_cli("+experiment=ballcatch_paper", "runs=2", "updates=3", "episode_queue=2", "eval_period=2",
                      "env.episode_length=60", "logger=none", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     summary = summary_without_wall(tmp_path)
-    assert summary["experiment"] == "ballcatch" and summary["runs"] == 2
+    assert summary["experiment"] == "ballcatch_paper" and summary["runs"] == 2
     assert summary["env_steps"] == (2 + 2) * 60 * 2  # queue of 2, then one new episode per update
     assert summary["episode_return"] == "sum"  # the authors' learner: 60 rewards in [-3, -0.5] summed
     per_step = re.search(r"eval (-[\d.]+)  \(per step: return -[\d.]+  eval (-[\d.]+)\)", result.stderr + result.stdout)
