@@ -118,14 +118,17 @@ def select(results: dict[str, list[float] | None]) -> str | None:
 
 
 def report(tuning: Path, out: Path) -> dict:
-    """Writes ``tuning.json`` and ``tuning.md`` into ``out``; returns the numbers."""
+    """Writes ``tuning.json`` and ``tuning.md`` into ``out``; returns the numbers. A method is
+    given its chosen candidate only once every candidate's job has run (a directory that holds
+    no summary is a failed job, counted as no catch; a missing one has not run)."""
     numbers: dict = {"seed": SEED, "runs": RUNS, "methods": {}}
     for method, (label, _, alpha) in METHODS.items():
         results = {c: final_evaluations(tuning / method / c) for c in CANDIDATES}
         if all(r is None for r in results.values()):
             continue
+        complete = all((tuning / method / c).is_dir() for c in CANDIDATES)  # a job that ran and failed counts
         numbers["methods"][method] = {
-            "label": label, "alpha0": alpha, "chosen": select(results),
+            "label": label, "alpha0": alpha, "chosen": select(results) if complete else None,
             "candidates": {c: None if r is None else {
                 "catches": sum(v >= CATCH for v in r), "good_catches": sum(v >= GOOD_CATCH for v in r),
                 "mean_final": sum(r) / len(r), "finals": r} for c, r in results.items()},
@@ -158,6 +161,9 @@ def markdown(numbers: dict) -> str:
             cell = "-" if c is None else f"{c['catches']} / {c['good_catches']}, {c['mean_final']:.2f}"
             cells.append(f"**{cell}**" if m["chosen"] == candidate else cell)
         lines.append(f"| {candidate}: {description} | " + " | ".join(cells) + " |")
+    waiting = [m["label"] for m in methods.values() if m["chosen"] is None]
+    if waiting:
+        lines += ["", f"Not chosen yet, their grid not complete: {', '.join(waiting)}."]
     lines += ["", "α₀: " + ", ".join(f"{m['label']} {m['alpha0']:g}" for m in methods.values()) + ".", ""]
     return "\n".join(lines)
 

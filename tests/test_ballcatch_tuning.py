@@ -54,3 +54,17 @@ def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment):
         return {k: v for k, v in config.items() if k not in tuning_only}
 
     assert resolved(f"+experiment={experiment}") == resolved(*job)
+
+
+def test_a_method_is_chosen_for_only_once_its_whole_grid_has_run(tmp_path):
+    import shutil
+
+    from _helpers import REPO
+
+    committed = REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde"
+    for candidate in ("C1", "C7"):
+        shutil.copytree(committed / candidate, tmp_path / "tuning" / "reinforce_sde" / candidate)
+    numbers = tuning.report(tmp_path / "tuning", tmp_path / "out")
+    assert numbers["methods"]["reinforce_sde"]["chosen"] is None
+    assert numbers["methods"]["reinforce_sde"]["candidates"]["C7"]["catches"] == 6
+    assert "Not chosen yet, their grid not complete: REINFORCE + SDE." in (tmp_path / "out" / "tuning.md").read_text()
