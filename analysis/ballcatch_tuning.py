@@ -3,7 +3,7 @@
 runs each on the tuning seed, the candidate with the most final catches chosen per method.
 
 ``run`` trains the (method, candidate) jobs through ``train.py``, a few at a time, into
-``OUT/<method>/<candidate>`` (a rerun resumes or skips what is there); ``report`` reads them and
+``OUT/<method>/<candidate>`` (a rerun skips the finished jobs and resumes the others); ``report`` reads them and
 writes ``tuning.md`` and ``tuning.json``: per method and candidate the final catches, good
 catches and mean final evaluation (the paper's mean reward per step), and the chosen candidate.
 
@@ -73,8 +73,18 @@ def job_overrides(method: str, candidate: str) -> list[str]:
 
 
 def run_job(out: Path, method: str, candidate: str) -> int:
-    """Trains (or resumes, or only re-summarises) one job; returns ``train.py``'s exit code."""
+    """Trains (or resumes) one job; returns ``train.py``'s exit code. A job whose directory holds a
+    finished run (committed ones have no checkpoint to resume from) is left as it is."""
+    from sde_torchrl.run_dir import UnfinishedRunError, read_finished_run
+
     run_dir = out / method / candidate
+    try:
+        read_finished_run(run_dir)
+    except (UnfinishedRunError, FileNotFoundError):
+        pass
+    else:
+        log.info("finished already: %s %s", method, candidate)
+        return 0
     command = [sys.executable, "train.py", *job_overrides(method, candidate), f"hydra.run.dir={run_dir}"]
     log.info("start %s %s", method, candidate)
     code = subprocess.run(command, cwd=REPO, capture_output=True, text=True).returncode

@@ -68,3 +68,15 @@ def test_a_method_is_chosen_for_only_once_its_whole_grid_has_run(tmp_path):
     assert numbers["methods"]["reinforce_sde"]["chosen"] is None
     assert numbers["methods"]["reinforce_sde"]["candidates"]["C7"]["catches"] == 6
     assert "Not chosen yet, their grid not complete: REINFORCE + SDE." in (tmp_path / "out" / "tuning.md").read_text()
+
+
+def test_run_leaves_a_finished_job_as_it_is(tmp_path):
+    import shutil
+
+    from _helpers import REPO
+
+    job = tmp_path / "reinforce_sde" / "C1"
+    shutil.copytree(REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", job)
+    before = {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()}
+    assert tuning.run_job(tmp_path, "reinforce_sde", "C1") == 0
+    assert {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()} == before
