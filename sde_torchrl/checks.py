@@ -162,6 +162,21 @@ def finite(name: str, value: Any, *, minimum: float | None = None, strict: bool 
     return value
 
 
+def fraction(name: str, value: Any, *, below_one: bool = False) -> float:
+    """Returns ``value`` if it is a number in ``[0, 1]`` (``[0, 1)`` if ``below_one``).
+
+    Raises:
+        ArgumentError: otherwise.
+
+    Examples:
+        >>> fraction("optimizer.momentum", 0.9, below_one=True)
+        0.9
+    """
+    if not is_finite_number(value) or not (0 <= value < 1 if below_one else 0 <= value <= 1):
+        raise ArgumentError(name, value, "a number in [0, 1)" if below_one else "a number in [0, 1]")
+    return value
+
+
 def one_of(name: str, value: Any, allowed: Iterable[str]) -> str:
     """Returns ``value`` if it is one of ``allowed``; raises :class:`ArgumentError` otherwise."""
     allowed = tuple(allowed)

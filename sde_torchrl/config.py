@@ -22,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from sde_torchrl.checks import (
     ArgumentError,
     finite,
+    fraction,
     is_finite_number,
     is_int,
     non_negative_int,
@@ -382,7 +383,7 @@ class SGDOptimizerConf:
     final_lr_fraction: float = 0.0
 
     def __post_init__(self) -> None:
-        _check_fraction("optimizer.momentum", self.momentum, below_one=True)
+        fraction("optimizer.momentum", self.momentum, below_one=True)
         if self.nesterov and self.momentum == 0:
             raise ArgumentError("optimizer.nesterov", True, "false unless optimizer.momentum > 0")
         _check_schedule(self)
@@ -414,19 +415,14 @@ class AdamOptimizerConf:
         if len(self.betas) != 2:
             raise ArgumentError("optimizer.betas", list(self.betas), "two numbers in [0, 1)")
         for beta in self.betas:
-            _check_fraction("optimizer.betas", beta, below_one=True)
+            fraction("optimizer.betas", beta, below_one=True)
         finite("optimizer.eps", self.eps, minimum=0, strict=True)
         _check_schedule(self)
 
 
-def _check_fraction(name: str, value: Any, below_one: bool = False) -> None:
-    if not is_finite_number(value) or not (0 <= value < 1 if below_one else 0 <= value <= 1):
-        raise ArgumentError(name, value, "a number in [0, 1)" if below_one else "a number in [0, 1]")
-
-
 def _check_schedule(conf: Any) -> None:
     one_of("optimizer.lr_schedule", conf.lr_schedule, LR_SCHEDULES)
-    _check_fraction("optimizer.final_lr_fraction", conf.final_lr_fraction)
+    fraction("optimizer.final_lr_fraction", conf.final_lr_fraction)
 
 
 @dataclass

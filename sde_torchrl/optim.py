@@ -20,7 +20,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from sde_torchrl.checks import ArgumentError, finite, one_of, positive_int
+from sde_torchrl.checks import fraction, one_of, positive_int
 
 if TYPE_CHECKING:  # torch is imported when an optimiser is made: the config schemas read this module
     import torch
@@ -92,7 +92,7 @@ class LearningRateSchedule:
                  final_fraction: float = 0.0) -> None:
         self.schedule = one_of("lr_schedule", schedule, LR_SCHEDULES)
         self.updates = positive_int("updates", updates)
-        self.final_fraction = _fraction("final_lr_fraction", final_fraction)
+        self.final_fraction = fraction("final_lr_fraction", final_fraction)
         self.optimizer = optimizer
         self.base_lrs = [group["lr"] for group in optimizer.param_groups]
 
@@ -139,10 +139,3 @@ def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options:
     if one_of("optimizer.lr_schedule", schedule, LR_SCHEDULES) == "constant":
         return optimizer, None
     return optimizer, LearningRateSchedule(optimizer, schedule, updates, final_fraction)
-
-
-def _fraction(name: str, value: Any) -> float:
-    value = finite(name, value, minimum=0)
-    if value > 1:
-        raise ArgumentError(name, value, "a number in [0, 1]")
-    return value
