@@ -20,7 +20,7 @@ Errors are reported in one line on stderr, and the exit code says which kind:
   its update, checkpoints, names the signal and the update, and the same command resumes it.
   Under submitit (``hydra/launcher=slurm``) SIGUSR2 checkpoints and then lets submitit requeue.
 
-A job holds its run directory (:mod:`sde_torchrl.lock`) from before anything is written there
+A job holds its run directory (:mod:`sde_torchrl.jobs.lock`) from before anything is written there
 (Hydra's ``.hydra/`` files included, which is why this script writes them) to its end. A failed
 job also leaves ``error.txt`` (message and traceback) in its run directory; in a multirun the
 other jobs go on, and the exit code is the failures' common code (1 if they differ).
@@ -43,11 +43,11 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 # Light imports only (no torch): a job locks its run directory before importing torch.
-from sde_torchrl.config import describe_error, register_resolvers, validate
-from sde_torchrl.files import DamagedFileError, DiskFullError, write_atomically
-from sde_torchrl.interrupt import TrainingInterrupted
-from sde_torchrl.lock import RunDirectoryInUse, hold_run_directory
-from sde_torchrl.progress import progress_wanted
+from sde_torchrl.config.schemas import describe_error, register_resolvers, validate
+from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
+from sde_torchrl.trainers.interrupt import TrainingInterrupted
+from sde_torchrl.trainers.progress import progress_wanted
+from sde_torchrl.utils.files import DamagedFileError, DiskFullError, write_atomically
 
 log = logging.getLogger("train")
 register_resolvers()
@@ -99,7 +99,7 @@ def one_line(error: BaseException) -> tuple[str, int]:
 
 def _is_foreign_checkpoint(error: BaseException) -> bool:
     """The run directory holds another config's checkpoint (a sweep relaunched with other values)."""
-    checkpoint = sys.modules.get("sde_torchrl.checkpoint")  # not imported: not its error
+    checkpoint = sys.modules.get("sde_torchrl.jobs.checkpoint")  # not imported: not its error
     return checkpoint is not None and isinstance(error, checkpoint.CheckpointMismatchError)
 
 
@@ -134,7 +134,7 @@ def main(cfg: DictConfig) -> None:
             save_hydra_config(cfg, out_dir)
         try:
             conf = validate(cfg)  # a bad value fails here, before the seconds of importing torch
-            from sde_torchrl.build import run_job  # torch: imported once the run directory is ours
+            from sde_torchrl.config.build import run_job  # torch: imported once the run directory is ours
 
             summary = run_job(cfg, out_dir, dict(hydra_cfg.runtime.choices),
                               progress=progress_wanted(cfg.get("progress"), multirun), conf=conf)

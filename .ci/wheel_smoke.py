@@ -12,7 +12,7 @@ from tensordict.nn import TensorDictSequential
 
 import sde_torchrl
 from sde_torchrl import LinearActor, ReinforceEstimator, StateDependentExplorer, make_minimize_env
-from sde_torchrl.rollout import collect_episodes
+from sde_torchrl.collectors.rollout import collect_episodes
 
 assert "site-packages" in Path(sde_torchrl.__file__).parts, sde_torchrl.__file__
 torch.manual_seed(0)

@@ -20,10 +20,10 @@ import json
 import sys
 from pathlib import Path
 
-from sde_torchrl.build import build_trainer
-from sde_torchrl.compose import compose
-from sde_torchrl.config import validate
-from sde_torchrl.summary import per_step_factor
+from sde_torchrl.config.build import build_trainer
+from sde_torchrl.config.compose import compose
+from sde_torchrl.config.schemas import validate
+from sde_torchrl.trainers.summary import per_step_factor
 
 
 def initial_evaluation(overrides: list[str]) -> dict:

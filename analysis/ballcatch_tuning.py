@@ -75,7 +75,7 @@ def job_overrides(method: str, candidate: str) -> list[str]:
 def run_job(out: Path, method: str, candidate: str) -> int:
     """Trains (or resumes) one job; returns ``train.py``'s exit code. A job whose directory holds a
     finished run (committed ones have no checkpoint to resume from) is left as it is."""
-    from sde_torchrl.run_dir import UnfinishedRunError, read_finished_run
+    from sde_torchrl.jobs.run_dir import UnfinishedRunError, read_finished_run
 
     run_dir = out / method / candidate
     try:
@@ -98,8 +98,8 @@ def run_job(out: Path, method: str, candidate: str) -> int:
 def final_evaluations(run_dir: Path) -> list[float] | None:
     """The runs' final deterministic evaluations in mean reward per step, or ``None`` for a job
     without a summary (failed or not run)."""
-    from sde_torchrl.run_dir import read_finished_run
-    from sde_torchrl.summary import mean_reward_factor
+    from sde_torchrl.jobs.run_dir import read_finished_run
+    from sde_torchrl.trainers.summary import mean_reward_factor
 
     if not (run_dir / "summary.json").exists():
         return None

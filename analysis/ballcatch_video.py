@@ -24,8 +24,8 @@ import numpy as np
 
 from sde_torchrl.envs.ballcatch import BallCatchEnv, episode_return
 from sde_torchrl.envs.ballcatch.demo import write_gif
-from sde_torchrl.run_dir import finished_runs
-from sde_torchrl.summary import mean_reward_factor
+from sde_torchrl.jobs.run_dir import finished_runs
+from sde_torchrl.trainers.summary import mean_reward_factor
 
 WEIGHT = "module.0.module.weight"
 """The linear controller's ``Θ`` in the policy's state dict (``summary.json: final_parameters``)."""

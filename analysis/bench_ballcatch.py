@@ -10,7 +10,7 @@ is SDE (``Θ̂`` drawn once per episode) or REX (``Θ̂`` redrawn at every step)
 Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats`` interleaved runs:
 
 * ``env_steps_per_s``: the env with the SDE policy in the loop, collected as the trainer
-  collects for this policy (:func:`sde_torchrl.rollout.linear_episode_rollout`: each world runs
+  collects for this policy (:func:`sde_torchrl.collectors.rollout.linear_episode_rollout`: each world runs
   its whole episode under its map ``Θ + σ̂ ⊙ ξ``, the policy's log-likelihood tensors are
   computed for all steps afterwards);
 * ``raw_steps_per_s``: time spent inside ``stepSimulation`` alone, replaying the env run's
@@ -22,12 +22,12 @@ Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats``
 * ``rex_env_steps_per_s``, ``rex_raw_steps_per_s`` and ``rex_ratio``: the same for the REX
   policy (whole episodes per world under the per-step maps ``Θ + σ̂ ⊙ ξ_t``), against the replay
   of its own actions; ``rex_step_env_steps_per_s``: REX collected by stepping all worlds together
-  with a policy call per step (:func:`sde_torchrl.rollout.tensor_rollout`, REX's path before
+  with a policy call per step (:func:`sde_torchrl.collectors.rollout.tensor_rollout`, REX's path before
   it ran whole episodes);
 * ``raw_loop_steps_per_s``: the bare lockstep replay loop of the SDE actions,
   ``setJointMotorControlArray`` + ``stepSimulation`` per world and step;
 * ``step_env_steps_per_s`` and ``step_ratio``: the env stepped for all worlds at once with the
-  SDE policy called once per step (:func:`sde_torchrl.rollout.tensor_rollout`, the path for any
+  SDE policy called once per step (:func:`sde_torchrl.collectors.rollout.tensor_rollout`, the path for any
   other policy, and REX's before it ran whole episodes), against ``raw_lockstep_steps_per_s``;
   ``env_core_steps_per_s``: the env's own ``_step`` alone in that mode;
 * ``torchrl_rollout_steps_per_s`` and ``torchrl_rollout_ratio``: the same env and SDE policy
@@ -51,11 +51,11 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, TransformedEnv
 
-from sde_torchrl.actors import LinearActor
+from sde_torchrl.collectors.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
 from sde_torchrl.envs.ballcatch import ARM_MODELS, BallCatchConfig, BatchedBallCatchEnv, make_parallel_ballcatch
 from sde_torchrl.envs.ballcatch.models import scripted_weights
-from sde_torchrl.exploration import StateDependentExplorer
-from sde_torchrl.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
+from sde_torchrl.modules.actors import LinearActor
+from sde_torchrl.modules.exploration import StateDependentExplorer
 
 SIGMA_PARAM = -3.0
 """log-scale of the exploration noise of the benchmark policy (σ̂ = e^-3)."""

@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sde_torchrl.intervals import bootstrap_interval
+from sde_torchrl.utils.intervals import bootstrap_interval
 
 ENV_ID = "HalfCheetahBulletEnv-v0"
 METHODS = ("plain", "sde", "sb3", "sb3_gauss")
@@ -152,7 +152,7 @@ def make_torchrl_policy(method: str, obs_dim: int, action_dim: int):
 
     Both actors are ``2 × 256`` ReLU MLPs with a linear output (``torch.nn.Linear``'s initial
     distribution, as SB3 with ``ortho_init=False``); the SDE one also writes its last hidden
-    layer, detached, as the exploration features (:class:`~sde_torchrl.actors.LatentMLPActor`).
+    layer, detached, as the exploration features (:class:`~sde_torchrl.modules.actors.LatentMLPActor`).
     """
     from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictSequential
     from torch import nn

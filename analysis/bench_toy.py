@@ -3,7 +3,7 @@
 (a) ``plain``: one run, one env, TorchRL's ``env.rollout`` stepping a single episode at a time
     (a Python loop per step), then the estimator and the update: the straightforward way.
 (b) ``batched``: what ``analysis/table1.py`` runs: ``runs`` learners side by side, each with
-    ``episodes`` episodes per update, collected by :func:`sde_torchrl.rollout.tensor_rollout`.
+    ``episodes`` episodes per update, collected by :func:`sde_torchrl.collectors.rollout.tensor_rollout`.
 
 Both count full training updates (collect, estimate, step), so the figures are what a sweep gets.
 
@@ -19,8 +19,8 @@ import time
 
 import torch
 
-from sde_torchrl.build import build_trainer
-from sde_torchrl.compose import compose
+from sde_torchrl.config.build import build_trainer
+from sde_torchrl.config.compose import compose
 
 
 def steps_per_second(overrides: list[str], seconds: float) -> float:

@@ -74,8 +74,8 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     ``collapse`` is ``None`` for runs written before ``metrics.csv`` recorded the exploration
     state, else the first update (0-based, or ``None``) at which ``any`` / ``all`` of the run's
     exploration scales were below :data:`COLLAPSE`."""
-    from sde_torchrl.run_dir import finished_runs  # refuses a run directory mid-run, by name
-    from sde_torchrl.summary import mean_reward_factor
+    from sde_torchrl.jobs.run_dir import finished_runs  # refuses a run directory mid-run, by name
+    from sde_torchrl.trainers.summary import mean_reward_factor
 
     runs: dict[str, dict[int, dict]] = {}
     for directory in directories:
@@ -123,7 +123,7 @@ def load_initial(directories: list[Path], estimator: str) -> dict[str, dict[int,
 def improvement(by_run: dict[int, dict], initial: dict[int, float]) -> dict | None:
     """Mean initial and final evaluation over the runs, and the mean per-run change final −
     initial with its 95 % bootstrap interval; ``None`` unless every run has an initial one."""
-    from sde_torchrl.intervals import bootstrap_interval
+    from sde_torchrl.utils.intervals import bootstrap_interval
 
     if not by_run.keys() <= initial.keys():
         return None
@@ -163,7 +163,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
     95 % Wilson intervals as fractions of the runs, and the paper's counts (out of 100); with
     both explorers, the SDE − REX difference of each fraction with its 95 % bootstrap interval
     over runs (``significant``: the interval excludes 0)."""
-    from sde_torchrl.intervals import binomial_interval, bootstrap_interval
+    from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
 
     flags = {explorer: reached(by_run) for explorer, by_run in runs.items()}
     explorers = {}
@@ -253,7 +253,7 @@ def write_markdown(result: dict, path: Path) -> None:
 def mean_curve(by_run: dict[int, dict]) -> tuple[list[int], list[tuple[float, float, float]]]:
     """Updates (1-based) with evaluations, and per update the mean return over runs with its
     95 % bootstrap interval."""
-    from sde_torchrl.intervals import bootstrap_interval
+    from sde_torchrl.utils.intervals import bootstrap_interval
 
     updates = sorted({u for run in by_run.values() for u, _ in run["evals"]})
     curve = []

@@ -98,9 +98,9 @@ def run_job(experiment: str, overrides: list[str]) -> dict:
     run's episodes to R_lim."""
     import torch
 
-    from sde_torchrl.build import build_trainer
-    from sde_torchrl.compose import compose
-    from sde_torchrl.guard import NonFiniteError
+    from sde_torchrl.config.build import build_trainer
+    from sde_torchrl.config.compose import compose
+    from sde_torchrl.trainers.guard import NonFiniteError
 
     torch.set_num_threads(1)
     cfg = compose([f"+experiment={experiment}", *overrides])

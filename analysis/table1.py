@@ -7,7 +7,7 @@ directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (ever
 paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
 Every count, speed-up and plateau time carries a 95 % percentile-bootstrap interval over runs
-(:func:`sde_torchrl.intervals.bootstrap_interval`, 10,000 resamples, seed 0): a cell reads
+(:func:`sde_torchrl.utils.intervals.bootstrap_interval`, 10,000 resamples, seed 0): a cell reads
 ``1,850 [1,620, 2,110]``. A difference is called significant when the bootstrap interval of the
 ratio of the two methods' mean counts excludes 1, and ours differs significantly from the paper's
 when the paper's count lies outside our interval (the paper gives no spread of its own).
@@ -88,7 +88,7 @@ log = logging.getLogger("table1")
 
 def sweep_jobs(experiment: str) -> list[list[str]]:
     """The override lists of every job in ``experiment``'s Hydra sweeper params."""
-    from sde_torchrl.compose import compose
+    from sde_torchrl.config.compose import compose
 
     cfg = compose([f"+experiment={experiment}"], return_hydra_config=True)
     params = {key: str(values).split(",") for key, values in cfg.hydra.sweeper.params.items()}
@@ -101,8 +101,8 @@ def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
     import torch
     from omegaconf import open_dict
 
-    from sde_torchrl.build import run_job
-    from sde_torchrl.compose import compose
+    from sde_torchrl.config.build import run_job
+    from sde_torchrl.config.compose import compose
 
     torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
     cfg = compose([f"+experiment={experiment}", *overrides], return_hydra_config=True)
@@ -153,7 +153,7 @@ def _expected_cost(job: tuple[str, list[str], str]) -> float:
 
 def load_runs(directory: Path) -> list[dict]:
     """Every finished run under ``directory``: its summary and per-update mean returns."""
-    from sde_torchrl.run_dir import finished_runs  # refuses a run directory mid-run, by name
+    from sde_torchrl.jobs.run_dir import finished_runs  # refuses a run directory mid-run, by name
 
     runs = []
     for job in finished_runs(directory):
@@ -180,7 +180,7 @@ def _setting(summary: dict) -> tuple[str, float, int]:
 
 def _interval(values, statistic=None) -> list[float]:
     """``[low, high]`` of the 95 % bootstrap interval (:data:`LEVEL`, :data:`RESAMPLES`, seed 0)."""
-    from sde_torchrl.intervals import bootstrap_interval
+    from sde_torchrl.utils.intervals import bootstrap_interval
 
     kwargs = {} if statistic is None else {"statistic": statistic}
     interval = bootstrap_interval(values, level=LEVEL, resamples=RESAMPLES, seed=0, **kwargs)
@@ -294,7 +294,7 @@ def _mlp_intervals(smoothed: dict, per_update: int, tail: int) -> dict:
     mean returns. The runs are resampled as indices into the smoothed curves."""
     import numpy as np
 
-    from sde_torchrl.intervals import bootstrap_interval
+    from sde_torchrl.utils.intervals import bootstrap_interval
 
     def mean_curves(indices, curves):
         runs = len(curves)

@@ -8,17 +8,18 @@ register_ballcatch()  # gymnasium.make("sde_torchrl/BallCatch-v0"); pybullet loa
 
 #: Public names, each loaded from its module on first access (PEP 562): ``import sde_torchrl``
 #: does not import torch, so that ``train.py`` can lock its run directory first
-#: (:mod:`sde_torchrl.lock`), and the ball-catching modules do not import pybullet before use.
+#: (:mod:`sde_torchrl.jobs.lock`), and the ball-catching modules do not import pybullet before use.
 _LAZY = {
-    **dict.fromkeys(("LatentMLPActor", "LinearActor", "MLPActor"), "sde_torchrl.actors"),
-    **dict.fromkeys(("SDENormal", "TanhSDENormal"), "sde_torchrl.distribution"),
+    **dict.fromkeys(("LatentMLPActor", "LinearActor", "MLPActor"), "sde_torchrl.modules.actors"),
+    **dict.fromkeys(("SDENormal", "TanhSDENormal"), "sde_torchrl.modules.distribution"),
     **dict.fromkeys(("MinimizeEnv", "make_minimize_env"), "sde_torchrl.envs.minimize"),
     **dict.fromkeys(("ENACEstimator", "GPOMDPEstimator", "ReinforceEstimator", "episode_returns", "episode_scores"),
-                    "sde_torchrl.estimators"),
-    **dict.fromkeys(("StateDependentExplorer", "expln", "expln_inverse"), "sde_torchrl.exploration"),
-    "ParameterExplorer": "sde_torchrl.pgpe",
-    "PGPEEstimator": "sde_torchrl.pgpe_estimator",
-    **dict.fromkeys(("SDENoisePrimer", "SDEParams", "action_bounds", "make_sde_actor"), "sde_torchrl.sde_actor"),
+                    "sde_torchrl.objectives.estimators"),
+    **dict.fromkeys(("StateDependentExplorer", "expln", "expln_inverse"), "sde_torchrl.modules.exploration"),
+    "ParameterExplorer": "sde_torchrl.modules.pgpe",
+    "PGPEEstimator": "sde_torchrl.objectives.pgpe",
+    **dict.fromkeys(("SDENoisePrimer", "SDEParams", "action_bounds", "make_sde_actor"),
+                    "sde_torchrl.modules.sde_actor"),
     "BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
     "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched",
 }

@@ -17,14 +17,14 @@ FOREIGN_STDERR = ("pybullet build time",)
 
 def compose_config(*overrides: str):
     """The composed config for ``overrides``, as ``train.py`` would see it."""
-    from sde_torchrl.compose import compose
+    from sde_torchrl.config.compose import compose
 
     return compose(overrides)
 
 
 def build(*overrides: str):
     """A trainer for the minimise experiment with ``overrides`` and no TorchRL logger."""
-    from sde_torchrl.build import build_trainer
+    from sde_torchrl.config.build import build_trainer
 
     return build_trainer(compose_config("+experiment=minimize", "logger=none", *overrides))
 

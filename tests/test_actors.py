@@ -7,8 +7,8 @@ import torch
 from tensordict import TensorDict
 
 from sde_torchrl import LatentMLPActor, LinearActor, MLPActor
-from sde_torchrl._shapes import stacked_matvec
-from sde_torchrl.rng import RunStreams
+from sde_torchrl.utils.rng import RunStreams
+from sde_torchrl.utils.shapes import stacked_matvec
 
 
 @pytest.mark.parametrize("bias", [False, True])
@@ -126,7 +126,7 @@ def test_latent_actor_stacks_runs_and_without_hidden_layers_uses_the_observation
 def test_actors_doctests():
     import doctest
 
-    import sde_torchrl.actors
+    import sde_torchrl.modules.actors
 
-    result = doctest.testmod(sde_torchrl.actors, optionflags=doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(sde_torchrl.modules.actors, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0

@@ -332,7 +332,7 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     """Launcher workers run job after job: each job must disconnect its pybullet clients."""
     from _helpers import compose_config
 
-    from sde_torchrl import build
+    from sde_torchrl.config import build
 
     built = []
     original = build.build_trainer
@@ -523,7 +523,8 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     reaches the batched env that ``train.py`` builds."""
     from _helpers import compose_config, run_cli
 
-    from sde_torchrl import build, config
+    from sde_torchrl.config import build
+    from sde_torchrl.config import schemas as config
 
     assert config.ARM_MODELS == tuple(ARM_MODELS)
     cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=2",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from _helpers import compose_config, load_script
 
-from sde_torchrl.config import validate
+from sde_torchrl.config.schemas import validate
 
 tuning = load_script("ballcatch_tuning")
 

@@ -23,8 +23,8 @@ from _helpers import (
     train_command,
 )
 
-from sde_torchrl.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
-from sde_torchrl.files import write_json_atomic
+from sde_torchrl.jobs.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
+from sde_torchrl.utils.files import write_json_atomic
 
 # ------------------------------------------------------------------------------ in process
 

@@ -7,9 +7,9 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
 
-from sde_torchrl import actors, estimators, exploration
-from sde_torchrl.checks import ArgumentError
-from sde_torchrl.config import (
+from sde_torchrl.modules import actors, exploration
+from sde_torchrl.objectives import estimators
+from sde_torchrl.config.schemas import (
     ACTIVATIONS,
     EPISODE_RETURNS,
     REWARD_STATES,
@@ -19,6 +19,7 @@ from sde_torchrl.config import (
     validate,
 )
 from sde_torchrl.envs import minimize
+from sde_torchrl.utils.checks import ArgumentError
 
 
 def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
@@ -160,7 +161,7 @@ def test_bad_configs_on_the_command_line_fail_in_one_line(tmp_path):
 def test_module_gym_id_is_refused_when_built_as_a_config_error():
     """A ``module:Env-v0`` id registers on import: the schema leaves it to the build, whose error
     (through Hydra's ``InstantiationException``) is still a one-line config error."""
-    from sde_torchrl.build import build_trainer
+    from sde_torchrl.config.build import build_trainer
 
     with pytest.raises(Exception) as info:
         build_trainer(compose_config("env=gym", "env.id=gymnasium.envs.classic_control:CartPole-v1"))

@@ -26,12 +26,19 @@ from torchrl.objectives import A2CLoss, ClipPPOLoss, SACLoss
 from torchrl.objectives.sac import compute_rsample_log_prob
 from torchrl.objectives.value import GAE
 
-import sde_torchrl.distribution
-import sde_torchrl.sde_actor
-from sde_torchrl.distribution import SDENormal, TanhSDENormal, gaussian_log_prob, noise_matrix, sde_sample, sde_variance
-from sde_torchrl.exploration import expln
-from sde_torchrl.rng import RunStreams
-from sde_torchrl.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
+import sde_torchrl.modules.distribution
+import sde_torchrl.modules.sde_actor
+from sde_torchrl.modules.distribution import (
+    SDENormal,
+    TanhSDENormal,
+    gaussian_log_prob,
+    noise_matrix,
+    sde_sample,
+    sde_variance,
+)
+from sde_torchrl.modules.exploration import expln
+from sde_torchrl.modules.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
+from sde_torchrl.utils.rng import RunStreams
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 A, S = 2, 3
@@ -272,7 +279,7 @@ def test_variance_of_a_sigma_hat_expanded_to_the_batch_is_the_per_row_sum_and_it
 
 
 def test_compact_broadcast_cuts_only_expanded_dimensions():
-    from sde_torchrl._shapes import compact_broadcast
+    from sde_torchrl.utils.shapes import compact_broadcast
 
     base = torch.randn(1, A, S)
     assert compact_broadcast(base.expand(3, 4, A, S), 2).shape == (1, 1, A, S)
@@ -545,14 +552,14 @@ def test_parallel_env_with_the_primer_on_the_batched_env():
 
 # ----------------------------------------------------------------------------- documentation
 
-@pytest.mark.parametrize("module", [sde_torchrl.distribution, sde_torchrl.sde_actor])
+@pytest.mark.parametrize("module", [sde_torchrl.modules.distribution, sde_torchrl.modules.sde_actor])
 def test_doctests(module):
     result = doctest.testmod(module, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
 
 
 def test_every_public_name_has_examples():
-    for module in (sde_torchrl.distribution, sde_torchrl.sde_actor):
+    for module in (sde_torchrl.modules.distribution, sde_torchrl.modules.sde_actor):
         for name in module.__all__ if hasattr(module, "__all__") else ():
             assert "Examples:" in getattr(module, name).__doc__, name
     for obj in (SDENormal, TanhSDENormal, gaussian_log_prob, noise_matrix, sde_sample, sde_variance, SDEParams,

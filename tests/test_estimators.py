@@ -23,7 +23,7 @@ from sde_torchrl import (
     make_minimize_env,
     make_sde_actor,
 )
-from sde_torchrl.estimators import (
+from sde_torchrl.objectives.estimators import (
     EpisodeLogLikelihood,
     enac_gradient,
     flatten_scores,

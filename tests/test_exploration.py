@@ -15,7 +15,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-import sde_torchrl.exploration
+import sde_torchrl.modules.exploration
 from sde_torchrl import (
     LinearActor,
     SDENormal,
@@ -25,7 +25,7 @@ from sde_torchrl import (
     expln_inverse,
     make_minimize_env,
 )
-from sde_torchrl.exploration import SDESigma
+from sde_torchrl.modules.exploration import SDESigma
 
 SHARINGS = ("element", "action", "single")
 
@@ -431,5 +431,5 @@ def test_explorer_and_sde_params_share_the_sigma_module():
 
 
 def test_exploration_doctests():
-    result = doctest.testmod(sde_torchrl.exploration, optionflags=doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(sde_torchrl.modules.exploration, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0

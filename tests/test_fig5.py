@@ -82,7 +82,7 @@ def test_collapsed_exploration_is_counted_with_its_first_update(tmp_path):
 
 
 def test_counts_carry_intervals_and_the_sde_rex_difference_its_significance(tmp_path):
-    from sde_torchrl.intervals import binomial_interval
+    from sde_torchrl.utils.intervals import binomial_interval
 
     many = {"sde": [[-2.0, -0.95]] * 30 + [[-2.0, -2.4]] * 10, "rex": [[-2.0, -1.3]] * 36 + [[-2.5, -0.98]] * 4}
     for explorer, curves in many.items():

@@ -24,11 +24,10 @@ from _helpers import build, compose_config, crash_at, read_rows
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 
-import sde_torchrl.estimators
+import sde_torchrl.objectives.estimators
 from sde_torchrl import LinearActor, MLPActor, ReinforceEstimator, StateDependentExplorer, make_minimize_env
-from sde_torchrl.checks import ArgumentError
-from sde_torchrl.config import validate
-from sde_torchrl.estimators import (
+from sde_torchrl.config.schemas import validate
+from sde_torchrl.objectives.estimators import (
     EpisodeLogLikelihood,
     EpisodesError,
     GPOMDPEstimator,
@@ -39,12 +38,14 @@ from sde_torchrl.estimators import (
     step_rewards,
     step_scores,
 )
+from sde_torchrl.utils.checks import ArgumentError
 
 X0, STEP, NOISE, THETA0 = 2.0, 0.1, 0.5, -2.0
 
 
 def test_doctests():
-    result = doctest.testmod(sde_torchrl.estimators, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(sde_torchrl.objectives.estimators,
+                             optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
 
 
@@ -91,7 +92,7 @@ def test_step_rewards_sum_to_the_episode_returns():
     rewards = TensorDict({"next": {"reward": torch.randn(2, 3, 5, 1)}}, [2, 3, 5])
     for kind in ("mean", "sum"):
         torch.testing.assert_close(step_rewards(rewards, kind=kind).sum(-1),
-                                   sde_torchrl.estimators.episode_returns(rewards, kind=kind))
+                                   sde_torchrl.objectives.estimators.episode_returns(rewards, kind=kind))
 
 
 # --------------------------------------------------------- closed form on the 1-D task
@@ -148,7 +149,7 @@ def many_estimates(request):
                             reward_state="noise_free")
     episodes = _rollout(policy, env, LENGTH)
     gpomdp = GPOMDPEstimator(policy, episode_return="sum")
-    per_step = sde_torchrl.estimators.flatten_scores(step_scores(gpomdp.log_likelihood, episodes), 2)
+    per_step = sde_torchrl.objectives.estimators.flatten_scores(step_scores(gpomdp.log_likelihood, episodes), 2)
     rewards = step_rewards(episodes, kind="sum")
     later_actions, _ = gpomdp_gradient(per_step.flip(-2), rewards.flip(-2))  # Σ_{t≥k} instead of Σ_{t≤k}
     return request.param, {"gpomdp": gpomdp(episodes)["gradient"].double(),
@@ -273,7 +274,7 @@ def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
 
 @pytest.mark.parametrize("experiment", ["pendulum", "ballcatch"])
 def test_composes_with_the_other_envs_and_trains(tmp_path, experiment):
-    from sde_torchrl.build import build_trainer
+    from sde_torchrl.config.build import build_trainer
 
     trainer = build_trainer(compose_config(f"+experiment={experiment}", "logger=none", "estimator=gpomdp", "runs=2",
                                            "updates=2", "episodes_per_update=3", "episode_queue=0", "eval_period=0",

@@ -8,11 +8,11 @@ from _helpers import compose_config, read_rows
 from gymnasium.spaces import Box, Dict, Discrete, Tuple
 from torchrl.envs.utils import check_env_specs
 
-from sde_torchrl.build import build_trainer
-from sde_torchrl.checks import ArgumentError
+from sde_torchrl.collectors.rollout import tensor_step_env
+from sde_torchrl.config.build import build_trainer
 from sde_torchrl.envs.gym import FEATURES_KEY, GymRunsEnv, make_gym_env
 from sde_torchrl.envs.gym_checks import check_spaces
-from sde_torchrl.rollout import tensor_step_env
+from sde_torchrl.utils.checks import ArgumentError
 
 SMALL = ("runs=2", "episodes_per_update=3", "eval_episodes=2", "env.episode_length=20", "eval_period=0")
 

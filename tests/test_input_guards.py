@@ -18,14 +18,14 @@ from sde_torchrl import (
     StateDependentExplorer,
     make_minimize_env,
 )
-from sde_torchrl.checks import ArgumentError, NonFiniteInputError
-from sde_torchrl.estimators import (
+from sde_torchrl.collectors.rollout import collect_episodes
+from sde_torchrl.objectives.estimators import (
     EpisodesError,
     MissingEpisodesKeyError,
     NonFiniteEpisodesError,
     enac_gradient,
 )
-from sde_torchrl.rollout import collect_episodes
+from sde_torchrl.utils.checks import ArgumentError, NonFiniteInputError
 
 ESTIMATORS = [ReinforceEstimator, ENACEstimator]
 RUNS, EPISODES, LENGTH = 2, 6, 4

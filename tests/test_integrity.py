@@ -29,14 +29,14 @@ from _helpers import (
     train_command,
 )
 
-from sde_torchrl.build import build_trainer
-from sde_torchrl.checkpoint import content_digest, load_checkpoint
-from sde_torchrl.checks import ArgumentError
-from sde_torchrl.config import validate
-from sde_torchrl.files import DamagedFileError
-from sde_torchrl.guard import NonFiniteError
-from sde_torchrl.lock import RunDirectoryInUse, hold_run_directory
-from sde_torchrl.run_dir import RunDirectory, read_summary
+from sde_torchrl.config.build import build_trainer
+from sde_torchrl.config.schemas import validate
+from sde_torchrl.jobs.checkpoint import content_digest, load_checkpoint
+from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
+from sde_torchrl.jobs.run_dir import RunDirectory, read_summary
+from sde_torchrl.trainers.guard import NonFiniteError
+from sde_torchrl.utils.checks import ArgumentError
+from sde_torchrl.utils.files import DamagedFileError
 
 BUDGET = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5")
 
@@ -78,7 +78,7 @@ def test_lock_is_held_for_the_job_and_nested_in_one_process(tmp_path):
     assert (tmp_path / ".lock").read_text() == ""  # released: no pid left
 
 
-HOLD = "import sys, time; from sde_torchrl.lock import hold_run_directory\n" \
+HOLD = "import sys, time; from sde_torchrl.jobs.lock import hold_run_directory\n" \
        "with hold_run_directory(sys.argv[1]):\n    print('held', flush=True); time.sleep(120)\n"
 
 
@@ -389,11 +389,11 @@ def test_reinforce_on_a_single_episode_is_refused():
 
 
 def test_rank_deficient_enac_warns(caplog):
-    with caplog.at_level(logging.WARNING, logger="sde_torchrl.build"):
+    with caplog.at_level(logging.WARNING, logger="sde_torchrl.config.build"):
         build("estimator=enac", "episodes_per_update=2").close()
     assert "rank-deficient" in caplog.text and "for 3 unknowns" in caplog.text
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="sde_torchrl.build"):
+    with caplog.at_level(logging.WARNING, logger="sde_torchrl.config.build"):
         build("estimator=enac", "episodes_per_update=3").close()
     assert "rank-deficient" not in caplog.text
 
@@ -438,7 +438,7 @@ def test_a_sweep_relaunched_with_other_values_leaves_the_finished_jobs_alone(tmp
 def test_a_rerun_from_an_older_checkpoint_removes_the_summary_until_it_finishes(tmp_path, reference):
     """Finish a job, damage its checkpoint, put the previous one in its place (the printed
     remedy), rerun and kill it: the old summary must not make the directory look finished."""
-    from sde_torchrl.run_dir import UnfinishedRunError, read_finished_run
+    from sde_torchrl.jobs.run_dir import UnfinishedRunError, read_finished_run
 
     run_dir = tmp_path / "job"
     build(*BUDGET).train(run_dir, checkpoint_period=4)
@@ -459,7 +459,7 @@ def test_a_rerun_from_an_older_checkpoint_removes_the_summary_until_it_finishes(
 
 
 def test_readers_refuse_a_run_in_progress_or_files_that_disagree(tmp_path, reference):
-    from sde_torchrl.run_dir import UnfinishedRunError, finished_runs, read_finished_run
+    from sde_torchrl.jobs.run_dir import UnfinishedRunError, finished_runs, read_finished_run
 
     run_dir = tmp_path / "sweep" / "0"
     run_dir.parent.mkdir()
@@ -556,7 +556,7 @@ def test_another_config_before_the_first_checkpoint_is_refused_like_after_it(tmp
 ])
 def test_a_checkpoint_whose_content_does_not_fit_the_job_is_refused(crashed, damage, problem):
     """Its checksum matches (it is what was written), but it cannot be this job's state."""
-    from sde_torchrl.checkpoint import save_checkpoint
+    from sde_torchrl.jobs.checkpoint import save_checkpoint
 
     path = crashed / "checkpoint.pt"
     state = load_checkpoint(path)

@@ -1,4 +1,4 @@
-"""sde_torchrl.intervals: Wilson against published values and its exact coverage, the bootstrap
+"""sde_torchrl.utils.intervals: Wilson against published values and its exact coverage, the bootstrap
 against known cases, its determinism, and its coverage on simulated data."""
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-import sde_torchrl.intervals
-from sde_torchrl.intervals import Interval, binomial_interval, bootstrap_interval
+import sde_torchrl.utils.intervals
+from sde_torchrl.utils.intervals import Interval, binomial_interval, bootstrap_interval
 
 
 def test_doctests():
-    result = doctest.testmod(sde_torchrl.intervals, optionflags=doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(sde_torchrl.utils.intervals, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
 
 

@@ -63,14 +63,14 @@ SWEEPS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*sweep.yaml
 @pytest.mark.parametrize("sweep", SWEEPS)
 def test_every_sweep_requests_what_its_shards_are_estimated_to_use(sweep, launcher):
     """Each sweep composed with each cluster launcher asks, per shard, for at least the memory
-    and the time that shard is estimated to need (sde_torchrl/resources.py)."""
+    and the time that shard is estimated to need (sde_torchrl/jobs/resources.py)."""
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher" if launcher == "slurm"
                         else "hydra_plugins.hydra_ray_launcher")
     from omegaconf import OmegaConf
 
-    from sde_torchrl.compose import compose
-    from sde_torchrl.config import validate
-    from sde_torchrl.resources import GB, estimate_memory, estimate_minutes
+    from sde_torchrl.config.compose import compose
+    from sde_torchrl.config.schemas import validate
+    from sde_torchrl.jobs.resources import GB, estimate_memory, estimate_minutes
 
     overrides = [f"+experiment={sweep}", f"hydra/launcher={launcher}", "max_memory_gb=1000"]
     request = OmegaConf.to_container(compose(overrides, return_hydra_config=True).hydra.launcher, resolve=True)

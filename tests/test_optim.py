@@ -9,8 +9,8 @@ import pytest
 import torch
 from _helpers import Crash, build, compose_config, crash_at, read_rows
 
-from sde_torchrl.config import describe_error, validate
-from sde_torchrl.optim import LearningRateSchedule, lr_factor, make_optimizer
+from sde_torchrl.config.schemas import describe_error, validate
+from sde_torchrl.trainers.optim import LearningRateSchedule, lr_factor, make_optimizer
 
 OPTIONS = {
     "sgd": {"_target_": "torch.optim.SGD"},

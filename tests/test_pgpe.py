@@ -20,23 +20,23 @@ from _helpers import build, compose_config, crash_at, read_rows, run_cli
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 
-import sde_torchrl.pgpe
-import sde_torchrl.pgpe_estimator
+import sde_torchrl.modules.pgpe
+import sde_torchrl.objectives.pgpe
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
-from sde_torchrl.checks import ArgumentError
-from sde_torchrl.config import validate
+from sde_torchrl.collectors.rollout import collect_episodes
+from sde_torchrl.config.schemas import validate
 from sde_torchrl.envs.minimize import expected_linear_return
-from sde_torchrl.estimators import EpisodeLogLikelihood, EpisodesError, episode_scores
-from sde_torchrl.pgpe import ParameterExplorer
-from sde_torchrl.pgpe_estimator import PGPEEstimator, parameter_scores, pgpe_gradient, symmetric_pgpe_gradient
-from sde_torchrl.rng import RunStreams
-from sde_torchrl.rollout import collect_episodes
+from sde_torchrl.modules.pgpe import ParameterExplorer
+from sde_torchrl.objectives.estimators import EpisodeLogLikelihood, EpisodesError, episode_scores
+from sde_torchrl.objectives.pgpe import PGPEEstimator, parameter_scores, pgpe_gradient, symmetric_pgpe_gradient
+from sde_torchrl.utils.checks import ArgumentError
+from sde_torchrl.utils.rng import RunStreams
 
 X0, STEP, NOISE, THETA0, LENGTH = 2.0, 0.1, 0.5, -2.0, 15
 PGPE = ("explorer=pgpe", "estimator=pgpe")
 
 
-@pytest.mark.parametrize("module", [sde_torchrl.pgpe, sde_torchrl.pgpe_estimator])
+@pytest.mark.parametrize("module", [sde_torchrl.modules.pgpe, sde_torchrl.objectives.pgpe])
 def test_doctests(module):
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
@@ -185,7 +185,7 @@ def test_plain_sampling_matches_the_closed_form_and_a_missing_baseline_does_not(
     assert_matches(samples, expected / 2)
     assert_misses(samples, expected)  # the factor is there, and the test can see it
     assert_misses(-samples, expected / 2)  # a wrong sign
-    monkeypatch.setattr(sde_torchrl.pgpe_estimator, "batch_mean_baseline", lambda r: torch.zeros_like(r[..., 0]))
+    monkeypatch.setattr(sde_torchrl.objectives.pgpe, "batch_mean_baseline", lambda r: torch.zeros_like(r[..., 0]))
     no_baseline = estimates(symmetric=False, episodes=2)
     assert_misses(no_baseline, expected / 2)
     assert_matches(no_baseline, expected, z=5.0)  # unbiased without a baseline, but far noisier
@@ -259,7 +259,7 @@ def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
 
 
 def test_the_guard_names_a_non_finite_sigma(tmp_path):
-    from sde_torchrl.guard import NonFiniteError
+    from sde_torchrl.trainers.guard import NonFiniteError
 
     trainer = build(*PGPE, "runs=2", "updates=3")
     with torch.no_grad():

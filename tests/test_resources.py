@@ -10,9 +10,9 @@ import time
 import pytest
 from _helpers import build, compose_config, own_stderr_lines, run_cli
 
-from sde_torchrl import trainer as trainer_module
-from sde_torchrl.config import describe_error, validate
-from sde_torchrl.resources import GB, estimate_memory
+from sde_torchrl.trainers import trainer as trainer_module
+from sde_torchrl.config.schemas import describe_error, validate
+from sde_torchrl.jobs.resources import GB, estimate_memory
 
 
 @pytest.mark.parametrize("override, key", [("runs=1000000", "runs"),
@@ -55,7 +55,7 @@ def test_a_slow_first_update_says_what_it_is_doing(monkeypatch, caplog, tmp_path
     trainer = build("runs=2", "updates=2", "episodes_per_update=4")
     original = trainer.update
     monkeypatch.setattr(trainer, "update", lambda episodes, k: (time.sleep(0.3), original(episodes, k))[1])
-    with caplog.at_level(logging.INFO, logger="sde_torchrl.trainer"):
+    with caplog.at_level(logging.INFO, logger="sde_torchrl.trainers.trainer"):
         trainer.train(tmp_path)
     notices = [r.getMessage() for r in caplog.records if "still running" in r.getMessage()]
     assert notices == ["update 1 of 2 still running after 0 s: collecting 4 episodes of 15 steps for each of 2 "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from sde_torchrl.rng import RunStreams, run_seed
+from sde_torchrl.utils.rng import RunStreams, run_seed
 
 
 def _draws(runs, first_run, chunk=7):

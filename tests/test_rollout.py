@@ -9,10 +9,7 @@ from torchrl.envs import RewardScaling
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
-from sde_torchrl.envs.ballcatch import make_ballcatch_env
-from sde_torchrl.envs.ballcatch.models import ARM_MODELS, SCRIPTED_WEIGHTS
-from sde_torchrl.rng import RunStreams
-from sde_torchrl.rollout import (
+from sde_torchrl.collectors.rollout import (
     collect_episodes,
     episode_matrix,
     linear_episode_env,
@@ -20,6 +17,9 @@ from sde_torchrl.rollout import (
     tensor_rollout,
     tensor_step_env,
 )
+from sde_torchrl.envs.ballcatch import make_ballcatch_env
+from sde_torchrl.envs.ballcatch.models import ARM_MODELS, SCRIPTED_WEIGHTS
+from sde_torchrl.utils.rng import RunStreams
 
 
 def _setup(schedule, every_n=None, actor="linear", squash=False, gaussian=None):

@@ -383,7 +383,7 @@ def test_group_choices_combine_with_experiment(jobs):
     assert "module.1.gaussian_param" not in by_explorer["rex"]["final_parameters"]
     for job_dir in (d for d in result.out_dir.iterdir() if d.name.isdigit()):
         cfg = OmegaConf.load(job_dir / ".hydra" / "config.yaml")
-        assert cfg.estimator._target_ == "sde_torchrl.estimators.ENACEstimator"
+        assert cfg.estimator._target_ == "sde_torchrl.objectives.estimators.ENACEstimator"
         assert cfg.explorer.schedule == ("step" if read_summary(job_dir)["explorer"] == "rex"
                                          else "episode")
 

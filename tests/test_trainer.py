@@ -9,9 +9,9 @@ import pytest
 import torch
 from _helpers import build, compose_config, own_stderr_lines, read_rows, run_cli
 
-from sde_torchrl.build import run_job
-from sde_torchrl.guard import NonFiniteError
-from sde_torchrl.progress import Progress, progress_wanted
+from sde_torchrl.config.build import run_job
+from sde_torchrl.trainers.guard import NonFiniteError
+from sde_torchrl.trainers.progress import Progress, progress_wanted
 
 # ------------------------------------------------------------------------ non-finite guard
 

@@ -5,7 +5,7 @@
 them side by side and gives the trainer the ``[runs, episodes]`` batch it expects.
 
 Per-run randomness: every reset reseeds each episode's env with a seed drawn from its run's
-stream (:class:`~sde_torchrl.rng.RunStreams`, like :class:`~sde_torchrl.envs.MinimizeEnv`), so
+stream (:class:`~sde_torchrl.utils.rng.RunStreams`, like :class:`~sde_torchrl.envs.MinimizeEnv`), so
 run ``r`` of a batched job sees the start states a single job with ``first_run=r`` sees, and a
 checkpoint of the streams resumes the env exactly.
 
@@ -35,9 +35,9 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, ObservationNorm, StepCounter, Transform, TransformedEnv
 from torchrl.envs.libs.gym import GymEnv
 
-from sde_torchrl.checks import positive_int
 from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
-from sde_torchrl.rng import RunStreams
+from sde_torchrl.utils.checks import positive_int
+from sde_torchrl.utils.rng import RunStreams
 
 #: Key of the explorer's features when ``constant_feature`` is set.
 FEATURES_KEY = "sde_features"

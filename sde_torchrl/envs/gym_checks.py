@@ -1,9 +1,9 @@
 """What ``env=gym`` needs of a gymnasium env, checked with gymnasium alone (no torch).
 
-The config schema (:class:`~sde_torchrl.config.GymEnvConf`) runs :func:`check_gym_env` on a
+The config schema (:class:`~sde_torchrl.config.schemas.GymEnvConf`) runs :func:`check_gym_env` on a
 registered id before anything is built, and :class:`~sde_torchrl.envs.gym.GymRunsEnv` runs
 :func:`check_spaces` and :func:`check_time_limit` on the env it builds (``"module:Env-v0"`` ids,
-Python callers). Both raise :class:`~sde_torchrl.checks.ArgumentError` naming the config key, so
+Python callers). Both raise :class:`~sde_torchrl.utils.checks.ArgumentError` naming the config key, so
 that ``train.py`` reports either as one line with the config-error exit code.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from sde_torchrl.checks import ArgumentError
+from sde_torchrl.utils.checks import ArgumentError
 
 
 def check_spaces(env_id: str, action_space: Any, observation_space: Any) -> None:

@@ -15,8 +15,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
-from sde_torchrl.checks import ArgumentError, finite, finite_entries, one_of, positive_int
-from sde_torchrl.rng import RunStreams
+from sde_torchrl.utils.checks import ArgumentError, finite, finite_entries, one_of, positive_int
+from sde_torchrl.utils.rng import RunStreams
 
 #: Which state the reward scores: ``noise_free`` (``x_t + s u_t``) or ``noisy`` (``x_{t+1}``).
 REWARD_STATES = ("noise_free", "noisy")
@@ -48,8 +48,8 @@ class MinimizeEnv(EnvBase):
         stream: random stream name, ``"env"`` for training or ``"eval_env"`` for evaluation.
         seed: seed applied at construction (``None``: seed 0; call :meth:`set_seed` to change).
         allow_nonfinite: step NaN/infinite actions through (the states and rewards become
-            non-finite) instead of raising :class:`~sde_torchrl.checks.NonFiniteInputError`.
-            The trainer sets it: its :class:`~sde_torchrl.guard.FiniteGuard` checks the
+            non-finite) instead of raising :class:`~sde_torchrl.utils.checks.NonFiniteInputError`.
+            The trainer sets it: its :class:`~sde_torchrl.trainers.guard.FiniteGuard` checks the
             returns and names the update.
 
     Raises:

@@ -25,7 +25,7 @@ from sde_torchrl.envs.ballcatch.episodes import linear_episode
 from sde_torchrl.envs.ballcatch.models import DEFAULT_MODEL
 from sde_torchrl.envs.ballcatch.task import EPISODE_STEPS, CatchEpisode
 from sde_torchrl.envs.ballcatch.world import BallCatchConfig, BallCatchWorld
-from sde_torchrl.rng import RunStreams
+from sde_torchrl.utils.rng import RunStreams
 
 __all__ = ["BatchedBallCatchEnv", "make_ballcatch_env", "make_parallel_ballcatch"]
 
@@ -41,7 +41,7 @@ class BatchedBallCatchEnv(EnvBase):
 
     With ``runs`` set, the batch is ``[runs, num_worlds]`` (``runs × num_worlds`` worlds): the
     layout of independent learners trained side by side, each run drawing its release jitter
-    from its own stream (:class:`~sde_torchrl.rng.RunStreams`, seeded by :meth:`set_seed`).
+    from its own stream (:class:`~sde_torchrl.utils.rng.RunStreams`, seeded by :meth:`set_seed`).
 
     Args:
         num_worlds: number of worlds N (one pybullet DIRECT client each), per run if ``runs``.
@@ -153,7 +153,7 @@ class BatchedBallCatchEnv(EnvBase):
         (worlds whose ball has touched the ground stay frozen)."""
         return [episode.step(a) for episode, a in zip(self.episodes, self._actions(action), strict=True)]
 
-    # ---------------------------------------------- tensor stepping (sde_torchrl.rollout)
+    # ---------------------------------------------- tensor stepping (sde_torchrl.collectors.rollout)
     def initial_state(self) -> torch.Tensor:
         """Resets every world; returns the ball positions ``[N, 3]`` (the observation)."""
         return self._reset(None)["observation"]

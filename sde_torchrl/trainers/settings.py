@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sde_torchrl.checks import ArgumentError, non_negative_int, positive_int
+from sde_torchrl.utils.checks import ArgumentError, non_negative_int, positive_int
 
 
 @dataclass
@@ -24,7 +24,7 @@ class TrainingSettings:
         stop_at_threshold: end the job once every run has exceeded ``r_lim`` (convergence
             sweeps need nothing after that).
         tensor_rollout: collect by tensor stepping where the env supports it
-            (:mod:`sde_torchrl.rollout`); ``False`` forces TorchRL's ``env.rollout``.
+            (:mod:`sde_torchrl.collectors.rollout`); ``False`` forces TorchRL's ``env.rollout``.
         episode_queue: 0 for fresh episodes at every update; ``Q > 0`` for the paper's
             ball-catching schedule: each update uses the last ``Q`` episodes of each run,
             filled at the start by ``Q / N`` collections, then renewed by ``N`` new
@@ -36,7 +36,7 @@ class TrainingSettings:
         >>> TrainingSettings(updates=0, episodes_per_update=10, episode_length=15)
         Traceback (most recent call last):
         ...
-        sde_torchrl.checks.ArgumentError: updates=0: a positive integer
+        sde_torchrl.utils.checks.ArgumentError: updates=0: a positive integer
     """
 
     updates: int

@@ -5,7 +5,7 @@ Schmidhuber, "Parameter-exploring policy gradients", Neural Networks 23(4), 2010
 explore in the controller's parameter space: at the start of every episode the parameters are
 drawn from ``θ ~ N(μ, diag(σ²))`` and the controller ``u = f(x; θ)`` then runs deterministically
 for the whole episode. ``μ`` are the actor's own parameters; :class:`ParameterExplorer` holds
-``σ`` and draws ``θ``. Its estimator is :class:`~sde_torchrl.pgpe_estimator.PGPEEstimator`.
+``σ`` and draws ``θ``. Its estimator is :class:`~sde_torchrl.objectives.pgpe.PGPEEstimator`.
 
 The draw travels in the tensordict as SDE's noise matrix does: the standard-normal ``ξ`` under
 ``pgpe_noise`` (``[*batch, K]`` for ``K`` controller parameters, redrawn where ``is_init`` is
@@ -30,10 +30,10 @@ from torch.func import functional_call, vmap
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, TensorDictPrimer
 
-from sde_torchrl._shapes import align
-from sde_torchrl.checks import finite, positive_int
-from sde_torchrl.exploration import deterministic_exploration, expln
-from sde_torchrl.rng import RunStreams, draw_normal
+from sde_torchrl.modules.exploration import deterministic_exploration, expln
+from sde_torchrl.utils.checks import finite, positive_int
+from sde_torchrl.utils.rng import RunStreams, draw_normal
+from sde_torchrl.utils.shapes import align
 
 
 class ParameterExplorer(TensorDictModuleBase):

@@ -9,7 +9,7 @@ its ``get_dist`` on stored data. The SDE policy is built from three pieces:
 * :class:`SDENoisePrimer`, the env transform from :meth:`SDEParams.make_tensordict_primer` that
   keeps the noise ``ξ`` in the tensordict: a fresh draw at every full or partial reset, then held
   for the episode (SDE), redrawn every step (REX) or every ``n`` steps;
-* :class:`~sde_torchrl.distribution.SDENormal` (or :class:`~sde_torchrl.distribution.TanhSDENormal`),
+* :class:`~sde_torchrl.modules.distribution.SDENormal` (or :class:`~sde_torchrl.modules.distribution.TanhSDENormal`),
   built by ``ProbabilisticActor`` from those entries; :func:`make_sde_actor` wires the three.
 """
 
@@ -24,11 +24,11 @@ from torchrl.envs import TensorDictPrimer
 from torchrl.envs.transforms.utils import _get_reset
 from torchrl.modules import ProbabilisticActor
 
-from sde_torchrl._shapes import align
-from sde_torchrl.checks import one_of, positive_int
-from sde_torchrl.distribution import SDENormal, TanhSDENormal
-from sde_torchrl.exploration import SCHEDULES, SDESigma, deterministic_exploration
-from sde_torchrl.rng import RunStreams, draw_normal
+from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal
+from sde_torchrl.modules.exploration import SCHEDULES, SDESigma, deterministic_exploration
+from sde_torchrl.utils.checks import one_of, positive_int
+from sde_torchrl.utils.rng import RunStreams, draw_normal
+from sde_torchrl.utils.shapes import align
 
 _ADD_PRIMER = (
     "append sde.make_tensordict_primer() to the env (TransformedEnv(env, sde.make_tensordict_primer())), "
@@ -114,7 +114,7 @@ class SDENoisePrimer(TensorDictPrimer):
 
 
 class SDEParams(SDESigma):
-    """Writes the parameters of :class:`~sde_torchrl.distribution.SDENormal` next to the actor's ``loc``.
+    """Writes the parameters of :class:`~sde_torchrl.modules.distribution.SDENormal` next to the actor's ``loc``.
 
     Reads ``loc`` (the controller's mean, eq. 17), the exploration features ``x`` and checks the
     carried noise ``ξ``; writes ``σ̂ = expln(p)`` (eqs. 23, 24) expanded to the batch
@@ -123,10 +123,10 @@ class SDEParams(SDESigma):
     env transform from :meth:`make_tensordict_primer`, so a loss that re-runs the policy on
     stored data rebuilds exactly the distribution the action was drawn from. The parameters
     (``sigma_param``, ``gaussian_param``), sharing modes, run stacking and the per-step
-    likelihood (:meth:`~sde_torchrl.exploration.SDESigma.log_prob`, the number
-    :class:`~sde_torchrl.distribution.SDENormal` gives) are
-    :class:`~sde_torchrl.exploration.SDESigma`'s, shared with
-    :class:`~sde_torchrl.exploration.StateDependentExplorer`.
+    likelihood (:meth:`~sde_torchrl.modules.exploration.SDESigma.log_prob`, the number
+    :class:`~sde_torchrl.modules.distribution.SDENormal` gives) are
+    :class:`~sde_torchrl.modules.exploration.SDESigma`'s, shared with
+    :class:`~sde_torchrl.modules.exploration.StateDependentExplorer`.
 
     Args:
         action_dim: ``A``.
@@ -149,7 +149,7 @@ class SDEParams(SDESigma):
         age_key: the primer's step counter (``"every_n"`` only).
 
     Attributes:
-        streams: per-run :class:`~sde_torchrl.rng.RunStreams` for the primer's draws when runs
+        streams: per-run :class:`~sde_torchrl.utils.rng.RunStreams` for the primer's draws when runs
             are stacked (the env's leading batch dimension); set it before
             :meth:`make_tensordict_primer`. ``None``: torch's global generator.
 
@@ -285,7 +285,7 @@ def make_sde_actor(
     Args:
         actor: writes the controller's mean under ``sde.loc_key``.
         sde: the :class:`SDEParams` module.
-        squash: squash into the action bounds (:class:`~sde_torchrl.distribution.TanhSDENormal`).
+        squash: squash into the action bounds (:class:`~sde_torchrl.modules.distribution.TanhSDENormal`).
         action_spec: the env's action spec: checked against ``sde.action_dim``, and the bounds
             when ``squash`` is set and ``low``/``high`` are not given.
         low: lower bounds for ``squash``.

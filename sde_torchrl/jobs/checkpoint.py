@@ -2,14 +2,14 @@
 
 A job's state between two updates is: the policy and optimiser state dicts, the number of
 updates done, every random generator it draws from (the explorer's and the envs' per-run
-:class:`~sde_torchrl.rng.RunStreams`, torch's, NumPy's and Python's global generators) and the
+:class:`~sde_torchrl.utils.rng.RunStreams`, torch's, NumPy's and Python's global generators) and the
 bookkeeping the summary is computed from. Restoring all of it and continuing produces exactly
 the numbers an uninterrupted job produces (on CPU).
 
 :func:`save_job` and :func:`restore_job` write and read that whole state; the checkpoint file is
 replaced atomically, so a reader (or a resumed job) sees the previous complete file or the new one.
 Its content carries a checksum (:func:`content_digest`, key ``sha256``), verified on load: a
-damaged file raises :class:`~sde_torchrl.files.DamagedFileError` rather than resuming from
+damaged file raises :class:`~sde_torchrl.utils.files.DamagedFileError` rather than resuming from
 wrong numbers. The checksum covers the loaded content (every tensor's bytes, dtype and shape,
 every plain value), not the zip container, so what it accepts is exactly what was saved, and
 ``torch.load("checkpoint.pt", weights_only=True)`` still reads the file.
@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from sde_torchrl.files import DamagedFileError, write_atomically
-from sde_torchrl.rng import RunStreams
+from sde_torchrl.utils.files import DamagedFileError, write_atomically
+from sde_torchrl.utils.rng import RunStreams
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,7 @@ class CheckpointMismatchError(ValueError):
 
 def save_checkpoint(path: str | os.PathLike, state: dict[str, Any]) -> None:
     """``torch.save`` of ``state`` with its :func:`content_digest` under ``sha256``, atomically
-    (:func:`~sde_torchrl.files.write_atomically`)."""
+    (:func:`~sde_torchrl.utils.files.write_atomically`)."""
     state = {**state, "sha256": content_digest(state)}
     write_atomically(path, lambda f: torch.save(state, f))
 

@@ -1,6 +1,6 @@
-"""From a composed Hydra config to a ready :class:`~sde_torchrl.trainer.Trainer`.
+"""From a composed Hydra config to a ready :class:`~sde_torchrl.trainers.trainer.Trainer`.
 
-The config is checked and typed once (:func:`~sde_torchrl.config.validate`); its groups ``env``,
+The config is checked and typed once (:func:`~sde_torchrl.config.schemas.validate`); its groups ``env``,
 ``actor``, ``explorer``, ``estimator``, ``optimizer`` and ``logger`` each hold a ``_target_`` and its options.
 This module supplies what only the job knows (batch sizes, the number of runs, dimensions read
 off the env, per-run random streams) and wires the pieces.
@@ -18,13 +18,13 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import TransformedEnv
 
-from sde_torchrl.config import PGPEExplorerConf, TrainConf, validate
+from sde_torchrl.config.schemas import PGPEExplorerConf, TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
-from sde_torchrl.estimators import ENACEstimator
-from sde_torchrl.optim import make_optimizer
-from sde_torchrl.rng import RunStreams
-from sde_torchrl.settings import TrainingSettings
-from sde_torchrl.trainer import Trainer
+from sde_torchrl.objectives.estimators import ENACEstimator
+from sde_torchrl.trainers.optim import make_optimizer
+from sde_torchrl.trainers.settings import TrainingSettings
+from sde_torchrl.trainers.trainer import Trainer
+from sde_torchrl.utils.rng import RunStreams
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
     Args:
         cfg: the composed config (see ``conf/config.yaml``), or the :class:`TrainConf` that
-            :func:`~sde_torchrl.config.validate` made of it.
+            :func:`~sde_torchrl.config.schemas.validate` made of it.
         out_dir: where the TorchRL logger writes (the run directory).
 
     Returns:
@@ -101,7 +101,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
     """Warns when ENAC's regression on ``[ψ, 1]`` has fewer episodes than unknowns.
 
-    Not refused, unlike REINFORCE on one episode (:class:`~sde_torchrl.config.TrainConf`): the
+    Not refused, unlike REINFORCE on one episode (:class:`~sde_torchrl.config.schemas.TrainConf`): the
     minimum-norm solution ENAC then takes interpolates the returns and is not zero, only noisy,
     and the parameter count is known only once the policy is built.
 

@@ -13,10 +13,10 @@ from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from omegaconf import DictConfig
 
-from sde_torchrl.config import register_resolvers
+from sde_torchrl.config.schemas import register_resolvers
 
 #: ``conf/`` beside the package: where a clone installed in editable mode keeps its config tree.
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
 def compose(

@@ -1,15 +1,15 @@
 """The training loop: collect whole episodes, estimate, update, evaluate.
 
 Every update collects ``N`` fresh episodes per run (a TensorDict ``[runs, N, T]``; or renews the
-episode queue, :mod:`sde_torchrl.episode_queue`), turns them into one gradient per run with an
+episode queue, :mod:`sde_torchrl.collectors.episode_queue`), turns them into one gradient per run with an
 episodic estimator and takes one optimiser step: with ``SGD(lr=α)``, the paper's plain
 gradient ascent ``θ ← θ + α g`` (eq. 1); momentum, Adam and a decaying rate are options
-(:mod:`sde_torchrl.optim`). Every
+(:mod:`sde_torchrl.trainers.optim`). Every
 ``eval_period`` updates (and after the last) each run's policy is evaluated without
 exploration. What is around the loop has a module of its own: the non-finite guard
-(:mod:`~sde_torchrl.guard`), the run directory (:mod:`~sde_torchrl.run_dir`), checkpoints
-(:mod:`~sde_torchrl.checkpoint`), the summary (:mod:`~sde_torchrl.summary`), reporting
-(:mod:`~sde_torchrl.report`) and stop signals (:mod:`~sde_torchrl.interrupt`).
+(:mod:`~sde_torchrl.trainers.guard`), the run directory (:mod:`~sde_torchrl.jobs.run_dir`), checkpoints
+(:mod:`~sde_torchrl.jobs.checkpoint`), the summary (:mod:`~sde_torchrl.trainers.summary`), reporting
+(:mod:`~sde_torchrl.trainers.report`) and stop signals (:mod:`~sde_torchrl.trainers.interrupt`).
 """
 
 from __future__ import annotations
@@ -26,18 +26,18 @@ from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from sde_torchrl.checkpoint import job_streams, restore_job, result_config, save_job
-from sde_torchrl.episode_queue import EpisodeQueue
-from sde_torchrl.estimators import EpisodicEstimator
-from sde_torchrl.guard import FiniteGuard
-from sde_torchrl.interrupt import DeferredInterrupt
-from sde_torchrl.optim import LearningRateSchedule
-from sde_torchrl.pgpe_estimator import PGPEEstimator
-from sde_torchrl.report import Reporter, close_logger
-from sde_torchrl.rollout import collect_episodes
-from sde_torchrl.run_dir import RunDirectory, metric_rows
-from sde_torchrl.settings import TrainingSettings
-from sde_torchrl.summary import LoopState, exploration_state, per_step_factor, summarize
+from sde_torchrl.collectors.episode_queue import EpisodeQueue
+from sde_torchrl.collectors.rollout import collect_episodes
+from sde_torchrl.jobs.checkpoint import job_streams, restore_job, result_config, save_job
+from sde_torchrl.jobs.run_dir import RunDirectory, metric_rows
+from sde_torchrl.objectives.estimators import EpisodicEstimator
+from sde_torchrl.objectives.pgpe import PGPEEstimator
+from sde_torchrl.trainers.guard import FiniteGuard
+from sde_torchrl.trainers.interrupt import DeferredInterrupt
+from sde_torchrl.trainers.optim import LearningRateSchedule
+from sde_torchrl.trainers.report import Reporter, close_logger
+from sde_torchrl.trainers.settings import TrainingSettings
+from sde_torchrl.trainers.summary import LoopState, exploration_state, per_step_factor, summarize
 
 log = logging.getLogger(__name__)
 #: A session whose first update takes longer than this says what it is doing.
@@ -51,8 +51,8 @@ class Trainer:
         env: training env, batch ``[runs, episodes_per_update]``, with the explorer's primer.
         eval_env: evaluation env, batch ``[runs, eval_episodes]``.
         policy: ``TensorDictSequential(actor, explorer)`` with run-stacked parameters.
-        estimator: an :class:`~sde_torchrl.estimators.EpisodicEstimator` over ``policy``, or a
-            :class:`~sde_torchrl.pgpe_estimator.PGPEEstimator` (``explorer=pgpe``).
+        estimator: an :class:`~sde_torchrl.objectives.estimators.EpisodicEstimator` over ``policy``, or a
+            :class:`~sde_torchrl.objectives.pgpe.PGPEEstimator` (``explorer=pgpe``).
         optimizer: optimiser over the policy's parameters (``SGD(lr=α)`` is eq. 1); an
             element-wise one (SGD, momentum, Adam) keeps stacked runs independent.
         settings: the job's :class:`TrainingSettings`.
@@ -60,7 +60,7 @@ class Trainer:
         lr_schedule: sets the optimiser's learning rate before each update (``None``: constant).
 
     Examples:
-        See ``train.py`` and :func:`sde_torchrl.build.build_trainer`.
+        See ``train.py`` and :func:`sde_torchrl.config.build.build_trainer`.
     """
 
     def __init__(
@@ -77,7 +77,7 @@ class Trainer:
 
     def _rollout(self, env: EnvBase) -> TensorDictBase:
         """Whole episodes on ``env`` by the fastest path that gives ``env.rollout``'s episodes
-        (:func:`~sde_torchrl.rollout.collect_episodes`; ``tensor_rollout=False`` forces ``env.rollout``)."""
+        (:func:`~sde_torchrl.collectors.rollout.collect_episodes`; ``tensor_rollout=False`` forces ``env.rollout``)."""
         return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
 
     def collect(self) -> TensorDictBase:
@@ -139,11 +139,11 @@ class Trainer:
             out_dir: the run directory (Hydra's output directory in ``train.py``).
             labels: entries that head ``summary.json`` (config choices, seed, the config).
             config: the job's resolved config, stored in the checkpoint; a checkpoint written
-                under a config that differs (outside :data:`~sde_torchrl.checkpoint.NON_RESULT_KEYS`)
+                under a config that differs (outside :data:`~sde_torchrl.jobs.checkpoint.NON_RESULT_KEYS`)
                 is refused. ``None`` skips the check.
             checkpoint_period: also checkpoint every this many updates (0: only at the end and
                 on Ctrl-C).
-            progress: show a progress bar (:mod:`sde_torchrl.progress`).
+            progress: show a progress bar (:mod:`sde_torchrl.trainers.progress`).
 
         Returns:
             The summary (also written to ``summary.json``).
@@ -151,7 +151,7 @@ class Trainer:
         Raises:
             NonFiniteError: a non-finite value; ``metrics.csv`` keeps the updates before it.
             TrainingInterrupted: on Ctrl-C, SIGTERM or SIGUSR2, after saving a checkpoint
-                (:mod:`~sde_torchrl.interrupt`).
+                (:mod:`~sde_torchrl.trainers.interrupt`).
             CheckpointMismatchError: ``out_dir`` holds another job's checkpoint.
             RunDirectoryInUse: another process holds ``out_dir`` (nothing is changed).
             DamagedFileError: ``checkpoint.pt`` or ``metrics.csv`` is damaged (nothing is resumed).

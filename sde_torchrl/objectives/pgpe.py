@@ -35,8 +35,8 @@ from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.objectives import LossModule
 
-from sde_torchrl.checks import batch_entries, one_of
-from sde_torchrl.estimators import (
+from sde_torchrl.modules.pgpe import ParameterExplorer
+from sde_torchrl.objectives.estimators import (
     EPISODE_RETURNS,
     EpisodesError,
     MissingEpisodesKeyError,
@@ -46,7 +46,7 @@ from sde_torchrl.estimators import (
     episode_returns,
     rescale_largest_entry,
 )
-from sde_torchrl.pgpe import ParameterExplorer
+from sde_torchrl.utils.checks import batch_entries, one_of
 
 
 def batch_mean_baseline(returns: torch.Tensor) -> torch.Tensor:
@@ -142,7 +142,7 @@ POLICY_FORM = "TensorDictSequential(actor, ParameterExplorer(actor))"
 
 class PGPEEstimator(LossModule):
     """PGPE's estimate of the gradient of ``μ`` (the actor's parameters) and ``σ`` (the
-    explorer's), from whole episodes collected with a :class:`~sde_torchrl.pgpe.ParameterExplorer`.
+    explorer's), from whole episodes collected with a :class:`~sde_torchrl.modules.pgpe.ParameterExplorer`.
 
     Reads each episode's parameters ``θ`` (``pgpe_parameters`` at its first step) and its
     return, and estimates with :func:`pgpe_gradient`, or :func:`symmetric_pgpe_gradient` when
@@ -169,8 +169,8 @@ class PGPEEstimator(LossModule):
         >>> import torch
         >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, make_minimize_env
-        >>> from sde_torchrl.pgpe import ParameterExplorer
-        >>> from sde_torchrl.rollout import collect_episodes
+        >>> from sde_torchrl.modules.pgpe import ParameterExplorer
+        >>> from sde_torchrl.collectors.rollout import collect_episodes
         >>> actor = LinearActor(1, 1, init=-2.0)
         >>> explorer = ParameterExplorer(actor)
         >>> env = make_minimize_env(5, episodes=8).append_transform(explorer.make_tensordict_primer())
@@ -301,7 +301,7 @@ class PGPEEstimator(LossModule):
         if bool(changes.any()):
             raise EpisodesError(f"episodes key {key!r} changes within a row: each row of [*runs, N, T] must be one "
                                 "whole episode of one parameter draw; collect them with "
-                                "sde_torchrl.rollout.collect_episodes(env, policy, T)", key)
+                                "sde_torchrl.collectors.rollout.collect_episodes(env, policy, T)", key)
 
     def forward(self, episodes: TensorDictBase) -> TensorDictBase:
         """Estimates one gradient per run from the episodes.

@@ -60,12 +60,12 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
-from sde_torchrl._shapes import align
-from sde_torchrl.actors import BatchedLinear
-from sde_torchrl.checks import positive_int
-from sde_torchrl.distribution import gaussian_log_prob
-from sde_torchrl.exploration import deterministic_exploration
-from sde_torchrl.rng import RunStreams, draw_normal
+from sde_torchrl.modules.actors import BatchedLinear
+from sde_torchrl.modules.distribution import gaussian_log_prob
+from sde_torchrl.modules.exploration import deterministic_exploration
+from sde_torchrl.utils.checks import positive_int
+from sde_torchrl.utils.rng import RunStreams, draw_normal
+from sde_torchrl.utils.shapes import align
 
 #: Keys under which a :class:`TensorStepEnv`'s steps are written, TorchRL's defaults.
 OBSERVATION_KEY, REWARD_KEY, DONE_KEY, TRUNCATED_KEY = "observation", "reward", "done", "truncated"
@@ -114,7 +114,7 @@ class LinearEpisodeEnv(TensorStepEnv, Protocol):
 @runtime_checkable
 class TensorExplorer(Protocol):
     """The exploration step on tensors and the keys of its outputs
-    (:class:`~sde_torchrl.exploration.StateDependentExplorer`)."""
+    (:class:`~sde_torchrl.modules.exploration.StateDependentExplorer`)."""
 
     loc_key: str
     feature_key: str
@@ -250,7 +250,7 @@ def linear_episode_env(env: EnvBase, policy: TensorDictSequential) -> LinearEpis
     """The env to hand to :func:`linear_episode_rollout`, or ``None``.
 
     That needs what :func:`tensor_step_env` needs, an env that is a :class:`LinearEpisodeEnv`,
-    an actor whose network is a bias-free :class:`~sde_torchrl.actors.BatchedLinear` stacked like
+    an actor whose network is a bias-free :class:`~sde_torchrl.modules.actors.BatchedLinear` stacked like
     the explorer, and an :class:`EpisodeExplorer` with the ``episode`` (SDE, the paper's
     ball-catching controller) or ``step`` (REX) schedule and no Gaussian noise.
     """

@@ -19,12 +19,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from sde_torchrl.checks import ArgumentError
+from sde_torchrl.utils.checks import ArgumentError
 
 LOCK = ".lock"
 
 #: Run directories this process holds: resolved path → (pid, descriptor, depth). Nested holds
-#: (``train.py`` around :meth:`~sde_torchrl.trainer.Trainer.train`) share the one lock.
+#: (``train.py`` around :meth:`~sde_torchrl.trainers.trainer.Trainer.train`) share the one lock.
 _HELD: dict[Path, tuple[int, int, int]] = {}
 
 

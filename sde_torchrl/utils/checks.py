@@ -91,7 +91,7 @@ def finite_entries(name: str, value: Any, labels: Sequence[str], fix: str) -> No
         >>> finite_entries("action", torch.tensor([[0.0], [float("nan")]]), ("episode",), "check the policy")
         Traceback (most recent call last):
         ...
-        sde_torchrl.checks.NonFiniteInputError: action: NaN/inf in episode 1; check the policy
+        sde_torchrl.utils.checks.NonFiniteInputError: action: NaN/inf in episode 1; check the policy
     """
     finite = value.isfinite()
     if bool(finite.all()):

@@ -24,10 +24,10 @@ from torch import nn
 from torch.func import functional_call, grad, vmap
 from torchrl.objectives import LossModule
 
-from sde_torchrl.checks import NonFiniteInputError, batch_entries, one_of
-from sde_torchrl.distribution import SDENormal, TanhSDENormal
-from sde_torchrl.exploration import SDESigma, StateDependentExplorer
-from sde_torchrl.sde_actor import SDEParams
+from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal
+from sde_torchrl.modules.exploration import SDESigma, StateDependentExplorer
+from sde_torchrl.modules.sde_actor import SDEParams
+from sde_torchrl.utils.checks import NonFiniteInputError, batch_entries, one_of
 
 
 class EpisodesError(ValueError):
@@ -89,7 +89,7 @@ class PolicyParts:
 
     Attributes:
         actor: the modules before the SDE module (they write ``loc``).
-        sde: the :class:`~sde_torchrl.exploration.SDESigma` (explorer or ``SDEParams``) holding ``σ̂``.
+        sde: the :class:`~sde_torchrl.modules.exploration.SDESigma` (explorer or ``SDEParams``) holding ``σ̂``.
         sample_key: where the episodes hold the (pre-squash) action the likelihood scores.
         is_init_key: the episode-start flags.
     """
@@ -106,7 +106,7 @@ def policy_parts(policy: object) -> PolicyParts:
 
     Two forms are accepted: this library's ``TensorDictSequential(actor, explorer)`` (the
     explorer draws the noise and stores the pre-squash ``action_sample``) and TorchRL's
-    ``ProbabilisticActor`` built by :func:`~sde_torchrl.sde_actor.make_sde_actor` without
+    ``ProbabilisticActor`` built by :func:`~sde_torchrl.modules.sde_actor.make_sde_actor` without
     ``squash`` (the env's primer draws the noise; the action is the sample). A squashed
     ``TanhSDENormal`` policy is refused: its stored action is the squashed one.
 
@@ -170,8 +170,8 @@ class EpisodeLogLikelihood(nn.Module):
     """``log p(episode) = Σ_t log π(u_t | x_t)`` up to policy-free terms (eqs. 8, 9, 13, 20).
 
     Wraps a policy ``TensorDictSequential(actor, explorer)`` whose last module is a
-    :class:`~sde_torchrl.exploration.StateDependentExplorer`, or the unsquashed
-    ``ProbabilisticActor`` of :func:`~sde_torchrl.sde_actor.make_sde_actor` (:func:`policy_parts`);
+    :class:`~sde_torchrl.modules.exploration.StateDependentExplorer`, or the unsquashed
+    ``ProbabilisticActor`` of :func:`~sde_torchrl.modules.sde_actor.make_sde_actor` (:func:`policy_parts`);
     the actor's output ``loc`` and the ``σ̂`` module's likelihood are recomputed from the stored
     observations and pre-squash actions (``action_sample`` for the explorer, the action for the
     ``ProbabilisticActor``). The keys it reads are the policy's until :meth:`set_keys` renames them.
@@ -435,7 +435,7 @@ class EpisodicEstimator(LossModule):
 
     Args:
         policy: ``TensorDictSequential(actor, explorer)`` or the unsquashed ``ProbabilisticActor``
-            of :func:`~sde_torchrl.sde_actor.make_sde_actor`, the policy being trained.
+            of :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`, the policy being trained.
         max_grad_norm: if set, each run's gradient is rescaled to at most this norm before the
             update (off by default: the paper's update is plain gradient ascent; the authors'
             own code bounded large gradients). ``gradient_norm`` reports the norm before.
@@ -451,7 +451,7 @@ class EpisodicEstimator(LossModule):
         allow_nonfinite: let NaN/infinity in the episodes, scores and gradient through (the
             estimate is then NaN for the runs concerned) instead of raising
             :class:`NonFiniteEpisodesError`. The trainer sets it: its
-            :class:`~sde_torchrl.guard.FiniteGuard` checks the same values and names the update.
+            :class:`~sde_torchrl.trainers.guard.FiniteGuard` checks the same values and names the update.
 
     Input contract (:meth:`check_episodes`, at every forward pass): episodes shaped
     ``[*runs, N, T]`` with ``N, T >= 1``, features ``[*runs, N, T, S]`` and action samples
@@ -472,7 +472,7 @@ class EpisodicEstimator(LossModule):
         >>> import torch
         >>> from tensordict.nn import TensorDictSequential
         >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
-        >>> from sde_torchrl.rollout import collect_episodes
+        >>> from sde_torchrl.collectors.rollout import collect_episodes
         >>> explorer = StateDependentExplorer(1, 1)
         >>> env = make_minimize_env(5, episodes=4).append_transform(explorer.make_tensordict_primer())
         >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
@@ -481,7 +481,7 @@ class EpisodicEstimator(LossModule):
         >>> ReinforceEstimator(policy)(episodes)
         Traceback (most recent call last):
         ...
-        sde_torchrl.estimators.NonFiniteEpisodesError: episodes key 'observation': NaN/inf in episode 2; ...
+        sde_torchrl.objectives.estimators.NonFiniteEpisodesError: episodes key 'observation': NaN/inf in episode 2; ...
     """
 
     @dataclass
@@ -585,7 +585,8 @@ class EpisodicEstimator(LossModule):
         if len(shape) < 2 or 0 in shape:
             raise EpisodesError(
                 f"episodes have batch shape {shape}; the estimators need [*runs, N, T] with N >= 1 episodes "
-                "of T >= 1 steps (sde_torchrl.rollout.collect_episodes(env, policy, T) gives [*env.batch_size, T])")
+                "of T >= 1 steps (sde_torchrl.collectors.rollout.collect_episodes(env, policy, T) gives "
+                "[*env.batch_size, T])")
         keys = self.tensor_keys
         for key in self.in_keys:
             if episodes.get(key, None) is None:
@@ -634,7 +635,8 @@ class EpisodicEstimator(LossModule):
         raise EpisodesError(
             f"episodes row {row} holds more than one episode: {what} at step {first[-1]} of "
             f"{episodes.batch_size[-1]} ({key!r} is set there); the estimators take each row of [*runs, N, T] as "
-            "one whole episode. Collect whole episodes of T steps: sde_torchrl.rollout.collect_episodes(env, "
+            "one whole episode. Collect whole episodes of T steps: "
+            "sde_torchrl.collectors.rollout.collect_episodes(env, "
             "policy, T), or "
             "env.rollout(T, policy, break_when_any_done=False) on an env with StepCounter(T)", key)
 

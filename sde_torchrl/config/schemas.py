@@ -5,7 +5,7 @@ under ``schema/<group>/<option>`` (the YAML files list it first in their default
 what differs from it), and the top-level config by ``schema/config``. Hydra then rejects unknown
 keys and wrong types while composing; :func:`validate`
 converts the composed config once into these dataclasses, whose ``__post_init__`` checks the
-values (positive counts, allowed strings, options that only make sense together) with :mod:`sde_torchrl.checks`.
+values (positive counts, allowed strings, options that only make sense together) with :mod:`sde_torchrl.utils.checks`.
 Every failure is turned into one line by :func:`describe_error`: ``<key>=<value>: <what is
 allowed>``.
 """
@@ -19,7 +19,9 @@ from typing import Any, List, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
-from sde_torchrl.checks import (
+from sde_torchrl.jobs.resources import check_memory, launcher_request
+from sde_torchrl.trainers.optim import LR_SCHEDULES
+from sde_torchrl.utils.checks import (
     ArgumentError,
     finite,
     fraction,
@@ -30,8 +32,6 @@ from sde_torchrl.checks import (
     positive_int,
     show,
 )
-from sde_torchrl.optim import LR_SCHEDULES
-from sde_torchrl.resources import check_memory, launcher_request
 
 # ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP006, UP007, UP035, UP045
@@ -205,7 +205,7 @@ class LinearActorConf:
         [-0.1, 0.1]
     """
 
-    _target_: str = "sde_torchrl.actors.LinearActor"
+    _target_: str = "sde_torchrl.modules.actors.LinearActor"
     bias: bool = False
     init: Any = -2.0
 
@@ -229,7 +229,7 @@ class MLPActorConf:
         [3]
     """
 
-    _target_: str = "sde_torchrl.actors.MLPActor"
+    _target_: str = "sde_torchrl.modules.actors.MLPActor"
     hidden: List[int] = field(default_factory=lambda: [3])
     activation: str = "sigmoid"
     bias: bool = True
@@ -271,7 +271,7 @@ class ExplorerConf:
         5
     """
 
-    _target_: str = "sde_torchrl.exploration.StateDependentExplorer"
+    _target_: str = "sde_torchrl.modules.exploration.StateDependentExplorer"
     schedule: str = "episode"
     every_n: Optional[int] = None
     sharing: str = "element"
@@ -295,7 +295,7 @@ class ExplorerConf:
 @dataclass
 class PGPEExplorerConf:
     """``explorer=pgpe``: PGPE's parameter sampling, ``θ ~ N(μ, diag(σ²))`` once per episode
-    (Sehnke et al. 2010; :class:`~sde_torchrl.pgpe.ParameterExplorer`), with ``estimator=pgpe``.
+    (Sehnke et al. 2010; :class:`~sde_torchrl.modules.pgpe.ParameterExplorer`), with ``estimator=pgpe``.
 
     Attributes:
         symmetric: symmetric sampling ``θ± = μ ± ε`` over pairs of episodes (section 2.3);
@@ -310,7 +310,7 @@ class PGPEExplorerConf:
         True
     """
 
-    _target_: str = "sde_torchrl.pgpe.ParameterExplorer"
+    _target_: str = "sde_torchrl.modules.pgpe.ParameterExplorer"
     symmetric: bool = True
     init_param: float = -2.0
     learn_sigma: bool = True
@@ -326,7 +326,7 @@ class EstimatorConf:
     baseline, the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``), GPOMDP (each
     reward credited to the actions before it, with the time-dependent optimal baseline), or PGPE
     (the likelihood-ratio gradient of ``explorer=pgpe``'s parameter distribution, with the batch's
-    mean return as baseline; :class:`~sde_torchrl.pgpe_estimator.PGPEEstimator`).
+    mean return as baseline; :class:`~sde_torchrl.objectives.pgpe.PGPEEstimator`).
 
     Attributes:
         max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
@@ -343,7 +343,7 @@ class EstimatorConf:
         100.0
     """
 
-    _target_: str = "sde_torchrl.estimators.ReinforceEstimator"
+    _target_: str = "sde_torchrl.objectives.estimators.ReinforceEstimator"
     max_grad_norm: Optional[float] = None
     max_grad_entry: Optional[float] = None
     episode_return: str = "mean"
@@ -368,7 +368,7 @@ class SGDOptimizerConf:
         momentum: ``β`` in ``[0, 1)``; 0 is eq. 1.
         nesterov: Nesterov's variant (needs ``momentum > 0``).
         lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay
-            (:func:`sde_torchrl.optim.lr_factor`).
+            (:func:`sde_torchrl.trainers.optim.lr_factor`).
         final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
 
     Examples:
@@ -520,7 +520,7 @@ class TrainConf:
         progress: progress bar; ``null``: only on a terminal and outside a multirun.
         threads: torch intra-op threads per job (a job is a sequence of small ops; the jobs of a
             sweep share the cores).
-        max_memory_gb: refuse a job whose estimated memory (:mod:`sde_torchrl.resources`) exceeds
+        max_memory_gb: refuse a job whose estimated memory (:mod:`sde_torchrl.jobs.resources`) exceeds
             this; ``null``: the memory the machine has available when the job starts.
 
     Examples:
@@ -603,7 +603,7 @@ def _check_can_learn(conf: TrainConf) -> None:
     each step's reward): with one episode per update and no queue, every gradient is exactly 0.
     ENAC with fewer episodes than parameters + 1 is not refused: its regression is rank-deficient, but the minimum-norm
     solution it then takes is not zero, only noisy: a warning once the parameters are counted
-    (:func:`sde_torchrl.build.warn_if_rank_deficient`).
+    (:func:`sde_torchrl.config.build.warn_if_rank_deficient`).
     """
     target = getattr(conf.estimator, "_target_", "") or ""
     name = next((n for suffix, n in BASELINE_ESTIMATORS.items() if target.endswith(suffix)), None)
@@ -649,7 +649,7 @@ def register_resolvers() -> None:
     """Config resolvers and the config schemas (:func:`register_configs`): call before composing
     a config. The resolvers: ``${midway_r_lim:T,x0,s,noise_std,theta0}`` (``midway_threshold``);
     ``${sde_memory_gb:}``, ``${sde_memory_bytes:}`` and ``${sde_time_min:}``, a launcher's request
-    for the job (:func:`~sde_torchrl.resources.launcher_request`). Light: torch is imported when a
+    for the job (:func:`~sde_torchrl.jobs.resources.launcher_request`). Light: torch is imported when a
     value is resolved, not here (``train.py`` locks its run directory before importing torch)."""
     register_configs()
 
@@ -689,7 +689,7 @@ def validate(cfg: DictConfig) -> TrainConf:
 def describe_error(error: BaseException) -> str | None:
     """One line ``<key>=<value>: <what is allowed>`` for a config error, else ``None``.
 
-    Understands :class:`~sde_torchrl.checks.ArgumentError` (the schemas' checks), Hydra's unknown
+    Understands :class:`~sde_torchrl.utils.checks.ArgumentError` (the schemas' checks), Hydra's unknown
     group options and override errors and OmegaConf's validation errors (wrong type, unknown
     key), also when wrapped by Hydra.
     """

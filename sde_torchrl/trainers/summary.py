@@ -106,7 +106,7 @@ def summarize(
 
     Args:
         state: the finished loop's record.
-        settings: the job's :class:`~sde_torchrl.trainer.TrainingSettings` (a dataclass).
+        settings: the job's :class:`~sde_torchrl.trainers.trainer.TrainingSettings` (a dataclass).
         policy: the trained policy (its parameters carry a leading ``[runs]`` dimension).
         episodes_after: episodes each run has collected by the end of a (0-based) update.
     """

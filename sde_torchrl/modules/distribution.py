@@ -4,7 +4,7 @@ The functions here are the single home of SDE's per-step maths: the exploration 
 ``Θ̂ = σ̂ ⊙ ξ`` (:func:`noise_matrix`, eq. 18), the action ``u = loc + Θ̂ x [+ σ_gauss ε]``
 (:func:`sde_sample`, eqs. 17-19, 22), its per-action variance (:func:`sde_variance`, eqs. 20, 22)
 and the Gaussian log-likelihood (:func:`gaussian_log_prob`, eq. 13).
-:class:`~sde_torchrl.exploration.StateDependentExplorer`, the episodic estimators and the fast
+:class:`~sde_torchrl.modules.exploration.StateDependentExplorer`, the episodic estimators and the fast
 rollout paths call them as :class:`SDENormal` does.
 
 TorchRL's PPO, A2C and SAC losses rebuild the policy's distribution from stored tensordict
@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch.distributions import Distribution, constraints
 
-from sde_torchrl._shapes import compact_broadcast, stacked_matvec
+from sde_torchrl.utils.shapes import compact_broadcast, stacked_matvec
 
 #: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
 MIN_VARIANCE = 1e-12
@@ -118,7 +118,7 @@ def sde_variance(
             ``[*, A]``, or ``None`` for pure SDE.
         run_dims: ``None`` for broadcasting; else the number of leading run dimensions of
             ``sigma_hat`` (0 or 1), computed as one matrix product per run
-            (:func:`~sde_torchrl._shapes.stacked_matvec`) over whole episodes.
+            (:func:`~sde_torchrl.utils.shapes.stacked_matvec`) over whole episodes.
 
     Returns:
         ``σ²`` of shape ``[*, A]``, floored at :data:`MIN_VARIANCE` (at ``x = 0`` SDE adds no

@@ -20,7 +20,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from sde_torchrl.checks import fraction, one_of, positive_int
+from sde_torchrl.utils.checks import fraction, one_of, positive_int
 
 if TYPE_CHECKING:  # torch is imported when an optimiser is made: the config schemas read this module
     import torch

@@ -1,13 +1,13 @@
 """A job's run directory: which files it holds, and how each is written and checked.
 
-- ``.lock``: held by the one process working in the directory (:mod:`sde_torchrl.lock`);
+- ``.lock``: held by the one process working in the directory (:mod:`sde_torchrl.jobs.lock`);
 - ``metrics.csv``: one row per (run, update), flushed as written (:class:`MetricsFile`); on
   resume, its rows up to the checkpoint must be exactly those the checkpoint recorded
   (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
 - ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
 - ``job_config.json``: the config the rows were written under, so that a rerun with another
   config is refused before the first checkpoint as after it;
-- ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.checkpoint`;
+- ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.jobs.checkpoint`;
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
 
@@ -32,13 +32,19 @@ from typing import Any
 
 import torch
 
-from sde_torchrl.checkpoint import CHECKPOINT, PREVIOUS, CheckpointMismatchError, config_differences, load_checkpoint
-from sde_torchrl.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
-from sde_torchrl.lock import held_by, hold_run_directory, make_run_directory
+from sde_torchrl.jobs.checkpoint import (
+    CHECKPOINT,
+    PREVIOUS,
+    CheckpointMismatchError,
+    config_differences,
+    load_checkpoint,
+)
+from sde_torchrl.jobs.lock import held_by, hold_run_directory, make_run_directory
+from sde_torchrl.utils.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
 
 log = logging.getLogger(__name__)
 
-#: The exploration state after each update (:func:`~sde_torchrl.summary.exploration_state`).
+#: The exploration state after each update (:func:`~sde_torchrl.trainers.summary.exploration_state`).
 EXPLORATION_FIELDS = ("sigma_min", "sigma_max", "weight_max")
 METRIC_FIELDS = ("run", "update", "episodes", "return_mean", "eval_return", "grad_norm", *EXPLORATION_FIELDS)
 
@@ -117,7 +123,7 @@ class RunDirectory:
         return self.checkpoint.exists()
 
     def lock(self) -> AbstractContextManager[None]:
-        """Holds the directory for this process (:func:`~sde_torchrl.lock.hold_run_directory`).
+        """Holds the directory for this process (:func:`~sde_torchrl.jobs.lock.hold_run_directory`).
 
         Raises:
             RunDirectoryInUse: another live process holds it.
@@ -256,7 +262,7 @@ def read_finished_run(path: str | os.PathLike) -> FinishedRun:
         >>> read_finished_run(tempfile.mkdtemp())  # doctest: +ELLIPSIS
         Traceback (most recent call last):
         ...
-        sde_torchrl.run_dir.UnfinishedRunError: ... is not a finished run: it has no summary.json; ...
+        sde_torchrl.jobs.run_dir.UnfinishedRunError: ... is not a finished run: it has no summary.json; ...
     """
     path = Path(path)
     again = "run the job's command again to finish it (it resumes from its checkpoint)"

@@ -12,8 +12,8 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-from sde_torchrl.estimators import EpisodicEstimator
-from sde_torchrl.pgpe_estimator import PGPEEstimator
+from sde_torchrl.objectives.estimators import EpisodicEstimator
+from sde_torchrl.objectives.pgpe import PGPEEstimator
 
 
 class NonFiniteError(RuntimeError):
@@ -57,7 +57,7 @@ class FiniteGuard:
         first_run: global index of the job's first run.
 
     Examples:
-        See :meth:`sde_torchrl.trainer.Trainer.update`.
+        See :meth:`sde_torchrl.trainers.trainer.Trainer.update`.
     """
 
     def __init__(self, policy: nn.Module, estimator: EpisodicEstimator | PGPEEstimator, runs: int,

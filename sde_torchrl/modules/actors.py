@@ -16,9 +16,9 @@ from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import nn
 
-from sde_torchrl._shapes import align, stacked_matvec
-from sde_torchrl.checks import one_of, positive_int
-from sde_torchrl.rng import RunStreams, draw_uniform
+from sde_torchrl.utils.checks import one_of, positive_int
+from sde_torchrl.utils.rng import RunStreams, draw_uniform
+from sde_torchrl.utils.shapes import align, stacked_matvec
 
 ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "relu": torch.relu}
 

@@ -30,7 +30,7 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
-from sde_torchrl.checks import ArgumentError
+from sde_torchrl.utils.checks import ArgumentError
 
 GB = 1e9
 #: Interpreter, torch, TorchRL and pybullet loaded, one job built with a single small run.
@@ -94,7 +94,7 @@ def _dimensions(env: Any) -> tuple[int, int, bool]:
 
 
 def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
-    """The memory a job with config ``conf`` (a :class:`~sde_torchrl.config.TrainConf`) holds.
+    """The memory a job with config ``conf`` (a :class:`~sde_torchrl.config.schemas.TrainConf`) holds.
 
     Args:
         conf: the job's config (``runs``, ``episodes_per_update``, ``episode_queue``,
@@ -109,7 +109,7 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
         >>> from types import SimpleNamespace as Conf
         >>> env = Conf(_target_="sde_torchrl.envs.ballcatch.batched.make_ballcatch_env", episode_length=500)
         >>> job = Conf(runs=50, episodes_per_update=1, episode_queue=20, eval_episodes=3, env=env,
-        ...            estimator=Conf(_target_="sde_torchrl.estimators.ReinforceEstimator"))
+        ...            estimator=Conf(_target_="sde_torchrl.objectives.estimators.ReinforceEstimator"))
         >>> estimate_memory(job).total_gb
         6.38
     """
@@ -150,7 +150,8 @@ def launcher_request(conf: Any) -> dict[str, int]:
         >>> from types import SimpleNamespace as Conf
         >>> env = Conf(_target_="sde_torchrl.envs.ballcatch.batched.make_ballcatch_env", episode_length=500)
         >>> job = Conf(runs=50, updates=500, episodes_per_update=1, episode_queue=20, eval_episodes=3,
-        ...            eval_period=20, env=env, estimator=Conf(_target_="sde_torchrl.estimators.ReinforceEstimator"))
+        ...            eval_period=20, env=env,
+        ...            estimator=Conf(_target_="sde_torchrl.objectives.estimators.ReinforceEstimator"))
         >>> launcher_request(job)
         {'mem_gb': 9, 'timeout_min': 162}
     """

@@ -7,9 +7,9 @@ from typing import Any
 
 import torch
 
-from sde_torchrl.progress import Progress, RateMeter
+from sde_torchrl.trainers.progress import Progress, RateMeter
 
-log = logging.getLogger("sde_torchrl.trainer")
+log = logging.getLogger("sde_torchrl.trainers.trainer")
 
 
 class Reporter:
@@ -20,9 +20,9 @@ class Reporter:
         updates: the job's number of updates.
         done: updates already done (a resumed job).
         steps_per_update: env steps of one update (all runs), for the speed figure.
-        progress: show a progress bar (:mod:`sde_torchrl.progress`).
+        progress: show a progress bar (:mod:`sde_torchrl.trainers.progress`).
         per_step: the factor to the paper's mean reward per step
-            (:func:`~sde_torchrl.summary.per_step_factor`); unless 1, the log line adds the returns
+            (:func:`~sde_torchrl.trainers.summary.per_step_factor`); unless 1, the log line adds the returns
             in those units.
 
     Examples:

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from sde_torchrl.checks import positive_int
+from sde_torchrl.utils.checks import positive_int
 
 #: Purposes that get their own stream in every run.
 STREAMS = ("init", "explore", "env", "eval_env")

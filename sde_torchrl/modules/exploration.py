@@ -8,9 +8,9 @@ with its own ``σ = expln(q)`` can be added on top (22).
 
 :class:`SDESigma` holds those parameters and the per-step Gaussian they define; it is shared by
 :class:`StateDependentExplorer` (which samples by itself, for the episodic estimators) and
-:class:`~sde_torchrl.sde_actor.SDEParams` (which writes them for
-:class:`~sde_torchrl.distribution.SDENormal`, for TorchRL's losses). The maths of both lives in
-:mod:`sde_torchrl.distribution`.
+:class:`~sde_torchrl.modules.sde_actor.SDEParams` (which writes them for
+:class:`~sde_torchrl.modules.distribution.SDENormal`, for TorchRL's losses). The maths of both lives in
+:mod:`sde_torchrl.modules.distribution`.
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, TensorDictPrimer
 from torchrl.envs.utils import ExplorationType, exploration_type
 
-from sde_torchrl._shapes import align
-from sde_torchrl.checks import ArgumentError, one_of, positive_int
-from sde_torchrl.distribution import gaussian_log_prob, noise_matrix, sde_sample, sde_variance
-from sde_torchrl.rng import RunStreams, draw_normal
+from sde_torchrl.modules.distribution import gaussian_log_prob, noise_matrix, sde_sample, sde_variance
+from sde_torchrl.utils.checks import ArgumentError, one_of, positive_int
+from sde_torchrl.utils.rng import RunStreams, draw_normal
+from sde_torchrl.utils.shapes import align
 
 SCHEDULES = ("episode", "step", "every_n")
 SHARINGS = ("element", "action", "single")
@@ -106,9 +106,9 @@ class SDESigma(TensorDictModuleBase):
     features ``x``, the action is Gaussian around the controller's mean with
     ``σ_j² = Σ_i (x_i σ̂_ji)² [+ σ_gauss_j²]`` (eq. 20): :meth:`scale` and :meth:`log_prob`.
 
-    The base of :class:`StateDependentExplorer` and :class:`~sde_torchrl.sde_actor.SDEParams`,
+    The base of :class:`StateDependentExplorer` and :class:`~sde_torchrl.modules.sde_actor.SDEParams`,
     which add a ``forward`` (and their keys): both explore with the same parameters, under the
-    same names, through the same maths (:mod:`sde_torchrl.distribution`).
+    same names, through the same maths (:mod:`sde_torchrl.modules.distribution`).
 
     Args:
         action_dim: ``A``, size of the action.
@@ -127,7 +127,7 @@ class SDESigma(TensorDictModuleBase):
         feature_key: the features ``x`` that ``Θ̂`` sees.
 
     Attributes:
-        streams: per-run :class:`~sde_torchrl.rng.RunStreams` for the noise draws when runs are
+        streams: per-run :class:`~sde_torchrl.utils.rng.RunStreams` for the noise draws when runs are
             stacked (the data's leading batch dimension); ``None``: torch's global generator.
 
     Raises:
@@ -219,7 +219,7 @@ class SDESigma(TensorDictModuleBase):
         Autograd of this through ``loc`` and ``σ̂`` gives the paper's scores (14), (16) and (21)
         with the ``expln'`` factor (24). With squashing, scoring the pre-squash sample is exact:
         the tanh Jacobian does not depend on the parameters. The same number as
-        :meth:`SDENormal.log_prob <sde_torchrl.distribution.SDENormal.log_prob>` of ``sample``.
+        :meth:`SDENormal.log_prob <sde_torchrl.modules.distribution.SDENormal.log_prob>` of ``sample``.
 
         Args:
             loc: controller mean, ``[*batch, A]``.
@@ -264,17 +264,17 @@ class StateDependentExplorer(SDESigma):
     paper emulates random exploration this way), ``"every_n"`` every ``n`` steps (gSDE's
     sampling frequency). Where the noise is missing from the input it is drawn. The draws use
     torch's global generator, or per-run streams (``streams``, a
-    :class:`~sde_torchrl.rng.RunStreams` over the leading batch dimension) when runs are stacked.
+    :class:`~sde_torchrl.utils.rng.RunStreams` over the leading batch dimension) when runs are stacked.
 
     Under ``ExplorationType.DETERMINISTIC`` (or ``MODE``/``MEAN``) no noise is added: the action
     is ``squash(loc)``. The noise matrix still travels with the episode, untouched.
 
     Its parameters, :meth:`scale` and :meth:`log_prob` are :class:`SDESigma`'s, shared with
-    :class:`~sde_torchrl.sde_actor.SDEParams`, and its sample is
-    :func:`~sde_torchrl.distribution.sde_sample`: given the same ``ξ``, the action and its
-    log-prob are those of :class:`~sde_torchrl.distribution.SDENormal`. It samples by itself
+    :class:`~sde_torchrl.modules.sde_actor.SDEParams`, and its sample is
+    :func:`~sde_torchrl.modules.distribution.sde_sample`: given the same ``ξ``, the action and its
+    log-prob are those of :class:`~sde_torchrl.modules.distribution.SDENormal`. It samples by itself
     (what the episodic estimators and the fast rollout paths need); TorchRL's PPO, A2C and SAC
-    losses need the distribution form, :func:`~sde_torchrl.sde_actor.make_sde_actor`.
+    losses need the distribution form, :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`.
 
     Args:
         action_dim: ``A``, size of the action.
