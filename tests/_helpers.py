@@ -79,3 +79,13 @@ def crash_at(trainer, at: int) -> None:
         return original(episodes, k)
 
     trainer.update = crashing_update
+
+
+def sde_policy(actor, action_dim: int, feature_dim: int, *, squash: bool = False, **sde_options):
+    """``(policy, sde)``: the SDE policy over ``actor`` as the trainer builds it
+    (``make_sde_actor`` with ``SDEParams(action_dim, feature_dim, **sde_options)``; ``squash`` is
+    tanh onto ``[-1, 1]``). Append ``sde.make_tensordict_primer()`` to the env."""
+    from sde_torchrl import SDEParams, make_sde_actor
+
+    sde = SDEParams(action_dim, feature_dim, **sde_options)
+    return make_sde_actor(actor, sde, squash=squash, low=-1.0, high=1.0), sde

@@ -7,8 +7,6 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
 
-from sde_torchrl.modules import actors, exploration
-from sde_torchrl.objectives import estimators
 from sde_torchrl.config.schemas import (
     ACTIVATIONS,
     EPISODE_RETURNS,
@@ -19,6 +17,8 @@ from sde_torchrl.config.schemas import (
     validate,
 )
 from sde_torchrl.envs import minimize
+from sde_torchrl.modules import actors, exploration
+from sde_torchrl.objectives import estimators
 from sde_torchrl.utils.checks import ArgumentError
 
 

@@ -10,9 +10,9 @@ import time
 import pytest
 from _helpers import build, compose_config, own_stderr_lines, run_cli
 
-from sde_torchrl.trainers import trainer as trainer_module
 from sde_torchrl.config.schemas import describe_error, validate
 from sde_torchrl.jobs.resources import GB, estimate_memory
+from sde_torchrl.trainers import trainer as trainer_module
 
 
 @pytest.mark.parametrize("override, key", [("runs=1000000", "runs"),

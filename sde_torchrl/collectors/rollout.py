@@ -12,37 +12,41 @@ eligibility function accepts the env and the policy:
    each step's action is a linear map known before the episode starts: ``Θ + σ̂ ⊙ ξ`` for the
    whole episode or ``Θ + σ̂ ⊙ ξ_t`` at step ``t`` (eqs. 17-19, :func:`episode_matrix`); an env
    that is a :class:`LinearEpisodeEnv` runs every world's whole episode under its maps, and
-   ``loc``, ``scale`` and the likelihoods are computed for all steps at once.
+   ``loc`` and the likelihoods are computed for all steps at once.
 2. **Tensor stepping** (:func:`tensor_step_env`, :func:`tensor_rollout`): the env is a
-   :class:`TensorStepEnv` (dynamics as tensor functions) and the policy a ``TensorDictModule``
-   followed by a :class:`TensorExplorer`; both are called on tensors at every step and one
-   TensorDict is built at the end.
+   :class:`TensorStepEnv` (dynamics as tensor functions) and the policy an
+   :class:`~sde_torchrl.modules.sde_actor.SDEActor` over a ``TensorDictModule`` actor; the actor,
+   the SDE sample (:func:`~sde_torchrl.modules.distribution.sde_sample`) and the env's
+   :class:`~sde_torchrl.modules.noise.SDENoisePrimer` are called on tensors at every step and
+   one TensorDict is built at the end.
 3. **TorchRL** ``env.rollout``: the reference, for everything else (other transforms, other
    policies, gymnasium envs).
 
 What every path guarantees, for the same env, policy and random-stream states:
 
-* **The same episodes as** ``env.rollout``: the fast paths draw from the explorer's streams (and
-  the env's) in ``env.rollout``'s order, one ``ξ`` per step from the episode start. Tensor
+* **The same episodes as** ``env.rollout``: the fast paths draw through the env's noise primer
+  (:meth:`~sde_torchrl.modules.noise.SDENoisePrimer.start` and ``advance``), from its streams
+  (and the env's) in ``env.rollout``'s order, one ``ξ`` per step from the episode start. Tensor
   stepping agrees with ``env.rollout`` to float32 rounding (``torch.testing.assert_close``'s
   float32 tolerances; the random draws, hence ``sde_noise``, are identical), on the minimisation
   task for every schedule, MLP actors, squashing and Gaussian noise, and on the ball-catching
   worlds: ``tests/test_rollout.py::test_tensor_rollout_equals_env_rollout`` and
   ``::test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds``. Linear episodes draw
   the same ``ξ`` (per episode or per step) bit for bit and leave the streams where tensor
-  stepping leaves them (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act``);
+  stepping leaves them (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_the_primer``);
   the env evaluates the maps in float64 where tensor stepping rounds to float32, so before the
   ball reaches the hand ``observation``, ``is_init``, ``done`` and ``truncated`` are identical
-  and ``loc``, ``action_sample``, ``action``, ``scale``, the next observation and the reward
+  and ``loc``, ``action_sample``, ``action``, the next observation and the reward
   agree to 1e-4, and mean episode rewards to 0.02 over 120 steps
   (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, SDE and REX, random and
   deterministic exploration).
-* **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the explorer's
-  ``feature_key`` (the observation), ``loc_key``, ``scale_key``, ``log_prob_key``,
-  ``sample_key``, ``action_key``, ``is_init_key`` and, unless exploration is deterministic,
-  ``noise_key``; under ``next``: ``observation``, ``reward``, ``done`` and ``truncated``. The
-  fast paths write nothing else (``env.rollout`` adds, e.g., ``terminated``, ``step_count`` and
-  the env's extra observations).
+* **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the observation (the
+  features), the ``SDEParams``' ``loc_key``, the policy's ``action_key``, ``log_prob_key`` and
+  (squashed) ``sample_key``, ``is_init`` and, unless exploration is deterministic, the noise
+  (``noise_key``, and ``gaussian_noise_key`` with eq. 22's part); under ``next``:
+  ``observation``, ``reward``, ``done`` and ``truncated``. The fast paths write nothing else
+  (``env.rollout`` adds, e.g., ``terminated``, ``step_count``, ``σ̂`` and the env's extra
+  observations).
 * **A fallback that is never wrong**: an env wrapped in a transform the fast paths do not
   reproduce, or a policy they do not know, goes to ``env.rollout``
   (``::test_envs_or_policies_it_cannot_reproduce_fall_back``,
@@ -57,21 +61,23 @@ from typing import Protocol, runtime_checkable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictSequential
+from tensordict.nn import TensorDictModule
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
 from sde_torchrl.modules.actors import BatchedLinear
-from sde_torchrl.modules.distribution import gaussian_log_prob
-from sde_torchrl.modules.exploration import deterministic_exploration
+from sde_torchrl.modules.distribution import TanhSDENormal, sde_sample
+from sde_torchrl.modules.noise import SDENoisePrimer, deterministic_exploration
+from sde_torchrl.modules.sde import SDEParams
+from sde_torchrl.modules.sde_actor import SDEActor
 from sde_torchrl.utils.checks import positive_int
-from sde_torchrl.utils.rng import RunStreams, draw_normal
 from sde_torchrl.utils.shapes import align
 
 #: Keys under which a :class:`TensorStepEnv`'s steps are written, TorchRL's defaults.
-OBSERVATION_KEY, REWARD_KEY, DONE_KEY, TRUNCATED_KEY = "observation", "reward", "done", "truncated"
+OBSERVATION_KEY, REWARD_KEY, DONE_KEY, TRUNCATED_KEY, IS_INIT_KEY = (
+    "observation", "reward", "done", "truncated", "is_init")
 
-#: Transforms whose effect the fast paths reproduce (episode length, ``is_init``, the
-#: explorer's primer). Any other transform must run, so it rules the fast paths out.
+#: Transforms whose effect the fast paths reproduce (episode length, ``is_init``, the noise
+#: primer). Any other transform must run, so it rules the fast paths out.
 _REPRODUCED_TRANSFORMS = (Compose, StepCounter, InitTracker, TensorDictPrimer)
 
 #: Exploration schedules under which a linear controller's maps are known before an episode
@@ -82,7 +88,7 @@ LINEAR_SCHEDULES = ("episode", "step")
 # ------------------------------------------------------------------------ what the paths need
 # From Python 3.12 on, isinstance against a protocol sees only class and plain instance
 # attributes, not an nn.Module's parameters or submodules: the protocols below list only the
-# former, and the actor (a module whose network is a submodule) is checked by its class.
+# former, and the policy is checked by its class.
 @runtime_checkable
 class TensorStepEnv(Protocol):
     """An env stepped by tensor functions of the observation and the action (tensor stepping).
@@ -111,50 +117,8 @@ class LinearEpisodeEnv(TensorStepEnv, Protocol):
         S], pre-squash actions [*batch, steps, A], rewards [*batch, steps, 1])``."""
 
 
-@runtime_checkable
-class TensorExplorer(Protocol):
-    """The exploration step on tensors and the keys of its outputs
-    (:class:`~sde_torchrl.modules.exploration.StateDependentExplorer`)."""
-
-    loc_key: str
-    feature_key: str
-    noise_key: str
-    is_init_key: str
-    sample_key: str
-    scale_key: str
-    action_key: str
-    log_prob_key: str
-    squash: bool
-
-    def act(
-        self, loc: torch.Tensor, features: torch.Tensor, noise: torch.Tensor | None = None,
-        is_init: torch.Tensor | None = None, age: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
-        """``(pre-squash action, noise, age)`` for one step."""
-
-    def scale(self, features: torch.Tensor) -> torch.Tensor:
-        """Per-action standard deviation (eq. 20)."""
-
-
-@runtime_checkable
-class EpisodeExplorer(TensorExplorer, Protocol):
-    """A :class:`TensorExplorer` whose noise matrix ``ξ`` can be drawn for a whole episode."""
-
-    schedule: str
-    has_gaussian: bool
-    streams: RunStreams | None
-    run_dims: int
-    action_dim: int
-    feature_dim: int
-
-    def noise_matrix(self, noise: torch.Tensor) -> torch.Tensor:
-        """``Θ̂ = σ̂ ⊙ ξ`` (eq. 18)."""
-
-
 # ------------------------------------------------------------------------------ the entry point
-def collect_episodes(
-    env: EnvBase, policy: TensorDictSequential, steps: int, *, fast: bool = True
-) -> TensorDictBase:
+def collect_episodes(env: EnvBase, policy: SDEActor, steps: int, *, fast: bool = True) -> TensorDictBase:
     """Fresh whole episodes of ``steps`` steps, one per batch element of ``env``.
 
     Takes the fastest path that gives ``env.rollout``'s episodes (see the module docstring for
@@ -164,7 +128,7 @@ def collect_episodes(
 
     Args:
         env: the (batched) env, reset by the collection.
-        policy: the policy, usually ``TensorDictSequential(actor, explorer)``.
+        policy: the policy, usually :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`'s.
         steps: episode length ``T``.
         fast: allow the fast paths; ``False`` forces ``env.rollout``.
 
@@ -175,11 +139,10 @@ def collect_episodes(
         ArgumentError: if ``steps`` is not a positive integer.
 
     Examples:
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
-        >>> explorer = StateDependentExplorer(1, 1)
-        >>> env = make_minimize_env(15, episodes=4).append_transform(explorer.make_tensordict_primer())
-        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> from sde_torchrl import LinearActor, SDEParams, make_minimize_env, make_sde_actor
+        >>> sde = SDEParams(1, 1)
+        >>> env = make_minimize_env(15, episodes=4).append_transform(sde.make_tensordict_primer())
+        >>> policy = make_sde_actor(LinearActor(1, 1, init=-2.0), sde)
         >>> collect_episodes(env, policy, 15).batch_size
         torch.Size([4, 15])
     """
@@ -187,126 +150,160 @@ def collect_episodes(
     with torch.no_grad():
         if fast:
             if (base := linear_episode_env(env, policy)) is not None:
-                return linear_episode_rollout(base, policy, steps)
+                return linear_episode_rollout(base, policy, steps, noise_primer(env))
             if (base := tensor_step_env(env, policy)) is not None:
-                return tensor_rollout(base, policy, steps)
+                return tensor_rollout(base, policy, steps, noise_primer(env))
         return env.rollout(steps, policy, break_when_any_done=False)
 
 
 # -------------------------------------------------------------------------- tensor stepping
-def tensor_step_env(env: EnvBase, policy: TensorDictSequential) -> TensorStepEnv | None:
+def tensor_step_env(env: EnvBase, policy: object) -> TensorStepEnv | None:
     """The env to hand to :func:`tensor_rollout` for ``env`` and ``policy``, or ``None``.
 
     That needs an env that is a :class:`TensorStepEnv`, possibly wrapped only in transforms the
-    fast paths reproduce, and a policy of two modules: a ``TensorDictModule`` whose ``module``
-    maps the explorer's features to its ``loc``, then a :class:`TensorExplorer` whose features
-    are the observation.
+    fast paths reproduce, among them one :class:`~sde_torchrl.modules.noise.SDENoisePrimer` for
+    the policy's noise (:func:`noise_primer`), and an
+    :class:`~sde_torchrl.modules.sde_actor.SDEActor` over two modules: a ``TensorDictModule``
+    whose ``module`` maps the observation to the ``loc``, then ``SDEParams`` whose features are
+    the observation.
     """
     base = _untransformed(env)
-    modules = list(policy.module)
-    if not isinstance(base, TensorStepEnv) or len(modules) != 2:
+    if not isinstance(base, TensorStepEnv) or not isinstance(policy, SDEActor):
         return None
-    actor, explorer = modules
-    supported = (isinstance(actor, TensorDictModule) and isinstance(explorer, TensorExplorer)
-                 and explorer.feature_key == OBSERVATION_KEY
-                 and actor.in_keys == [explorer.feature_key] and actor.out_keys == [explorer.loc_key])
+    modules = list(policy.module[0].module)
+    if len(modules) != 2:
+        return None
+    actor, sde = modules
+    primer = noise_primer(env)
+    supported = (isinstance(actor, TensorDictModule) and isinstance(sde, SDEParams)
+                 and sde.feature_key == OBSERVATION_KEY
+                 and actor.in_keys == [sde.feature_key] and actor.out_keys == [sde.loc_key]
+                 and primer is not None and primer.noise_key == sde.noise_key
+                 and primer.gaussian == sde.has_gaussian
+                 and (not sde.has_gaussian or primer.gaussian_noise_key == sde.gaussian_noise_key))
     return base if supported else None
 
 
-def tensor_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
+def noise_primer(env: EnvBase) -> SDENoisePrimer | None:
+    """The env's one :class:`~sde_torchrl.modules.noise.SDENoisePrimer` among its transforms, or ``None``."""
+    primers = []
+    while isinstance(env, TransformedEnv):
+        primers += [t for t in _flatten([env.transform]) if isinstance(t, SDENoisePrimer)]
+        env = env.base_env
+    return primers[0] if len(primers) == 1 else None
+
+
+def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDENoisePrimer) -> TensorDict:
     """Collects one fresh episode of ``steps`` steps per batch element by tensor stepping.
 
     Args:
         env: a :class:`TensorStepEnv` (see :func:`tensor_step_env`).
-        policy: ``TensorDictSequential(actor, explorer)``.
+        policy: the :class:`~sde_torchrl.modules.sde_actor.SDEActor`.
         steps: episode length ``T``.
+        primer: the env's noise primer (:func:`noise_primer`).
 
     Returns:
         TensorDict ``[*batch, T]`` with the keys listed in the module docstring.
     """
-    actor, explorer = policy.module
+    actor, sde = policy.module[0].module
+    batch = env.batch_size
     x = env.initial_state()
-    noise = age = None
-    is_init = torch.ones(*env.batch_size, 1, dtype=torch.bool)
-    observations, locs, samples, noises, next_observations, rewards = [], [], [], [], [], []
+    explore = not deterministic_exploration()
+    noise, gaussian, age = primer.start(batch, x.device) if explore else (None, None, None)
+    sigma = align(sde.sde_sigma, sde.run_dims, len(batch))
+    gaussian_scale = sde.gaussian_scale(len(batch))
+    low, high = _bounds(policy)
+    observations, locs, samples, noises, gaussians, next_observations, rewards = [], [], [], [], [], [], []
     for t in range(steps):
         loc = actor.module(x)
-        sample, noise, age = explorer.act(loc, x, noise, is_init if t == 0 else ~is_init, age)
-        x_next, reward = env.transition(x, torch.tanh(sample) if explorer.squash else sample)
+        if explore:
+            sample = sde_sample(loc, sigma.to(loc.dtype), noise, x.to(loc.dtype),
+                                None if gaussian_scale is None else gaussian_scale.to(loc.dtype), gaussian)
+        else:
+            sample = loc
+        x_next, reward = env.transition(x, _squash(sample, low, high) if policy.squash else sample)
         for column, value in ((observations, x), (locs, loc), (samples, sample), (noises, noise),
-                              (next_observations, x_next), (rewards, reward)):
+                              (gaussians, gaussian), (next_observations, x_next), (rewards, reward)):
             column.append(value)
         x = x_next
-    time_dim = len(env.batch_size)
+        if explore and t < steps - 1:  # after the last step every episode ends: the reset draws
+            noise, gaussian, age = primer.advance(noise, gaussian, age)
+    time_dim = len(batch)
     observation, loc, sample, next_observation, reward = (
         torch.stack(column, dim=time_dim) for column in (observations, locs, samples, next_observations, rewards)
     )
-    noise = None if noises[0] is None else torch.stack(noises, dim=time_dim)
-    return _episodes(explorer, observation, next_observation, loc, sample, reward, noise)
+    stacked_noise = None if noises[0] is None else torch.stack(noises, dim=time_dim)
+    stacked_gaussian = None if gaussians[0] is None else torch.stack(gaussians, dim=time_dim)
+    return _episodes(policy, observation, next_observation, loc, sample, reward, stacked_noise, stacked_gaussian)
 
 
 # -------------------------------------------------------------------------- linear episodes
-def linear_episode_env(env: EnvBase, policy: TensorDictSequential) -> LinearEpisodeEnv | None:
+def linear_episode_env(env: EnvBase, policy: object) -> LinearEpisodeEnv | None:
     """The env to hand to :func:`linear_episode_rollout`, or ``None``.
 
     That needs what :func:`tensor_step_env` needs, an env that is a :class:`LinearEpisodeEnv`,
-    an actor whose network is a bias-free :class:`~sde_torchrl.modules.actors.BatchedLinear` stacked like
-    the explorer, and an :class:`EpisodeExplorer` with the ``episode`` (SDE, the paper's
-    ball-catching controller) or ``step`` (REX) schedule and no Gaussian noise.
+    an actor whose network is a bias-free :class:`~sde_torchrl.modules.actors.BatchedLinear`
+    stacked like ``SDEParams``, the ``episode`` (SDE, the paper's ball-catching controller) or
+    ``step`` (REX) schedule, no Gaussian noise, and, squashed, the bounds ``[-1, 1]`` (the env
+    applies ``tanh``).
     """
     base = tensor_step_env(env, policy)
     if not isinstance(base, LinearEpisodeEnv):
         return None
-    actor, explorer = policy.module
+    actor, sde = policy.module[0].module
     linear = isinstance(actor.module, BatchedLinear) and actor.module.bias is None
-    known_maps = (isinstance(explorer, EpisodeExplorer) and explorer.schedule in LINEAR_SCHEDULES
-                  and not explorer.has_gaussian)
-    return base if linear and known_maps and actor.module.run_dims == explorer.run_dims else None
+    known_maps = noise_primer(env).schedule in LINEAR_SCHEDULES and not sde.has_gaussian
+    unit_bounds = not policy.squash or all(bool((bound.abs() == 1).all()) for bound in _bounds(policy))
+    return base if linear and known_maps and unit_bounds and actor.module.run_dims == sde.run_dims else None
 
 
-def linear_episode_rollout(env: LinearEpisodeEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
+def linear_episode_rollout(
+    env: LinearEpisodeEnv, policy: SDEActor, steps: int, primer: SDENoisePrimer
+) -> TensorDict:
     """Fresh episodes as :func:`tensor_rollout` collects them, for a linear controller whose
     exploration is redrawn per episode (SDE) or per step (REX).
 
     The env runs each world's whole episode under its maps ``Θ + σ̂ ⊙ ξ`` (``Θ + σ̂ ⊙ ξ_t`` per
-    step for REX, :func:`episode_matrix`), then the actor and explorer compute ``loc``,
-    ``scale`` and log-likelihoods for all steps at once. Same random streams and keys as
+    step for REX, :func:`episode_matrix`), then the actor computes ``loc`` and the
+    log-likelihoods for all steps at once. Same random streams and keys as
     :func:`tensor_rollout`; the actions agree to float32 rounding (the env evaluates the maps in
     float64).
 
     Args:
         env: an env accepted by :func:`linear_episode_env`.
-        policy: ``TensorDictSequential(LinearActor, StateDependentExplorer)``.
+        policy: the :class:`~sde_torchrl.modules.sde_actor.SDEActor` of a ``LinearActor``.
         steps: episode length ``T``.
+        primer: the env's noise primer (:func:`noise_primer`).
 
     Returns:
         TensorDict ``[*batch, T]`` with the keys of :func:`tensor_rollout`.
     """
-    actor, explorer = policy.module
+    actor, sde = policy.module[0].module
     batch = env.batch_size
-    matrices, noise = episode_matrix(explorer, actor.module.weight, batch, steps)
-    observations, sample, reward = env.linear_episodes(matrices, steps, explorer.squash)
+    matrices, noise = episode_matrix(primer, sde, actor.module.weight, batch, steps)
+    observations, sample, reward = env.linear_episodes(matrices, steps, policy.squash)
     observation = observations[..., :-1, :]
-    if noise is not None and explorer.schedule == "episode":
+    if noise is not None and primer.schedule == "episode":
         noise = noise.unsqueeze(len(batch)).expand(*batch, steps, *noise.shape[len(batch):])
-    return _episodes(explorer, observation, observations[..., 1:, :], actor.module(observation), sample, reward,
-                     noise)
+    return _episodes(policy, observation, observations[..., 1:, :], actor.module(observation), sample, reward,
+                     noise, None)
 
 
 def episode_matrix(
-    explorer: EpisodeExplorer, weight: torch.Tensor, batch: torch.Size, steps: int
+    primer: SDENoisePrimer, sde: SDEParams, weight: torch.Tensor, batch: torch.Size, steps: int
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """The linear maps an episode of a linear controller ``Θ x`` follows: ``Θ + σ̂ ⊙ ξ`` for the
     whole episode (``episode`` schedule, SDE) or ``Θ + σ̂ ⊙ ξ_t`` at every step ``t`` (``step``
     schedule, REX) (eqs. 17-19), or ``Θ`` under deterministic exploration.
 
-    Only without Gaussian noise, where these maps are all of the exploration. The explorer's
-    random streams advance exactly as ``steps`` calls of its ``act`` from an episode start (one
-    fresh draw per step; the ``episode`` schedule keeps the first), so both ways of collecting
-    produce the same episodes.
+    Only without Gaussian noise, where these maps are all of the exploration. The noise comes
+    from the primer as an episode of ``steps`` steps draws it (:meth:`SDENoisePrimer.start
+    <sde_torchrl.modules.noise.SDENoisePrimer.start>`, then ``advance`` after each step but the
+    last), so both ways of collecting produce the same episodes and leave the streams alike.
 
     Args:
-        explorer: the explorer, with the ``episode`` or ``step`` schedule and no Gaussian noise.
+        primer: the env's noise primer, with the ``episode`` or ``step`` schedule.
+        sde: the policy's ``SDEParams``, without Gaussian noise.
         weight: ``Θ``, ``[*runs, A, S]``.
         batch: batch shape of the episodes, runs first.
         steps: episode length.
@@ -320,29 +317,27 @@ def episode_matrix(
         ValueError: for another schedule or with Gaussian noise.
 
     Examples:
-        >>> from sde_torchrl import StateDependentExplorer
-        >>> explorer = StateDependentExplorer(4, 3)
-        >>> matrix, noise = episode_matrix(explorer, torch.zeros(4, 3), torch.Size([5]), steps=10)
+        >>> from sde_torchrl import SDEParams
+        >>> sde = SDEParams(4, 3)
+        >>> matrix, noise = episode_matrix(sde.make_tensordict_primer(), sde, torch.zeros(4, 3), torch.Size([5]), 10)
         >>> matrix.shape, noise.shape
         (torch.Size([5, 4, 3]), torch.Size([5, 4, 3]))
-        >>> rex = StateDependentExplorer(4, 3, schedule="step")
-        >>> episode_matrix(rex, torch.zeros(4, 3), torch.Size([5]), steps=10)[0].shape
+        >>> rex = SDEParams(4, 3, schedule="step")
+        >>> episode_matrix(rex.make_tensordict_primer(), rex, torch.zeros(4, 3), torch.Size([5]), 10)[0].shape
         torch.Size([5, 10, 4, 3])
     """
-    if explorer.schedule not in LINEAR_SCHEDULES or explorer.has_gaussian:
+    if primer.schedule not in LINEAR_SCHEDULES or sde.has_gaussian:
         raise ValueError("linear maps known in advance need schedule='episode' or 'step' and no Gaussian noise")
-    shape = (*batch, explorer.action_dim, explorer.feature_dim)
     if deterministic_exploration():
-        return align(weight, explorer.run_dims, len(batch)).expand(shape), None
-    draws = (draw_normal(shape, explorer.streams) for _ in range(steps))
-    if explorer.schedule == "step":
-        noise = torch.stack(list(draws), dim=len(batch))
-    else:
-        noise = next(draws)
-        for _ in draws:  # act's later draws, discarded by the episode schedule
-            pass
-    theta = align(weight, explorer.run_dims, noise.dim() - 2).expand(noise.shape)
-    return theta + explorer.noise_matrix(noise), noise
+        return align(weight, sde.run_dims, len(batch)).expand(*batch, sde.action_dim, sde.feature_dim), None
+    noise, gaussian, age = primer.start(batch, weight.device)
+    noises = [noise]
+    for _ in range(steps - 1):
+        noise, gaussian, age = primer.advance(noise, gaussian, age)
+        noises.append(noise)
+    noise = torch.stack(noises, dim=len(batch)) if primer.schedule == "step" else noises[0]
+    theta = align(weight, sde.run_dims, noise.dim() - 2).expand(noise.shape)
+    return theta + align(sde.sde_sigma, sde.run_dims, noise.dim() - 2) * noise, noise
 
 
 # ------------------------------------------------------------------------------------ helpers
@@ -362,27 +357,49 @@ def _flatten(transforms: list) -> list:
     return flat
 
 
+def _bounds(policy: SDEActor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The squashed policy's ``(low, high)``."""
+    kwargs = policy.module[-1].distribution_kwargs
+    return kwargs.get("low", torch.tensor(-1.0)), kwargs.get("high", torch.tensor(1.0))
+
+
+def _squash(sample: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """``mid + half · tanh(u)``, as :class:`~sde_torchrl.modules.distribution.TanhSDENormal` squashes."""
+    return (high + low) / 2 + (high - low) / 2 * torch.tanh(sample)
+
+
 def _episodes(
-    explorer: TensorExplorer, observation: torch.Tensor, next_observation: torch.Tensor,
-    loc: torch.Tensor, sample: torch.Tensor, reward: torch.Tensor, noise: torch.Tensor | None,
+    policy: SDEActor, observation: torch.Tensor, next_observation: torch.Tensor, loc: torch.Tensor,
+    sample: torch.Tensor, reward: torch.Tensor, noise: torch.Tensor | None, gaussian: torch.Tensor | None,
 ) -> TensorDict:
     """The episode TensorDict ``[*batch, T]`` that ``env.rollout`` writes, from its step tensors."""
+    sde = policy.sde
     batch = observation.shape[:-1]
     done = torch.zeros(*batch, 1, dtype=torch.bool)
     done[..., -1, :] = True
     first = torch.zeros(*batch, 1, dtype=torch.bool)
     first[..., 0, :] = True
-    scale = explorer.scale(observation)  # eq. 20, once for all steps
+    features = observation.to(loc.dtype)
+    sigma = align(sde.sde_sigma, sde.run_dims, len(batch)).to(loc.dtype)
+    gaussian_scale = sde.gaussian_scale(len(batch))
+    if policy.squash:
+        low, high = _bounds(policy)
+        dist = TanhSDENormal(loc, sigma, features, gaussian_scale=gaussian_scale, low=low, high=high)
+        action = _squash(sample, low, high)
+    else:
+        dist, action = policy.module[-1].distribution_class(loc, sigma, features, gaussian_scale=gaussian_scale), sample
     episodes = TensorDict({
-        explorer.feature_key: observation,
-        explorer.loc_key: loc,
-        explorer.scale_key: scale,
-        explorer.log_prob_key: gaussian_log_prob(sample, loc, scale),
-        explorer.sample_key: sample,
-        explorer.action_key: torch.tanh(sample) if explorer.squash else sample,
-        explorer.is_init_key: first,
+        OBSERVATION_KEY: observation,
+        sde.loc_key: loc,
+        policy.action_key: action,
+        policy.log_prob_key: dist.log_prob(action),  # eqs. 13, 20, once for all steps
+        IS_INIT_KEY: first,
         "next": {OBSERVATION_KEY: next_observation, REWARD_KEY: reward, DONE_KEY: done, TRUNCATED_KEY: done.clone()},
     }, batch_size=batch)
+    if policy.squash:
+        episodes.set(policy.sample_key, sample)
     if noise is not None:
-        episodes.set(explorer.noise_key, noise)
+        episodes.set(sde.noise_key, noise)
+    if gaussian is not None:
+        episodes.set(sde.gaussian_noise_key, gaussian)
     return episodes

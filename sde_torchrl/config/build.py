@@ -20,6 +20,7 @@ from torchrl.envs import TransformedEnv
 
 from sde_torchrl.config.schemas import PGPEExplorerConf, TrainConf, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
+from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.objectives.estimators import ENACEstimator
 from sde_torchrl.trainers.optim import make_optimizer
 from sde_torchrl.trainers.settings import TrainingSettings
@@ -76,15 +77,19 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
     actor = instantiate(conf.actor, in_features=obs_dim, out_features=act_dim, runs=conf.runs)
     actor.module.reset_parameters(RunStreams(conf.seed, conf.runs, "init", conf.first_run))
+    streams = RunStreams(conf.seed, conf.runs, "explore", conf.first_run)
     if isinstance(conf.explorer, PGPEExplorerConf):  # PGPE draws the actor's own parameters
         explorer = instantiate(conf.explorer, actor=actor, runs=conf.runs)
+        policy = TensorDictSequential(actor, explorer)
     else:
-        explorer = instantiate(conf.explorer, action_dim=act_dim, feature_dim=feature_dim, runs=conf.runs,
+        options = {name: value for name, value in asdict(conf.explorer).items() if name != "squash"}
+        explorer = instantiate(options, action_dim=act_dim, feature_dim=feature_dim, runs=conf.runs,
                                feature_key=feature_key)
-    explorer.streams = RunStreams(conf.seed, conf.runs, "explore", conf.first_run)
+        # explorer.squash is tanh onto [-1, 1], whatever the action spec (ExplorerConf)
+        policy = make_sde_actor(actor, explorer, squash=conf.explorer.squash, low=-1.0, high=1.0)
+    explorer.streams = streams
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())
-    policy = TensorDictSequential(actor, explorer)
 
     # The trainer's FiniteGuard checks returns, scores and gradients itself and names the update:
     # the estimator's own non-finite checks (for direct Python use) would only pre-empt it.
@@ -111,9 +116,8 @@ def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
         runs: the job's runs (the leading dimension of run-stacked parameters).
 
     Examples:
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import ENACEstimator, LinearActor, StateDependentExplorer
-        >>> estimator = ENACEstimator(TensorDictSequential(LinearActor(1, 1), StateDependentExplorer(1, 1)))
+        >>> from sde_torchrl import ENACEstimator, LinearActor, SDEParams, make_sde_actor
+        >>> estimator = ENACEstimator(make_sde_actor(LinearActor(1, 1), SDEParams(1, 1)))
         >>> warn_if_rank_deficient(estimator, episodes=10, runs=1)  # 3 unknowns: nothing to say
     """
     if not isinstance(estimator, ENACEstimator):

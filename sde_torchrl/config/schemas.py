@@ -271,7 +271,7 @@ class ExplorerConf:
         5
     """
 
-    _target_: str = "sde_torchrl.modules.exploration.StateDependentExplorer"
+    _target_: str = "sde_torchrl.modules.sde.SDEParams"
     schedule: str = "episode"
     every_n: Optional[int] = None
     sharing: str = "element"

@@ -4,8 +4,7 @@ The functions here are the single home of SDE's per-step maths: the exploration 
 ``Θ̂ = σ̂ ⊙ ξ`` (:func:`noise_matrix`, eq. 18), the action ``u = loc + Θ̂ x [+ σ_gauss ε]``
 (:func:`sde_sample`, eqs. 17-19, 22), its per-action variance (:func:`sde_variance`, eqs. 20, 22)
 and the Gaussian log-likelihood (:func:`gaussian_log_prob`, eq. 13).
-:class:`~sde_torchrl.modules.exploration.StateDependentExplorer`, the episodic estimators and the fast
-rollout paths call them as :class:`SDENormal` does.
+The episodic estimators and the fast collection paths call them as :class:`SDENormal` does.
 
 TorchRL's PPO, A2C and SAC losses rebuild the policy's distribution from stored tensordict
 entries and score the stored action (``get_dist`` then ``log_prob``). :class:`SDENormal` needs
@@ -24,6 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch.distributions import Distribution, constraints
 
+from sde_torchrl.modules.noise import draw_noise
 from sde_torchrl.utils.shapes import compact_broadcast, stacked_matvec
 
 #: Floor on the action variance, so that a zero state (no SDE noise) gives a finite likelihood.
@@ -149,10 +149,11 @@ class SDENormal(Distribution):
     measures.
 
     Sampling: :meth:`rsample` with an empty ``sample_shape`` uses the carried ``noise`` ``ξ``
-    (the matrix held for the episode, or for ``n`` steps), so it returns the very action the
-    policy took; it is reparameterised in ``loc`` and ``σ̂`` (and ``gaussian_scale``). With a
-    non-empty ``sample_shape``, or without ``noise``, fresh ``ξ`` is drawn: independent samples
-    of the same per-step Gaussian. Eq. (22)'s Gaussian part is drawn i.i.d. at every call.
+    (the matrix held for the episode, or for ``n`` steps) and the carried ``gaussian_noise``
+    ``ε``, so it returns the very action the policy took; it is reparameterised in ``loc`` and
+    ``σ̂`` (and ``gaussian_scale``). With a non-empty ``sample_shape``, or where they are not
+    given, fresh ``ξ`` and ``ε`` are drawn (:func:`~sde_torchrl.modules.noise.draw_noise`):
+    independent samples of the same per-step Gaussian.
     ``mean``, ``mode`` and ``deterministic_sample`` are ``loc``.
 
     Args:
@@ -161,6 +162,7 @@ class SDENormal(Distribution):
         features: the exploration features ``x``, ``[*, S]`` (cast to ``loc``'s dtype).
         noise: the carried standard-normal matrix ``ξ``, ``[*, A, S]``, or ``None``.
         gaussian_scale: ``σ_gauss`` of eq. (22), ``[*, A]`` (or broadcastable), or ``None``.
+        gaussian_noise: the carried standard-normal ``ε`` of eq. (22), ``[*, A]``, or ``None``.
         validate_args: passed to :class:`torch.distributions.Distribution`.
 
     Raises:
@@ -189,6 +191,7 @@ class SDENormal(Distribution):
         features: torch.Tensor,
         noise: torch.Tensor | None = None,
         gaussian_scale: torch.Tensor | None = None,
+        gaussian_noise: torch.Tensor | None = None,
         validate_args: bool | None = False,
     ) -> None:
         features = features.to(loc.dtype)
@@ -198,7 +201,7 @@ class SDENormal(Distribution):
             _check_matrix("noise", noise, action_dim, feature_dim)
         self.loc, self.sigma_hat, self.features = loc, sigma_hat.to(loc.dtype), features
         self.noise = None if noise is None else noise.to(loc.dtype)
-        self.gaussian_scale = gaussian_scale
+        self.gaussian_scale, self.gaussian_noise = gaussian_scale, gaussian_noise
         shapes = [loc.shape[:-1], features.shape[:-1], sigma_hat.shape[:-2]]
         if gaussian_scale is not None:
             shapes.append(gaussian_scale.shape[:-1])
@@ -251,16 +254,12 @@ class SDENormal(Distribution):
             A sample of shape ``sample_shape + batch_shape + [A]``.
         """
         sample_shape = torch.Size(sample_shape)
-        noise = self.noise
+        like = {"dtype": self.loc.dtype, "device": self.loc.device}
+        noise, gaussian_noise = self.noise, self.gaussian_noise
         if noise is None or len(sample_shape) > 0:
-            noise = torch.randn(
-                sample_shape + self.batch_shape + (self.action_dim, self.feature_dim),
-                dtype=self.loc.dtype, device=self.loc.device,
-            )
-        gaussian_noise = None
-        if self.gaussian_scale is not None:
-            gaussian_noise = torch.randn(self._extended_shape(sample_shape), dtype=self.loc.dtype,
-                                         device=self.loc.device)
+            noise = draw_noise(sample_shape + self.batch_shape + (self.action_dim, self.feature_dim), **like)
+        if self.gaussian_scale is not None and (gaussian_noise is None or len(sample_shape) > 0):
+            gaussian_noise = draw_noise(self._extended_shape(sample_shape), **like)
         sample = sde_sample(self.loc, self.sigma_hat, noise, self.features, self.gaussian_scale, gaussian_noise)
         return sample.expand(self._extended_shape(sample_shape))
 
@@ -311,6 +310,7 @@ class TanhSDENormal(SDENormal):
         features: ``x``, ``[*, S]``.
         noise: the carried ``ξ`` ``[*, A, S]``, or ``None``.
         gaussian_scale: ``σ_gauss`` of eq. (22), or ``None``.
+        gaussian_noise: the carried ``ε`` of eq. (22), or ``None``.
         low: lower action bound(s), a number or a tensor broadcastable to ``[A]``.
         high: upper action bound(s), strictly above ``low``.
         validate_args: passed to :class:`torch.distributions.Distribution`.
@@ -340,11 +340,12 @@ class TanhSDENormal(SDENormal):
         features: torch.Tensor,
         noise: torch.Tensor | None = None,
         gaussian_scale: torch.Tensor | None = None,
+        gaussian_noise: torch.Tensor | None = None,
         low: torch.Tensor | float = -1.0,
         high: torch.Tensor | float = 1.0,
         validate_args: bool | None = False,
     ) -> None:
-        super().__init__(loc, sigma_hat, features, noise, gaussian_scale, validate_args=validate_args)
+        super().__init__(loc, sigma_hat, features, noise, gaussian_scale, gaussian_noise, validate_args=validate_args)
         low = torch.as_tensor(low, dtype=loc.dtype, device=loc.device)
         high = torch.as_tensor(high, dtype=loc.dtype, device=loc.device)
         if not torch.compiler.is_compiling() and bool((high <= low).any()):

@@ -30,7 +30,8 @@ from torch.func import functional_call, vmap
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, TensorDictPrimer
 
-from sde_torchrl.modules.exploration import deterministic_exploration, expln
+from sde_torchrl.modules.noise import deterministic_exploration
+from sde_torchrl.modules.sde import expln
 from sde_torchrl.utils.checks import finite, positive_int
 from sde_torchrl.utils.rng import RunStreams, draw_normal
 from sde_torchrl.utils.shapes import align

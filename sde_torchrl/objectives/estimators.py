@@ -18,15 +18,14 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import ProbabilisticTensorDictSequential, TensorDictSequential
+from tensordict.nn import TensorDictSequential
 from tensordict.utils import NestedKey
 from torch import nn
 from torch.func import functional_call, grad, vmap
 from torchrl.objectives import LossModule
 
-from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal
-from sde_torchrl.modules.exploration import SDESigma, StateDependentExplorer
-from sde_torchrl.modules.sde_actor import SDEParams
+from sde_torchrl.modules.sde import SDEParams
+from sde_torchrl.modules.sde_actor import SDEActor
 from sde_torchrl.utils.checks import NonFiniteInputError, batch_entries, one_of
 
 
@@ -77,10 +76,9 @@ class NonFiniteEpisodesError(EpisodesError, NonFiniteInputError):
 
 
 #: The expected policy, as the errors name it.
-POLICY_FORM = (
-    "TensorDictSequential(actor, explorer): an actor writing 'loc', then a StateDependentExplorer; or the "
-    "ProbabilisticActor of make_sde_actor(actor, SDEParams(...)) without squash"
-)
+POLICY_FORM = "make_sde_actor(actor, SDEParams(...)), an SDEActor"
+#: The episode-start flags TorchRL's ``InitTracker`` writes.
+IS_INIT_KEY = "is_init"
 
 
 @dataclass(frozen=True)
@@ -89,13 +87,13 @@ class PolicyParts:
 
     Attributes:
         actor: the modules before the SDE module (they write ``loc``).
-        sde: the :class:`~sde_torchrl.modules.exploration.SDESigma` (explorer or ``SDEParams``) holding ``σ̂``.
+        sde: the :class:`~sde_torchrl.modules.sde.SDEParams` holding ``σ̂``.
         sample_key: where the episodes hold the (pre-squash) action the likelihood scores.
         is_init_key: the episode-start flags.
     """
 
     actor: TensorDictSequential
-    sde: SDESigma
+    sde: SDEParams
     sample_key: NestedKey
     is_init_key: NestedKey
 
@@ -104,64 +102,34 @@ def policy_parts(policy: object) -> PolicyParts:
     """Splits an SDE policy into its actor and its ``σ̂`` module, or raises a ``TypeError``
     naming what was given.
 
-    Two forms are accepted: this library's ``TensorDictSequential(actor, explorer)`` (the
-    explorer draws the noise and stores the pre-squash ``action_sample``) and TorchRL's
-    ``ProbabilisticActor`` built by :func:`~sde_torchrl.modules.sde_actor.make_sde_actor` without
-    ``squash`` (the env's primer draws the noise; the action is the sample). A squashed
-    ``TanhSDENormal`` policy is refused: its stored action is the squashed one.
+    The policy is the :class:`~sde_torchrl.modules.sde_actor.SDEActor` of
+    :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`, squashed or not: the likelihood
+    scores its pre-squash sample (``sample_key``).
 
     Examples:
-        >>> from sde_torchrl import StateDependentExplorer
-        >>> policy_parts(StateDependentExplorer(1, 1))
+        >>> from sde_torchrl import SDEParams
+        >>> policy_parts(SDEParams(1, 1))
         Traceback (most recent call last):
         ...
-        TypeError: policy: got a StateDependentExplorer alone; expected TensorDictSequential(actor, explorer): ...
+        TypeError: policy: got SDEParams; expected make_sde_actor(actor, SDEParams(...)), an SDEActor
     """
-    if isinstance(policy, StateDependentExplorer):
-        raise TypeError(f"policy: got a StateDependentExplorer alone; expected {POLICY_FORM}")
-    if isinstance(policy, ProbabilisticTensorDictSequential):
-        return _probabilistic_parts(policy)
-    if not isinstance(policy, TensorDictSequential):
+    if not isinstance(policy, SDEActor):
         raise TypeError(f"policy: got {type(policy).__name__}; expected {POLICY_FORM}")
-    modules = [type(m).__name__ for m in policy.module]
-    if not modules or not isinstance(policy.module[-1], StateDependentExplorer):
-        raise TypeError(f"policy: the last module must be a StateDependentExplorer, got "
-                        f"TensorDictSequential({', '.join(modules)}); expected {POLICY_FORM}")
-    if len(modules) < 2:
-        raise TypeError(f"policy: TensorDictSequential({modules[0]}) has no actor before the explorer; "
-                        f"expected {POLICY_FORM}")
-    explorer = policy.module[-1]
-    return PolicyParts(TensorDictSequential(*policy.module[:-1]), explorer, explorer.sample_key,
-                       explorer.is_init_key)
-
-
-def _probabilistic_parts(policy: ProbabilisticTensorDictSequential) -> PolicyParts:
-    dist_module = policy.module[-1]
-    dist_class = getattr(dist_module, "distribution_class", None)
-    if dist_class is not SDENormal:
-        name = getattr(dist_class, "__name__", type(dist_module).__name__)
-        fix = ("build it with make_sde_actor(actor, sde) without squash (the env clips the action)"
-               if dist_class is TanhSDENormal else "build it with make_sde_actor(actor, SDEParams(...))")
-        raise TypeError(f"policy: a ProbabilisticActor with {name}; the episodic estimators score the unsquashed "
-                        f"SDENormal action: {fix}")
-    params = policy.module[0]
-    inner = list(params.module) if isinstance(params, TensorDictSequential) else [params]
-    if not isinstance(inner[-1], SDEParams) or len(inner) < 2:
-        raise TypeError(f"policy: a ProbabilisticActor over {type(params).__name__}; expected "
-                        "make_sde_actor(actor, SDEParams(...)), i.e. TensorDictSequential(actor, sde) inside")
-    return PolicyParts(TensorDictSequential(*inner[:-1]), inner[-1], dist_module.out_keys[0],
-                       StateDependentExplorer.is_init_key)
+    inner = list(policy.module[0].module)
+    if len(inner) < 2 or not isinstance(inner[-1], SDEParams):
+        raise TypeError(f"policy: an SDEActor over TensorDictSequential({', '.join(type(m).__name__ for m in inner)}); "
+                        "expected an actor, then SDEParams: build it with make_sde_actor(actor, sde)")
+    return PolicyParts(TensorDictSequential(*inner[:-1]), inner[-1], policy.sample_key, IS_INIT_KEY)
 
 
 def check_policy(policy: object) -> None:
     """Raises a ``TypeError`` naming what was given unless :func:`policy_parts` accepts ``policy``.
 
     Examples:
-        >>> from sde_torchrl import StateDependentExplorer
-        >>> check_policy(StateDependentExplorer(1, 1))
+        >>> check_policy("policy")
         Traceback (most recent call last):
         ...
-        TypeError: policy: got a StateDependentExplorer alone; expected TensorDictSequential(actor, explorer): ...
+        TypeError: policy: got str; expected make_sde_actor(actor, SDEParams(...)), an SDEActor
     """
     policy_parts(policy)
 
@@ -169,12 +137,11 @@ def check_policy(policy: object) -> None:
 class EpisodeLogLikelihood(nn.Module):
     """``log p(episode) = Σ_t log π(u_t | x_t)`` up to policy-free terms (eqs. 8, 9, 13, 20).
 
-    Wraps a policy ``TensorDictSequential(actor, explorer)`` whose last module is a
-    :class:`~sde_torchrl.modules.exploration.StateDependentExplorer`, or the unsquashed
-    ``ProbabilisticActor`` of :func:`~sde_torchrl.modules.sde_actor.make_sde_actor` (:func:`policy_parts`);
-    the actor's output ``loc`` and the ``σ̂`` module's likelihood are recomputed from the stored
-    observations and pre-squash actions (``action_sample`` for the explorer, the action for the
-    ``ProbabilisticActor``). The keys it reads are the policy's until :meth:`set_keys` renames them.
+    Wraps the :class:`~sde_torchrl.modules.sde_actor.SDEActor` of
+    :func:`~sde_torchrl.modules.sde_actor.make_sde_actor` (:func:`policy_parts`); the actor's
+    output ``loc`` and the ``σ̂`` module's likelihood are recomputed from the stored observations
+    and pre-squash actions (the policy's ``sample_key``: ``action_sample`` when squashed, else
+    the action). The keys it reads are the policy's until :meth:`set_keys` renames them.
 
     With ``variance_weighted``, each action element's log-likelihood is multiplied by its own
     variance ``σ_j²`` held constant (detached), the "auto-alpha" scores of the authors' PyBrain
@@ -192,23 +159,22 @@ class EpisodeLogLikelihood(nn.Module):
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer
-        >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
+        >>> from sde_torchrl import LinearActor, SDEParams, make_sde_actor
+        >>> log_likelihood = EpisodeLogLikelihood(make_sde_actor(LinearActor(3, 2), SDEParams(2, 3)))
         >>> log_likelihood.in_keys
-        ['observation', 'action_sample']
-        >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action_sample": torch.randn(4, 10, 2)}, [4, 10])
+        ['observation', 'action']
+        >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action": torch.randn(4, 10, 2)}, [4, 10])
         >>> log_likelihood(steps).shape
         torch.Size([4])
     """
 
-    def __init__(self, policy: TensorDictSequential, variance_weighted: bool = False) -> None:
+    def __init__(self, policy: SDEActor, variance_weighted: bool = False) -> None:
         super().__init__()
         parts = policy_parts(policy)
         self.variance_weighted = variance_weighted
         # No reference to `policy` itself: its parameters would be reachable under two names,
         # which torch.func.functional_call does not restore correctly.
-        self.actor, self.explorer = parts.actor, parts.sde
+        self.actor, self.sde = parts.actor, parts.sde
         self.sample_key_default, self.is_init_key = parts.sample_key, parts.is_init_key
         self.set_keys(loc=parts.sde.loc_key, features=parts.sde.feature_key, action_sample=parts.sample_key)
 
@@ -232,8 +198,8 @@ class EpisodeLogLikelihood(nn.Module):
         features = steps.get(self.feature_key).to(loc.dtype)
         sample = steps.get(self.sample_key)
         if not self.variance_weighted:
-            return self.explorer.log_prob(loc, features, sample).sum(-1)
-        scale = self.explorer.scale(features)
+            return self.sde.log_prob(loc, features, sample).sum(-1)
+        scale = self.sde.scale(features)
         per_element = -0.5 * ((sample - loc) / scale).square() - scale.log()  # eq. 13 without constants
         return (scale.detach().square() * per_element).sum((-2, -1))
 
@@ -434,8 +400,8 @@ class EpisodicEstimator(LossModule):
     ``return_mean`` (per run), ``gradient`` (``[*runs, K]``) and estimator diagnostics.
 
     Args:
-        policy: ``TensorDictSequential(actor, explorer)`` or the unsquashed ``ProbabilisticActor``
-            of :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`, the policy being trained.
+        policy: the :class:`~sde_torchrl.modules.sde_actor.SDEActor` of
+            :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`, the policy being trained.
         max_grad_norm: if set, each run's gradient is rescaled to at most this norm before the
             update (off by default: the paper's update is plain gradient ascent; the authors'
             own code bounded large gradients). ``gradient_norm`` reports the norm before.
@@ -455,27 +421,26 @@ class EpisodicEstimator(LossModule):
 
     Input contract (:meth:`check_episodes`, at every forward pass): episodes shaped
     ``[*runs, N, T]`` with ``N, T >= 1``, features ``[*runs, N, T, S]`` and action samples
-    ``[*runs, N, T, A]`` for the explorer's ``S`` and ``A``, one whole episode per row (``is_init`` only at step 0,
+    ``[*runs, N, T, A]`` for the policy's ``S`` and ``A``, one whole episode per row (``is_init`` only at step 0,
     ``("next", "done")`` only at the last step, where the episodes carry them), the actor's
     floating-point inputs in the dtype of the policy's parameters, and finite values in every key
     the estimator reads. Rows holding several episodes are refused, not split: split episodes
     have different lengths, which neither the ``[*runs, N, T]`` batch nor the per-run ``N`` of
     the estimates can hold. The actor's inputs are not converted to the policy's dtype (the
     actor that collected the episodes would have refused them too); the exploration features
-    are, to the dtype of the actor's ``loc``, as the explorer does when it acts.
+    are, to the dtype of the actor's ``loc``, as the policy does when it acts.
 
     Raises:
-        TypeError: ``policy`` is neither form (:func:`policy_parts`).
+        TypeError: ``policy`` is not an SDE policy (:func:`policy_parts`).
         ValueError: an option is not allowed.
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer, make_minimize_env
+        >>> from sde_torchrl import LinearActor, SDEParams, make_minimize_env, make_sde_actor
         >>> from sde_torchrl.collectors.rollout import collect_episodes
-        >>> explorer = StateDependentExplorer(1, 1)
-        >>> env = make_minimize_env(5, episodes=4).append_transform(explorer.make_tensordict_primer())
-        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> sde = SDEParams(1, 1)
+        >>> env = make_minimize_env(5, episodes=4).append_transform(sde.make_tensordict_primer())
+        >>> policy = make_sde_actor(LinearActor(1, 1, init=-2.0), sde)
         >>> episodes = collect_episodes(env, policy, 5)
         >>> episodes["observation"][2, 3] = float("nan")
         >>> ReinforceEstimator(policy)(episodes)
@@ -491,28 +456,28 @@ class EpisodicEstimator(LossModule):
         Attributes:
             reward: per-step reward. Defaults to ``("next", "reward")``.
             action_sample: the pre-squash action taken, which the likelihood scores (eq. 13).
-                Defaults to the explorer's ``sample_key``.
-            features: the exploration features ``x`` of eq. 20. Defaults to the explorer's
+                Defaults to the policy's ``sample_key``.
+            features: the exploration features ``x`` of eq. 20. Defaults to the ``SDEParams``'
                 ``feature_key``.
             loc: where the actor writes the controller's mean ``μ``. Defaults to the
-                explorer's ``loc_key``.
+                ``SDEParams``' ``loc_key``.
             is_init: episode-start flags; checked where present (a reset inside a row is
-                refused). Defaults to the explorer's ``is_init_key``.
+                refused). Defaults to ``"is_init"``.
             done: episode-end flags; checked where present (an end before the last step is
                 refused). Defaults to ``("next", "done")``.
         """
 
         reward: NestedKey = ("next", "reward")
-        action_sample: NestedKey = StateDependentExplorer.sample_key
-        features: NestedKey = StateDependentExplorer.feature_key
-        loc: NestedKey = StateDependentExplorer.loc_key
-        is_init: NestedKey = StateDependentExplorer.is_init_key
+        action_sample: NestedKey = "action"
+        features: NestedKey = "observation"
+        loc: NestedKey = "loc"
+        is_init: NestedKey = IS_INIT_KEY
         done: NestedKey = ("next", "done")
 
     tensor_keys: _AcceptedKeys
 
     def __init__(
-        self, policy: TensorDictSequential, max_grad_norm: float | None = None, *,
+        self, policy: SDEActor, max_grad_norm: float | None = None, *,
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
         allow_nonfinite: bool = False,
     ) -> None:
@@ -528,10 +493,10 @@ class EpisodicEstimator(LossModule):
         self._set_in_keys()
 
     def default_keys(self) -> _AcceptedKeys:
-        """The default keys: the policy's explorer's for the likelihood, ``("next", "reward")``."""
+        """The default keys: the policy's for the likelihood, ``("next", "reward")``."""
         likelihood = self.log_likelihood
-        return self._AcceptedKeys(action_sample=likelihood.sample_key_default, features=likelihood.explorer.feature_key,
-                                  loc=likelihood.explorer.loc_key, is_init=likelihood.is_init_key)
+        return self._AcceptedKeys(action_sample=likelihood.sample_key_default, features=likelihood.sde.feature_key,
+                                  loc=likelihood.sde.loc_key, is_init=likelihood.is_init_key)
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         """Called by ``set_keys``: hands the likelihood its keys and refreshes ``in_keys``."""
@@ -573,7 +538,7 @@ class EpisodicEstimator(LossModule):
             TypeError: ``episodes`` is not a TensorDict.
             EpisodesError: an empty batch, a missing key (:class:`MissingEpisodesKeyError`),
                 a reward that is not one number per step, a leading dimension other than the
-                policy's runs, features or action samples not shaped for the explorer, an actor
+                policy's runs, features or action samples not shaped for the policy, an actor
                 input that is not floating point or in another dtype than the policy's
                 parameters, or a row holding more than one episode.
             NonFiniteEpisodesError: NaN or infinity in a key the estimator reads (unless
@@ -593,14 +558,14 @@ class EpisodicEstimator(LossModule):
                 raise MissingEpisodesKeyError(
                     f"episodes lack key {key!r}; the estimator reads {self.in_keys}: collect them with the policy "
                     "being trained, or name the keys they use with set_keys(...)", key)
-        explorer = self.log_likelihood.explorer
-        check_rewards_runs_and_inputs(episodes, keys.reward, explorer.runs, list(self.log_likelihood.actor.in_keys))
-        for key, size, name in ((keys.features, explorer.feature_dim, "feature_dim"),
-                                (keys.action_sample, explorer.action_dim, "action_dim")):
+        sde = self.log_likelihood.sde
+        check_rewards_runs_and_inputs(episodes, keys.reward, sde.runs, list(self.log_likelihood.actor.in_keys))
+        for key, size, name in ((keys.features, sde.feature_dim, "feature_dim"),
+                                (keys.action_sample, sde.action_dim, "action_dim")):
             if tuple(episodes.get(key).shape) != (*shape, size):  # a size-1 dimension would broadcast
                 raise EpisodesError(
                     f"episodes key {key!r} has shape {tuple(episodes.get(key).shape)}, expected {(*shape, size)}: "
-                    f"the batch [*runs, N, T] then the explorer's {name}={size}", key)
+                    f"the batch [*runs, N, T] then the policy's {name}={size}", key)
         parameter = next(iter(self.learnable_parameters().values()), None)
         for key in self.log_likelihood.actor.in_keys if parameter is not None else ():
             value, dtype = episodes.get(key), parameter.dtype
@@ -710,12 +675,10 @@ class ReinforceEstimator(EpisodicEstimator):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer
-        >>> from sde_torchrl.envs import make_minimize_env
-        >>> explorer = StateDependentExplorer(1, 1)
-        >>> env = make_minimize_env(5, episodes=8).append_transform(explorer.make_tensordict_primer())
-        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> from sde_torchrl import LinearActor, SDEParams, make_minimize_env, make_sde_actor
+        >>> sde = SDEParams(1, 1)
+        >>> env = make_minimize_env(5, episodes=8).append_transform(sde.make_tensordict_primer())
+        >>> policy = make_sde_actor(LinearActor(1, 1, init=-2.0), sde)
         >>> loss = ReinforceEstimator(policy)
         >>> with torch.no_grad():
         ...     episodes = env.rollout(5, policy)
@@ -757,13 +720,12 @@ def step_scores(log_likelihood: EpisodeLogLikelihood, episodes: TensorDictBase) 
         ``{parameter name: score}`` with each score shaped ``[*runs, N, T, *parameter_shape[len(runs):]]``.
 
     Examples:
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer
-        >>> log_likelihood = EpisodeLogLikelihood(TensorDictSequential(LinearActor(3, 2), StateDependentExplorer(2, 3)))
-        >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action_sample": torch.randn(4, 10, 2)}, [4, 10])
+        >>> from sde_torchrl import LinearActor, SDEParams, make_sde_actor
+        >>> log_likelihood = EpisodeLogLikelihood(make_sde_actor(LinearActor(3, 2), SDEParams(2, 3)))
+        >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action": torch.randn(4, 10, 2)}, [4, 10])
         >>> per_step = step_scores(log_likelihood, steps)
         >>> {name: tuple(s.shape) for name, s in per_step.items()}
-        {'actor.module.0.module.weight': (4, 10, 2, 3), 'explorer.sigma_param': (4, 10, 2, 3)}
+        {'actor.module.0.module.weight': (4, 10, 2, 3), 'sde.sigma_param': (4, 10, 2, 3)}
         >>> per_episode = episode_scores(log_likelihood, steps)
         >>> all(torch.allclose(per_step[n].sum(1), per_episode[n], atol=1e-5) for n in per_episode)
         True
@@ -841,12 +803,10 @@ class GPOMDPEstimator(EpisodicEstimator):
 
     Examples:
         >>> import torch
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer
-        >>> from sde_torchrl.envs import make_minimize_env
-        >>> explorer = StateDependentExplorer(1, 1)
-        >>> env = make_minimize_env(5, episodes=8).append_transform(explorer.make_tensordict_primer())
-        >>> policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+        >>> from sde_torchrl import LinearActor, SDEParams, make_minimize_env, make_sde_actor
+        >>> sde = SDEParams(1, 1)
+        >>> env = make_minimize_env(5, episodes=8).append_transform(sde.make_tensordict_primer())
+        >>> policy = make_sde_actor(LinearActor(1, 1, init=-2.0), sde)
         >>> loss = GPOMDPEstimator(policy, episode_return="sum")
         >>> with torch.no_grad():
         ...     episodes = env.rollout(5, policy)

@@ -77,10 +77,8 @@ def exploration_state(policy: nn.Module, runs: int) -> torch.Tensor:
         runs: the job's runs (the leading dimension of stacked parameters).
 
     Examples:
-        >>> from tensordict.nn import TensorDictSequential
-        >>> from sde_torchrl import LinearActor, StateDependentExplorer
-        >>> policy = TensorDictSequential(LinearActor(3, 2, init=-0.5, runs=2),
-        ...                               StateDependentExplorer(2, 3, init_param=-2.0, runs=2))
+        >>> from sde_torchrl import LinearActor, SDEParams, make_sde_actor
+        >>> policy = make_sde_actor(LinearActor(3, 2, init=-0.5, runs=2), SDEParams(2, 3, init_param=-2.0, runs=2))
         >>> exploration_state(policy, 2)
         tensor([[0.1353, 0.1353],
                 [0.1353, 0.1353],
