@@ -33,11 +33,11 @@ def test_stacked_runs_are_independent_copies():
 
 def test_paper_mlp_has_18_parameters_with_single_sigma():
     """2 → 3 sigmoid → 2 with bias units: 17 weights; one shared σ̂ makes 18 (section 4.1)."""
-    from sde_torchrl import StateDependentExplorer
+    from sde_torchrl import SDEParams, make_sde_actor
 
     actor = MLPActor(2, 2, hidden=[3], activation="sigmoid", bias=True)
-    explorer = StateDependentExplorer(2, 2, sharing="single")
-    assert sum(p.numel() for p in (*actor.parameters(), *explorer.parameters())) == 18
+    policy = make_sde_actor(actor, SDEParams(2, 2, sharing="single"))
+    assert sum(p.numel() for p in policy.parameters()) == 18
 
 
 def test_constant_and_uniform_initialisation():

@@ -7,18 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
 
-from sde_torchrl.config.schemas import (
-    ACTIVATIONS,
-    EPISODE_RETURNS,
-    REWARD_STATES,
-    SCHEDULES,
-    SHARINGS,
-    describe_error,
-    validate,
-)
-from sde_torchrl.envs import minimize
-from sde_torchrl.modules import actors, exploration
-from sde_torchrl.objectives import estimators
+from sde_torchrl.config.schemas import describe_error, validate
 from sde_torchrl.utils.checks import ArgumentError
 
 
@@ -120,12 +109,23 @@ def test_experiments_validate(experiment):
     validate(compose_config(f"+experiment={experiment}"))
 
 
-def test_allowed_values_match_the_modules():
-    assert SCHEDULES == exploration.SCHEDULES
-    assert SHARINGS == exploration.SHARINGS
-    assert set(ACTIVATIONS) == set(actors.ACTIVATIONS)
-    assert REWARD_STATES == minimize.REWARD_STATES
-    assert EPISODE_RETURNS == estimators.EPISODE_RETURNS
+def test_config_and_constructors_refuse_the_same_values():
+    """Each allowed-values tuple is written once (sde_torchrl.utils.options): a value the config
+    refuses, the constructor refuses too, naming the same option."""
+    from sde_torchrl import MLPActor, SDEParams, make_minimize_env
+
+    assert "explorer.schedule=sometimes" in config_error_line("explorer.schedule=sometimes")
+    with pytest.raises(ArgumentError, match="schedule=sometimes"):
+        SDEParams(1, 1, schedule="sometimes")
+    assert "explorer.sharing=per_state" in config_error_line("explorer.sharing=per_state")
+    with pytest.raises(ArgumentError, match="sharing=per_state"):
+        SDEParams(1, 1, sharing="per_state")
+    assert "actor.activation=gelu" in config_error_line("actor=mlp", "actor.activation=gelu")
+    with pytest.raises(ArgumentError, match="activation=gelu"):
+        MLPActor(1, 1, hidden=[2], activation="gelu")
+    assert "env.reward_state=later" in config_error_line("env.reward_state=later")
+    with pytest.raises(ArgumentError, match="reward_state=later"):
+        make_minimize_env(5, reward_state="later")
 
 
 def test_config_error_message():
@@ -194,3 +194,14 @@ def test_gym_env_errors_on_the_command_line_fail_in_one_line(tmp_path):
                       "eval_episodes=1", "logger=none", run_dir=tmp_path / "advised")
     assert started.returncode == 0, started.stderr[-2000:]
     assert len(read_rows(tmp_path / "advised")) == 1
+
+
+def test_checking_a_config_imports_no_torch():
+    """The schemas and the allowed values they check import no torch (train.py checks the config
+    and takes its run directory's lock before torch loads)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, sde_torchrl.config.schemas, sde_torchrl.utils.options; "
+            "assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -36,8 +36,9 @@ from sde_torchrl.modules.distribution import (
     sde_sample,
     sde_variance,
 )
-from sde_torchrl.modules.exploration import expln
-from sde_torchrl.modules.sde_actor import SDENoisePrimer, SDEParams, action_bounds, make_sde_actor
+from sde_torchrl.modules.noise import SDENoisePrimer
+from sde_torchrl.modules.sde import SDEParams, expln
+from sde_torchrl.modules.sde_actor import action_bounds, make_sde_actor
 from sde_torchrl.utils.rng import RunStreams
 
 README = Path(__file__).resolve().parents[1] / "README.md"

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _helpers import sde_policy
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.modules import ProbabilisticActor
@@ -17,7 +18,6 @@ from sde_torchrl import (
     MLPActor,
     ReinforceEstimator,
     SDEParams,
-    StateDependentExplorer,
     episode_returns,
     episode_scores,
     make_minimize_env,
@@ -35,14 +35,13 @@ from sde_torchrl.objectives.estimators import (
 def _policy(actor_kind="linear", runs=None, sharing="element", gaussian=None):
     actor = (LinearActor(2, 2, bias=True, runs=runs, init=[-1.0, 0.0]) if actor_kind == "linear"
              else MLPActor(2, 2, hidden=[3], runs=runs, init=[-1.0, 0.0]))
-    explorer = StateDependentExplorer(2, 2, runs=runs, sharing=sharing, gaussian_init_param=gaussian)
-    return TensorDictSequential(actor, explorer)
+    return sde_policy(actor, 2, 2, runs=runs, sharing=sharing, gaussian_init_param=gaussian)[0]
 
 
 def _episodes(policy, runs=None, episodes=3, length=4):
     torch.manual_seed(0)
     env = make_minimize_env(length, dim=2, episodes=episodes, runs=runs, x0=2.0, x0_spread=1.0)
-    env.append_transform(policy.module[-1].make_tensordict_primer())
+    env.append_transform(policy.sde.make_tensordict_primer())
     with torch.no_grad():
         return env.rollout(length, policy)
 
@@ -109,7 +108,7 @@ def _bandit_episodes(theta, sigma, target, n, generator):
     """One-step episodes of u ~ N(θ, σ²) with x = 1 and reward -(u - c)²."""
     u = theta + sigma * torch.randn(n, 1, 2, generator=generator)
     return TensorDict({
-        "observation": torch.ones(n, 1, 1), "action_sample": u,
+        "observation": torch.ones(n, 1, 1), "action": u,
         "next": {"reward": -(u - target).square().sum(-1, keepdim=True)},
     }, [n, 1])
 
@@ -117,9 +116,7 @@ def _bandit_episodes(theta, sigma, target, n, generator):
 def _bandit_policy(theta, sigma):
     actor = LinearActor(1, 2, init=0.0)
     actor.module.weight.data = theta.reshape(2, 1).clone()
-    explorer = StateDependentExplorer(2, 1, init_param=float(torch.log(torch.tensor(sigma))),
-                                      learn_sigma=False)
-    return TensorDictSequential(actor, explorer)
+    return sde_policy(actor, 2, 1, init_param=float(torch.log(torch.tensor(sigma))), learn_sigma=False)[0]
 
 
 def test_reinforce_is_unbiased_on_a_gaussian_bandit():
@@ -197,15 +194,15 @@ def test_set_keys_renames_the_keys_the_estimator_reads(estimator_cls):
     episodes = _episodes(policy, runs=2, episodes=6)
     expected = estimator_cls(policy)(episodes)["gradient"]
     estimator = estimator_cls(policy)
-    assert estimator.in_keys == ["observation", "action_sample", ("next", "reward")]
+    assert estimator.in_keys == ["observation", "action", ("next", "reward")]
 
     renamed = episodes.clone()
     renamed.rename_key_(("next", "reward"), "my_reward")
     estimator.set_keys(reward="my_reward")
-    assert estimator.in_keys == ["observation", "action_sample", "my_reward"]
+    assert estimator.in_keys == ["observation", "action", "my_reward"]
     torch.testing.assert_close(estimator(renamed)["gradient"], expected, rtol=0, atol=0)
 
-    renamed.rename_key_("action_sample", "my_sample")
+    renamed.rename_key_("action", "my_sample")
     renamed["my_features"] = renamed["observation"]
     estimator.set_keys(action_sample="my_sample", features="my_features")
     assert estimator.in_keys == ["observation", "my_features", "my_sample", "my_reward"]
@@ -214,12 +211,12 @@ def test_set_keys_renames_the_keys_the_estimator_reads(estimator_cls):
         estimator(renamed.exclude("my_features"))
 
     estimator.set_keys(reward=None, action_sample=None, features=None)  # back to the defaults
-    assert estimator.in_keys == ["observation", "action_sample", ("next", "reward")]
+    assert estimator.in_keys == ["observation", "action", ("next", "reward")]
     torch.testing.assert_close(estimator(episodes)["gradient"], expected, rtol=0, atol=0)
 
 
 def test_policy_without_explorer_is_rejected():
-    with pytest.raises(TypeError, match="StateDependentExplorer"):
+    with pytest.raises(TypeError, match=r"got TensorDictSequential; expected make_sde_actor\(actor, SDEParams"):
         ReinforceEstimator(TensorDictSequential(LinearActor(2, 2)))
 
 
@@ -254,11 +251,11 @@ def test_episode_returns_sum_or_mean_the_rewards():
         ReinforceEstimator(policy, episode_return="total")
 
 
-def _linear_closed_forms(policy, episodes):
+def _linear_closed_forms(actor, sde, episodes):
     """Per-episode closed forms on u = W x + Θ̂ x: eq. (14) for W, eq. (21) with expln' (24) for p."""
-    weight = policy.module[0].module.weight.detach()
-    sigma_hat = policy.module[1].sde_sigma.detach()  # p <= 0: expln'(p) = σ̂
-    x, u = episodes["observation"], episodes["action_sample"]
+    weight = actor.module.weight.detach()
+    sigma_hat = sde.sde_sigma.detach()  # p <= 0: expln'(p) = σ̂
+    x, u = episodes["observation"], episodes["action"]
     mu = x @ weight.T
     variance = (x.square() @ sigma_hat.square().T)  # eq. (20), [N, T, A]
     d = (u - mu).unsqueeze(-1)  # [N, T, A, 1]
@@ -271,11 +268,12 @@ def _linear_closed_forms(policy, episodes):
 
 def test_variance_weighted_scores_match_the_authors_closed_forms():
     """Weighted by σ_j² (constant): ∂/∂W_ji = Σ_t (u_j − μ_j) x_i, and the σ̂ score is eq. (21) × σ_j²."""
-    policy = TensorDictSequential(LinearActor(2, 2, bias=False, init=[-1.0, 0.0]), StateDependentExplorer(2, 2))
+    actor = LinearActor(2, 2, bias=False, init=[-1.0, 0.0])
+    policy, sde = sde_policy(actor, 2, 2)
     episodes = _episodes(policy, episodes=3, length=4)
     plain = episode_scores(EpisodeLogLikelihood(policy), episodes)
     weighted = episode_scores(EpisodeLogLikelihood(policy, variance_weighted=True), episodes)
-    plain_w, plain_p, variance, d, xs, sigma_hat = _linear_closed_forms(policy, episodes)
+    plain_w, plain_p, variance, d, xs, sigma_hat = _linear_closed_forms(actor, sde, episodes)
     names = list(plain)
     torch.testing.assert_close(plain[names[0]], plain_w, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(plain[names[1]], plain_p, rtol=1e-4, atol=1e-4)
@@ -302,30 +300,30 @@ def test_max_grad_entry_rescales_by_the_signed_largest_entry_per_run():
         ReinforceEstimator(policy, max_grad_entry=0.0)
 
 
-def _probabilistic_twin(policy, squash=False):
-    """The ProbabilisticActor form (make_sde_actor) of a TensorDictSequential(actor, explorer), same parameters."""
-    actor, explorer = policy.module
-    sde = SDEParams(explorer.action_dim, explorer.feature_dim, sharing=explorer.sharing,
-                    gaussian_init_param=-1.0 if explorer.has_gaussian else None)
-    sde.load_state_dict(explorer.state_dict())
-    kwargs = {"squash": True, "low": -1.0, "high": 1.0} if squash else {}
-    return make_sde_actor(actor, sde, **kwargs)
+def _squashed_twin(policy):
+    """The squashed form (``TanhSDENormal`` onto [-1, 1]) of an unsquashed SDE policy, same parameters."""
+    sde = policy.sde
+    twin = SDEParams(sde.action_dim, sde.feature_dim, sharing=sde.sharing,
+                     gaussian_init_param=-1.0 if sde.has_gaussian else None)
+    twin.load_state_dict(sde.state_dict())
+    return make_sde_actor(policy.module[0].module[0], twin, squash=True, low=-1.0, high=1.0)
 
 
 @pytest.mark.parametrize("estimator_cls", [ReinforceEstimator, ENACEstimator, GPOMDPEstimator])
 @pytest.mark.parametrize("variance_weighted", [False, True])
-def test_probabilistic_actor_policy_gives_the_explorer_policys_gradient(estimator_cls, variance_weighted):
+def test_squashed_policy_gives_the_unsquashed_policys_gradient(estimator_cls, variance_weighted):
+    """The likelihood scores the pre-squash sample: the tanh Jacobian does not depend on the parameters."""
     torch.manual_seed(0)
     policy = _policy(gaussian=-1.0)
     with torch.no_grad():
-        policy.module[-1].sigma_param.add_(0.3 * torch.randn_like(policy.module[-1].sigma_param))
-    twin = _probabilistic_twin(policy)
+        policy.sde.sigma_param.add_(0.3 * torch.randn_like(policy.sde.sigma_param))
+    twin = _squashed_twin(policy)
     episodes = _episodes(policy, episodes=6)
-    # make_sde_actor's policy reads the action it took under "action": the explorer's pre-squash sample
-    as_taken = episodes.exclude("action").set("action", episodes["action_sample"]).exclude("action_sample")
+    # the squashed policy reads the sample it took under "action_sample" and the squashed action under "action"
+    as_taken = episodes.clone().set("action_sample", episodes["action"]).set("action", torch.tanh(episodes["action"]))
     expected = estimator_cls(policy, variance_weighted=variance_weighted)(episodes)["gradient"]
     got = estimator_cls(twin, variance_weighted=variance_weighted)(as_taken)["gradient"]
-    assert expected.abs().max() > 0
+    assert twin.sample_key == "action_sample" and expected.abs().max() > 0
     torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
 
 
@@ -341,10 +339,8 @@ def test_probabilistic_actor_policy_learns_from_its_own_rollouts():
     assert gradient.shape == (2,) and torch.isfinite(gradient).all() and gradient.abs().max() > 0
 
 
-def test_squashed_or_foreign_probabilistic_policies_are_refused_with_the_fix():
-    with pytest.raises(TypeError, match="TanhSDENormal.*without squash"):
-        ReinforceEstimator(_probabilistic_twin(_policy(), squash=True))
+def test_foreign_probabilistic_policies_are_refused_with_the_fix():
     plain = ProbabilisticActor(TensorDictModule(torch.nn.Linear(2, 4), in_keys=["observation"], out_keys=["p"]),
                                in_keys=["p"], distribution_class=torch.distributions.Normal)
-    with pytest.raises(TypeError, match="make_sde_actor"):
+    with pytest.raises(TypeError, match="got ProbabilisticActor; expected make_sde_actor"):
         ReinforceEstimator(plain)

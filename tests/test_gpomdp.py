@@ -20,12 +20,11 @@ import math
 import numpy as np
 import pytest
 import torch
-from _helpers import build, compose_config, crash_at, read_rows
+from _helpers import build, compose_config, crash_at, read_rows, sde_policy
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
 
 import sde_torchrl.objectives.estimators
-from sde_torchrl import LinearActor, MLPActor, ReinforceEstimator, StateDependentExplorer, make_minimize_env
+from sde_torchrl import LinearActor, MLPActor, ReinforceEstimator, make_minimize_env
 from sde_torchrl.config.schemas import validate
 from sde_torchrl.objectives.estimators import (
     EpisodeLogLikelihood,
@@ -75,7 +74,7 @@ def test_gradient_and_baseline_equal_the_formula_written_as_loops():
 def test_step_scores_are_each_steps_autograd_score_and_sum_to_the_episode_score(actor):
     torch.manual_seed(0)
     controller = LinearActor(2, 2, bias=True, runs=2) if actor == "linear" else MLPActor(2, 2, hidden=[3], runs=2)
-    policy = TensorDictSequential(controller, StateDependentExplorer(2, 2, runs=2))
+    policy, _ = sde_policy(controller, 2, 2, runs=2)
     episodes = _rollout(policy, make_minimize_env(3, dim=2, episodes=4, runs=2, x0=2.0, x0_spread=1.0), 3)
     log_likelihood = EpisodeLogLikelihood(policy)
     per_step, per_episode = step_scores(log_likelihood, episodes), episode_scores(log_likelihood, episodes)
@@ -130,7 +129,7 @@ def closed_form_gradient(schedule: str, length: int, reward_weights: torch.Tenso
 
 
 def _rollout(policy, env, length):
-    env.append_transform(policy.module[-1].make_tensordict_primer())
+    env.append_transform(policy.sde.make_tensordict_primer())
     with torch.no_grad():
         return env.rollout(length, policy)
 
@@ -143,8 +142,8 @@ def many_estimates(request):
     """``RUNS`` independent estimates (of ``EPISODES`` episodes each) of GPOMDP, REINFORCE and
     GPOMDP crediting each reward to the *later* actions instead (a mutation), on one batch."""
     torch.manual_seed(0)
-    explorer = StateDependentExplorer(1, 1, runs=RUNS, schedule=request.param, init_param=SIGMA_PARAM)
-    policy = TensorDictSequential(LinearActor(1, 1, runs=RUNS, init=THETA0), explorer)
+    policy, _ = sde_policy(LinearActor(1, 1, runs=RUNS, init=THETA0), 1, 1, runs=RUNS, schedule=request.param,
+                           init_param=SIGMA_PARAM)
     env = make_minimize_env(LENGTH, episodes=EPISODES, runs=RUNS, x0=X0, step_size=STEP, noise_std=NOISE,
                             reward_state="noise_free")
     episodes = _rollout(policy, env, LENGTH)
@@ -197,8 +196,7 @@ def test_with_rex_gpomdp_agrees_with_reinforce_and_varies_less(many_estimates):
 
 def _one_step_episodes(runs=None):
     torch.manual_seed(3)
-    policy = TensorDictSequential(LinearActor(1, 1, runs=runs, init=THETA0),
-                                  StateDependentExplorer(1, 1, runs=runs, init_param=-1.0))
+    policy, _ = sde_policy(LinearActor(1, 1, runs=runs, init=THETA0), 1, 1, runs=runs, init_param=-1.0)
     return policy, _rollout(policy, make_minimize_env(1, episodes=6, runs=runs, x0=X0), 1)
 
 
@@ -217,7 +215,7 @@ def test_on_one_step_episodes_gpomdp_is_reinforce_with_every_option(runs, option
 
 def test_mean_return_scales_the_gradient_by_one_over_t_and_sets_the_runs_shape():
     torch.manual_seed(0)
-    policy = TensorDictSequential(LinearActor(1, 1, runs=2, init=THETA0), StateDependentExplorer(1, 1, runs=2))
+    policy, _ = sde_policy(LinearActor(1, 1, runs=2, init=THETA0), 1, 1, runs=2)
     episodes = _rollout(policy, make_minimize_env(5, episodes=4, runs=2, x0=X0), 5)
     mean, total = GPOMDPEstimator(policy)(episodes), GPOMDPEstimator(policy, episode_return="sum")(episodes)
     assert mean["gradient"].shape == (2, 2) and mean["baseline"].shape == (2, 5, 2)

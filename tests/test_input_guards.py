@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from _helpers import sde_policy
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, StepCounter, TransformedEnv
@@ -15,7 +16,8 @@ from sde_torchrl import (
     LinearActor,
     MinimizeEnv,
     ReinforceEstimator,
-    StateDependentExplorer,
+    SDEActor,
+    SDEParams,
     make_minimize_env,
 )
 from sde_torchrl.collectors.rollout import collect_episodes
@@ -32,13 +34,12 @@ RUNS, EPISODES, LENGTH = 2, 6, 4
 
 
 def _policy(runs=RUNS):
-    explorer = StateDependentExplorer(1, 1, runs=runs)
-    return TensorDictSequential(LinearActor(1, 1, init=-2.0, runs=runs), explorer)
+    return sde_policy(LinearActor(1, 1, init=-2.0, runs=runs), 1, 1, runs=runs)[0]
 
 
 def _env(policy, length=LENGTH, runs=RUNS, episodes=EPISODES):
     env = make_minimize_env(length, episodes=episodes, runs=runs, x0=2.0, x0_spread=1.0)
-    return env.append_transform(policy.module[-1].make_tensordict_primer())
+    return env.append_transform(policy.sde.make_tensordict_primer())
 
 
 def _episodes(policy, fast=True):
@@ -50,7 +51,7 @@ def _episodes(policy, fast=True):
 
 
 @pytest.mark.parametrize("estimator_cls", ESTIMATORS)
-@pytest.mark.parametrize("key", ["observation", "action_sample", ("next", "reward")])
+@pytest.mark.parametrize("key", ["observation", "action", ("next", "reward")])
 @pytest.mark.parametrize("bad", [float("nan"), float("inf")])
 def test_non_finite_input_names_the_key_the_episodes_and_the_fix(estimator_cls, key, bad, capfd):
     policy = _policy()
@@ -89,7 +90,7 @@ def test_without_runs_the_message_names_episodes_only():
 def test_finite_input_whose_scores_overflow_names_the_parameter():
     policy = _policy()
     episodes = _episodes(policy)
-    episodes["action_sample"][0, 1, 2] = 3e38  # finite, but its squared deviation is not
+    episodes["action"][0, 1, 2] = 3e38  # finite, but its squared deviation is not
     with pytest.raises(NonFiniteEpisodesError) as info:
         ReinforceEstimator(policy)(episodes)
     assert str(info.value).startswith("scores of parameter ") and "run 0 episode 1;" in str(info.value)
@@ -150,8 +151,8 @@ def test_a_tensor_instead_of_episodes_is_named():
 def test_missing_key_names_the_key_and_set_keys():
     policy = _policy()
     with pytest.raises(MissingEpisodesKeyError) as info:
-        ReinforceEstimator(policy)(_episodes(policy).exclude("action_sample"))
-    assert str(info.value).startswith("episodes lack key 'action_sample'; the estimator reads ")
+        ReinforceEstimator(policy)(_episodes(policy).exclude("action"))
+    assert str(info.value).startswith("episodes lack key 'action'; the estimator reads ")
     assert "set_keys" in str(info.value) and isinstance(info.value, KeyError)
 
 
@@ -227,10 +228,9 @@ def test_gym_episodes_held_absorbing_pass():
     """An episode that ends early is held until T (sde_torchrl.envs.gym): not a reset inside the row."""
     from sde_torchrl.envs.gym import GymRunsEnv
 
-    explorer = StateDependentExplorer(1, 2)
-    policy = TensorDictSequential(LinearActor(2, 1), explorer)
+    policy, sde = sde_policy(LinearActor(2, 1), 1, 2)
     base = GymRunsEnv("MountainCarContinuous-v0", episodes=3, runs=1, gym_kwargs={"max_episode_steps": 5})
-    env = TransformedEnv(base, Compose(StepCounter(10), InitTracker(), explorer.make_tensordict_primer()))
+    env = TransformedEnv(base, Compose(StepCounter(10), InitTracker(), sde.make_tensordict_primer()))
     with torch.no_grad():
         episodes = env.rollout(10, policy, break_when_any_done=False)
     assert bool((episodes["next", "reward"][..., 5:, :] == 0).all())  # held after the time limit
@@ -242,22 +242,28 @@ def test_gym_episodes_held_absorbing_pass():
 
 
 @pytest.mark.parametrize("estimator_cls", ESTIMATORS)
-def test_an_explorer_instead_of_the_policy_names_the_expected_form(estimator_cls):
-    with pytest.raises(TypeError, match=r"^policy: got a StateDependentExplorer alone; expected "
-                                        r"TensorDictSequential\(actor, explorer\)"):
-        estimator_cls(StateDependentExplorer(1, 1))
+def test_sde_params_instead_of_the_policy_names_the_expected_form(estimator_cls):
+    with pytest.raises(TypeError, match=r"^policy: got SDEParams; expected "
+                                        r"make_sde_actor\(actor, SDEParams\(\.\.\.\)\), an SDEActor$"):
+        estimator_cls(SDEParams(1, 1))
+
+
+def _sde_actor_over(*modules):
+    """An SDEActor over other modules than (actor, SDEParams), bypassing make_sde_actor's checks."""
+    sde = SDEParams(1, 1)
+    return SDEActor(TensorDictSequential(*[sde if m is SDEParams else m for m in modules]), sde)
 
 
 @pytest.mark.parametrize("policy, given", [
-    (LinearActor(1, 1), "got LinearActor;"),
-    (TensorDictSequential(StateDependentExplorer(1, 1)), r"TensorDictSequential\(StateDependentExplorer\) has no "
-                                                         "actor before the explorer"),
-    (TensorDictSequential(StateDependentExplorer(1, 1), LinearActor(1, 1)),
-     r"the last module must be a StateDependentExplorer, got TensorDictSequential\(StateDependentExplorer, "
-     r"LinearActor\)"),
+    (LinearActor(1, 1), "got LinearActor; expected make_sde_actor"),
+    (TensorDictSequential(LinearActor(1, 1), SDEParams(1, 1)), "got TensorDictSequential; expected make_sde_actor"),
+    (_sde_actor_over(SDEParams), r"an SDEActor over TensorDictSequential\(SDEParams\); expected an actor, then "
+                                 r"SDEParams: build it with make_sde_actor\(actor, sde\)"),
+    (_sde_actor_over(SDEParams, LinearActor(1, 1)), r"an SDEActor over TensorDictSequential\(SDEParams, "
+                                                    r"LinearActor\); expected an actor, then SDEParams"),
 ])
 def test_other_wrong_policies_name_what_was_given(policy, given):
-    with pytest.raises(TypeError, match=rf"^policy: .*{given}.*expected TensorDictSequential\(actor, explorer\)"):
+    with pytest.raises(TypeError, match=rf"^policy: {given}"):
         ReinforceEstimator(policy)
 
 
@@ -297,7 +303,7 @@ def test_minimize_env_refuses_non_finite_actions_naming_runs_and_episodes(runs, 
 
 
 @pytest.mark.parametrize("key, shape, expected", [
-    ("action_sample", (2, 6, 4), r"'action_sample' has shape \(2, 6, 4\), expected \(2, 6, 4, 1\): .*action_dim=1"),
+    ("action", (2, 6, 4), r"'action' has shape \(2, 6, 4\), expected \(2, 6, 4, 1\): .*action_dim=1"),
     ("observation", (2, 6, 4, 2), r"'observation' has shape \(2, 6, 4, 2\), expected \(2, 6, 4, 1\): .*feature_dim=1"),
 ])
 def test_features_and_action_samples_must_fit_the_explorer(key, shape, expected):
@@ -310,10 +316,10 @@ def test_features_and_action_samples_must_fit_the_explorer(key, shape, expected)
 
 def test_an_action_sample_that_would_broadcast_is_refused():
     """A size-1 action dimension against action_dim=2 broadcast silently before the guard."""
-    policy = TensorDictSequential(LinearActor(1, 2), StateDependentExplorer(2, 1))
-    episodes = TensorDict({"observation": torch.randn(4, 5, 1), "action_sample": torch.randn(4, 5, 1),
+    policy, _ = sde_policy(LinearActor(1, 2), 2, 1)
+    episodes = TensorDict({"observation": torch.randn(4, 5, 1), "action": torch.randn(4, 5, 1),
                            ("next", "reward"): torch.randn(4, 5, 1)}, [4, 5])
-    with pytest.raises(EpisodesError, match=r"'action_sample' has shape \(4, 5, 1\), expected \(4, 5, 2\)"):
+    with pytest.raises(EpisodesError, match=r"'action' has shape \(4, 5, 1\), expected \(4, 5, 2\)"):
         ReinforceEstimator(policy)(episodes)
 
 

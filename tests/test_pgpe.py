@@ -16,13 +16,13 @@ import doctest
 import numpy as np
 import pytest
 import torch
-from _helpers import build, compose_config, crash_at, read_rows, run_cli
+from _helpers import build, compose_config, crash_at, read_rows, run_cli, sde_policy
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 
 import sde_torchrl.modules.pgpe
 import sde_torchrl.objectives.pgpe
-from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
+from sde_torchrl import LinearActor, MLPActor, SDEParams, make_minimize_env, make_sde_actor
 from sde_torchrl.collectors.rollout import collect_episodes
 from sde_torchrl.config.schemas import validate
 from sde_torchrl.envs.minimize import expected_linear_return
@@ -215,18 +215,17 @@ def test_variance_weighting_is_the_papers_step_not_the_gradient():
 def test_on_the_linear_1d_task_sdes_scores_are_t_times_pgpes():
     """The same exploration, ``(θ + σ ξ) x`` for the episode, scored twice: SDE's per-step
     likelihood (eq. 20) counts the one draw ``ξ`` at each of the T steps, PGPE once."""
-    actor = LinearActor(1, 1, init=THETA0, runs=2)
-    explorer = StateDependentExplorer(1, 1, runs=2)
-    explorer.streams = RunStreams(0, 2, "explore")
+    policy, sde = sde_policy(LinearActor(1, 1, init=THETA0, runs=2), 1, 1, runs=2)
+    sde.streams = RunStreams(0, 2, "explore")
     env = make_minimize_env(LENGTH, episodes=5, runs=2, x0=X0, reward_state="noise_free")
-    policy = TensorDictSequential(actor, explorer)
-    episodes = collect_episodes(env.append_transform(explorer.make_tensordict_primer()), policy, LENGTH)
-    sde = episode_scores(EpisodeLogLikelihood(policy), episodes)
-    xi, sigma = episodes["sde_noise"][..., 0, :, 0], explorer.sde_sigma.detach()[..., 0]  # [2, 5, 1], [2, 1]
+    episodes = collect_episodes(env.append_transform(sde.make_tensordict_primer()), policy, LENGTH)
+    scores = episode_scores(EpisodeLogLikelihood(policy), episodes)
+    xi, sigma = episodes["sde_noise"][..., 0, :, 0], sde.sde_sigma.detach()[..., 0]  # [2, 5, 1], [2, 1]
     mu_score, sigma_score = parameter_scores(sigma.unsqueeze(-2) * xi, sigma)
-    torch.testing.assert_close(sde["actor.module.0.module.weight"][..., 0], LENGTH * mu_score, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(scores["actor.module.0.module.weight"][..., 0], LENGTH * mu_score, rtol=1e-4,
+                               atol=1e-4)
     # σ̂ = exp(p): SDE's score of p is σ̂ times its score of σ̂
-    torch.testing.assert_close(sde["explorer.sigma_param"][..., 0], LENGTH * sigma.unsqueeze(-2) * sigma_score,
+    torch.testing.assert_close(scores["sde.sigma_param"][..., 0], LENGTH * sigma.unsqueeze(-2) * sigma_score,
                                rtol=1e-4, atol=1e-4)
 
 
@@ -271,7 +270,7 @@ def test_the_guard_names_a_non_finite_sigma(tmp_path):
 
 @pytest.mark.parametrize("overrides, message", [
     (("explorer=pgpe",), "estimator=ReinforceEstimator: explorer=pgpe and estimator=pgpe go together"),
-    (("estimator=pgpe",), "explorer=StateDependentExplorer: explorer=pgpe and estimator=pgpe go together"),
+    (("estimator=pgpe",), "explorer=SDEParams: explorer=pgpe and estimator=pgpe go together"),
     ((*PGPE, "episodes_per_update=5"), "episodes_per_update=5: an even number"),
     ((*PGPE, "episodes_per_update=2"), "episodes_per_update=2: at least 2 parameter draws"),
     ((*PGPE, "explorer.symmetric=false", "episodes_per_update=1"), "episodes_per_update=1: at least 2"),
@@ -283,8 +282,9 @@ def test_config_refuses_what_pgpe_cannot_learn_from(overrides, message):
 
 def test_estimator_refuses_other_policies_and_mixed_rows():
     actor = LinearActor(1, 1, init=-2.0)
-    with pytest.raises(TypeError, match="expected TensorDictSequential"):
-        PGPEEstimator(TensorDictSequential(actor, StateDependentExplorer(1, 1)))
+    with pytest.raises(TypeError, match=r"^policy: got SDEActor\(TensorDictSequential, .*\); expected "
+                                        r"TensorDictSequential\(actor, ParameterExplorer\(actor\)\)"):
+        PGPEEstimator(make_sde_actor(actor, SDEParams(1, 1)))
     explorer = ParameterExplorer(actor)
     env = make_minimize_env(4, episodes=4).append_transform(explorer.make_tensordict_primer())
     policy = TensorDictSequential(actor, explorer)

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import pytest
 import torch
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import TensorDictModule
 from torchrl.envs import RewardScaling
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from sde_torchrl import LinearActor, MLPActor, StateDependentExplorer, make_minimize_env
+from sde_torchrl import LinearActor, MLPActor, SDEParams, make_minimize_env, make_sde_actor
 from sde_torchrl.collectors.rollout import (
     collect_episodes,
     episode_matrix,
     linear_episode_env,
     linear_episode_rollout,
+    noise_primer,
     tensor_rollout,
     tensor_step_env,
 )
@@ -27,12 +28,16 @@ def _setup(schedule, every_n=None, actor="linear", squash=False, gaussian=None):
     actor_module = (LinearActor(dim, dim, runs=runs, init=[-1.0, 0.0]) if actor == "linear"
                     else MLPActor(dim, dim, hidden=[3], runs=runs, init=[-1.0, 0.0]))
     actor_module.module.reset_parameters(RunStreams(0, runs, "init"))
-    explorer = StateDependentExplorer(dim, dim, schedule=schedule, every_n=every_n, runs=runs,
-                                      squash=squash, gaussian_init_param=gaussian)
-    explorer.streams = RunStreams(0, runs, "explore")
+    sde = SDEParams(dim, dim, schedule=schedule, every_n=every_n, runs=runs, gaussian_init_param=gaussian)
+    sde.streams = RunStreams(0, runs, "explore")
     env = make_minimize_env(6, dim=dim, episodes=3, runs=runs, x0_spread=1.0, seed=4)
-    env.append_transform(explorer.make_tensordict_primer())
-    return env, TensorDictSequential(actor_module, explorer)
+    env.append_transform(sde.make_tensordict_primer())
+    return env, make_sde_actor(actor_module, sde, squash=squash, low=-1.0, high=1.0)
+
+
+def _fast(collect, env, policy, steps):
+    """``collect`` (a fast path) on ``env``'s base env with ``env``'s noise primer."""
+    return collect(env.base_env, policy, steps, noise_primer(env))
 
 
 @pytest.mark.parametrize("schedule, every_n, actor, squash, gaussian", [
@@ -49,23 +54,29 @@ def test_tensor_rollout_equals_env_rollout(schedule, every_n, actor, squash, gau
     base = tensor_step_env(env2, policy2)
     assert base is env2.base_env
     with torch.no_grad():
-        fast = tensor_rollout(base, policy2, 6)
+        fast = _fast(tensor_rollout, env2, policy2, 6)
     assert fast.batch_size == reference.batch_size == (2, 3, 6)
-    for key in ["observation", "loc", "scale", "action_log_prob", "action", "action_sample", "sde_noise", "is_init",
-                ("next", "observation"), ("next", "reward"), ("next", "truncated")]:
+    keys = ["observation", "loc", "action_log_prob", "action", "sde_noise", "is_init",
+            ("next", "observation"), ("next", "reward"), ("next", "truncated")]
+    keys += ["action_sample"] if squash else []
+    keys += ["sde_gaussian_noise"] if gaussian is not None else []
+    for key in keys:
         torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
 
 
 def test_tensor_rollout_is_deterministic_under_deterministic_exploration():
     env, policy = _setup("episode")
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        fast = tensor_rollout(env.base_env, policy, 6)
-    torch.testing.assert_close(fast["action"], policy.module[0](fast.select("observation"))["loc"])
+        fast = _fast(tensor_rollout, env, policy, 6)
+    torch.testing.assert_close(fast["action"], policy.actor(fast.select("observation"))["loc"])
 
 
 def test_envs_or_policies_it_cannot_reproduce_fall_back():
     env, policy = _setup("episode")
-    assert tensor_step_env(env, TensorDictSequential(policy.module[0])) is None
+    assert tensor_step_env(env, policy.actor) is None  # not an SDE policy
+    other = make_sde_actor(TensorDictModule(policy.actor.module[0].module, ["observation"], ["loc"]),
+                           SDEParams(2, 2, runs=2, noise_key="other_noise"))
+    assert tensor_step_env(env, other) is None  # the env's primer draws another key
     env.append_transform(RewardScaling(loc=0.0, scale=2.0))  # a transform that must run
     assert tensor_step_env(env, policy) is None
 
@@ -78,11 +89,11 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
 
     def setup():
         torch.manual_seed(0)
-        explorer = StateDependentExplorer(4, 3, squash=True)
-        explorer.streams = RunStreams(0, 3, "explore")  # the primer's global draws then do not matter
+        sde = SDEParams(4, 3)
+        sde.streams = RunStreams(0, 3, "explore")
         env = TransformedEnv(BatchedBallCatchEnv(num_worlds=3, seed=5),
-                             _Compose(InitTracker(), explorer.make_tensordict_primer()))
-        return env, TensorDictSequential(LinearActor(3, 4, init=[-0.5, 0.5]), explorer)
+                             _Compose(InitTracker(), sde.make_tensordict_primer()))
+        return env, make_sde_actor(LinearActor(3, 4, init=[-0.5, 0.5]), sde, squash=True, low=-1.0, high=1.0)
 
     env, policy = setup()
     with torch.no_grad():
@@ -91,7 +102,7 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
     base = tensor_step_env(env2, policy2)
     assert base is env2.base_env
     with torch.no_grad():
-        fast = tensor_rollout(base, policy2, 40)
+        fast = _fast(tensor_rollout, env2, policy2, 40)
     for key in ["observation", "action", "sde_noise", ("next", "observation"), ("next", "reward")]:
         torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
     env.close()
@@ -106,13 +117,13 @@ def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, world
     actor = LinearActor(3, 4, bias=bias, runs=runs)
     with torch.no_grad():
         actor.module.weight.copy_(torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float32))
-    explorer = StateDependentExplorer(4, 3, schedule=schedule, every_n=every_n, squash=True, init_param=-2.0,
-                                      runs=runs, gaussian_init_param=gaussian)
-    explorer.streams = RunStreams(0, runs, "explore")
+    sde = SDEParams(4, 3, schedule=schedule, every_n=every_n, init_param=-2.0, runs=runs,
+                    gaussian_init_param=gaussian)
+    sde.streams = RunStreams(0, runs, "explore")
     env = make_ballcatch_env(worlds, runs=runs, episode_length=steps, model="cup")
     env.set_seed(3)
-    env.append_transform(explorer.make_tensordict_primer())
-    return env, TensorDictSequential(actor, explorer)
+    env.append_transform(sde.make_tensordict_primer())
+    return env, make_sde_actor(actor, sde, squash=True, low=-1.0, high=1.0)
 
 
 @pytest.mark.parametrize("schedule", ["episode", "step"])
@@ -128,17 +139,20 @@ def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode, schedule
     base = linear_episode_env(env2, policy2)
     assert base is env2.base_env
     with torch.no_grad(), set_exploration_type(mode):
-        reference = tensor_rollout(tensor_step_env(env, policy), policy, steps)
-        fast = linear_episode_rollout(base, policy2, steps)
+        assert tensor_step_env(env, policy) is env.base_env
+        reference = _fast(tensor_rollout, env, policy, steps)
+        fast = _fast(linear_episode_rollout, env2, policy2, steps)
     assert set(fast.keys(True, True)) == set(reference.keys(True, True))
     assert ("sde_noise" in fast.keys()) == (mode == ExplorationType.RANDOM)
     for key in ["is_init", ("next", "done"), ("next", "truncated"), "sde_noise", "observation"]:
         if key in reference.keys(True, True):
             torch.testing.assert_close(fast[key][..., :before_contact, :], reference[key][..., :before_contact, :],
                                        rtol=0, atol=0, msg=lambda m, key=key: f"{key}: {m}")
-    for key in ["loc", "action_sample", "action", "scale", ("next", "observation"), ("next", "reward")]:
+    for key in ["loc", "action_sample", "action", ("next", "observation"), ("next", "reward")]:
         torch.testing.assert_close(fast[key][..., :before_contact, :], reference[key][..., :before_contact, :],
                                    rtol=1e-4, atol=1e-4, msg=lambda m, key=key: f"{key}: {m}")
+    torch.testing.assert_close(fast["action_log_prob"][..., :before_contact],
+                               reference["action_log_prob"][..., :before_contact], rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(fast["next", "reward"].mean((-1, -2)), reference["next", "reward"].mean((-1, -2)),
                                rtol=0, atol=0.02)
     env.close()
@@ -200,30 +214,29 @@ def test_linear_episode_path_needs_an_env_that_runs_linear_episodes():
 
 
 @pytest.mark.parametrize("schedule", ["episode", "step"])
-def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_act(schedule):
+def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_the_primer(schedule):
+    """The maps use the noise the env's primer gives an episode of ``steps`` steps (a draw at the
+    reset, one after each step but the last) and leave the streams where ``env.rollout`` does."""
     runs, steps = 2, 5
-    env, policy = _catching_setup(schedule, runs=runs)
-    actor, explorer = policy.module
-    weight = actor.module.weight.detach()
-    matrix, noise = episode_matrix(explorer, weight, torch.Size([runs, 3]), steps)
-    after_matrix = explorer.streams.normal((runs, 7))
+    env, policy = _catching_setup(schedule, runs=runs, worlds=3, steps=steps)
+    sde, primer = policy.sde, noise_primer(env)
+    weight = policy.actor.module[0].module.weight.detach()
+    matrix, noise = episode_matrix(primer, sde, weight, torch.Size([runs, 3]), steps)
+    after_matrix = sde.streams.normal((runs, 7))
 
-    explorer.streams = RunStreams(0, runs, "explore")
-    x, previous, noises = torch.randn(runs, 3, 3), None, []
-    for t in range(steps):
-        _, previous, _ = explorer.act(torch.zeros(runs, 3, 4), x, previous,
-                                      torch.full((runs, 3, 1), t == 0))
-        noises.append(previous)
-    expected = previous if schedule == "episode" else torch.stack(noises, dim=2)  # [runs, 3, (steps,) 4, 3]
-    torch.testing.assert_close(noise, expected, rtol=0, atol=0)
-    torch.testing.assert_close(explorer.streams.normal((runs, 7)), after_matrix, rtol=0, atol=0)
-    sigma = explorer.sde_sigma.detach()[:, None]
+    sde.streams.load_state_dict(RunStreams(0, runs, "explore").state_dict())
+    with torch.no_grad():
+        episodes = env.rollout(steps, policy, break_when_any_done=False)
+    expected = episodes["sde_noise"][:, :, 0] if schedule == "episode" else episodes["sde_noise"]
+    torch.testing.assert_close(noise, expected, rtol=0, atol=0)  # [runs, 3, (steps,) 4, 3]
+    torch.testing.assert_close(sde.streams.normal((runs, 7)), after_matrix, rtol=0, atol=0)
+    sigma = sde.sde_sigma.detach()[:, None]
     theta = weight[:, None]
     if schedule == "step":
         sigma, theta = sigma[:, None], theta[:, None]
     torch.testing.assert_close(matrix, theta + sigma * noise)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        deterministic, none = episode_matrix(explorer, weight, torch.Size([runs, 3]), steps)
+        deterministic, none = episode_matrix(primer, sde, weight, torch.Size([runs, 3]), steps)
     assert none is None and torch.equal(deterministic, weight[:, None].expand(runs, 3, 4, 3))
     env.close()
 
@@ -262,7 +275,7 @@ def test_collect_episodes_steps_tensors_where_it_can(schedule, mode):
     env2, policy2 = _setup(schedule)
     with set_exploration_type(mode):
         with torch.no_grad():
-            reference = tensor_rollout(env.base_env, policy, 6)
+            reference = _fast(tensor_rollout, env, policy, 6)
         episodes = collect_episodes(env2, policy2, 6)
     _assert_same_episodes(episodes, reference)
     assert not episodes["loc"].requires_grad  # collected without a graph
@@ -275,7 +288,7 @@ def test_collect_episodes_runs_linear_episodes_where_it_can(mode, schedule):
     env2, policy2 = _catching_setup(schedule, steps=30)
     with set_exploration_type(mode):
         with torch.no_grad():
-            reference = linear_episode_rollout(env.base_env, policy, 30)
+            reference = _fast(linear_episode_rollout, env, policy, 30)
         _assert_same_episodes(collect_episodes(env2, policy2, 30), reference)
     env.close()
     env2.close()

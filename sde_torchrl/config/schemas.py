@@ -20,7 +20,6 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 from sde_torchrl.jobs.resources import check_memory, launcher_request
-from sde_torchrl.trainers.optim import LR_SCHEDULES
 from sde_torchrl.utils.checks import (
     ArgumentError,
     finite,
@@ -32,22 +31,25 @@ from sde_torchrl.utils.checks import (
     positive_int,
     show,
 )
+from sde_torchrl.utils.options import (
+    ACTIVATIONS,
+    EPISODE_RETURNS,
+    LR_SCHEDULES,
+    NORMALIZATIONS,
+    REWARD_STATES,
+    SCHEDULES,
+    SHARINGS,
+)
 
 # ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP006, UP007, UP035, UP045
 
 
-# Kept in sync with the modules they describe (importing those would cost the import of torch
-# at config time; the tests check the two agree). Strings checked by the schemas, not Enums: Hydra
-# would reject an unknown Enum value while composing, which in a multirun stops the whole sweep
-# instead of failing that one job (with its error.txt).
-SCHEDULES = ("episode", "step", "every_n")
-SHARINGS = ("element", "action", "single")
-ACTIVATIONS = ("sigmoid", "tanh", "relu")
-NORMALIZATIONS = ("bounds", "stats")
+# The allowed strings live in sde_torchrl.utils.options, beside no torch. Strings checked by the
+# schemas, not Enums: Hydra would reject an unknown Enum value while composing, which in a multirun
+# stops the whole sweep instead of failing that one job (with its error.txt). The arm names are
+# kept beside the models' data, which imports pybullet on use: a test checks the two agree.
 ARM_MODELS = ("pybrain", "cup")
-REWARD_STATES = ("noise_free", "noisy")
-EPISODE_RETURNS = ("sum", "mean")
 
 
 # ------------------------------------------------------------------------------ schemas

@@ -37,11 +37,11 @@ from torchrl.envs.libs.gym import GymEnv
 
 from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
 from sde_torchrl.utils.checks import positive_int
+from sde_torchrl.utils.options import NORMALIZATIONS
 from sde_torchrl.utils.rng import RunStreams
 
 #: Key of the explorer's features when ``constant_feature`` is set.
 FEATURES_KEY = "sde_features"
-NORMALIZATIONS = ("bounds", "stats")
 
 
 class GymRunsEnv(EnvBase):

@@ -16,10 +16,8 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
 from sde_torchrl.utils.checks import ArgumentError, finite, finite_entries, one_of, positive_int
+from sde_torchrl.utils.options import REWARD_STATES
 from sde_torchrl.utils.rng import RunStreams
-
-#: Which state the reward scores: ``noise_free`` (``x_t + s u_t``) or ``noisy`` (``x_{t+1}``).
-REWARD_STATES = ("noise_free", "noisy")
 
 
 class MinimizeEnv(EnvBase):

@@ -17,10 +17,12 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from sde_torchrl.utils.checks import one_of, positive_int
+from sde_torchrl.utils.options import ACTIVATIONS
 from sde_torchrl.utils.rng import RunStreams, draw_uniform
 from sde_torchrl.utils.shapes import align, stacked_matvec
 
-ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "relu": torch.relu}
+#: The activation functions by name (:data:`~sde_torchrl.utils.options.ACTIVATIONS`).
+ACTIVATION_FUNCTIONS = {name: getattr(torch, name) for name in ACTIVATIONS}
 
 #: An initialisation: a constant, or ``[low, high)`` for a uniform draw.
 Init = float | Sequence[float] | None
@@ -106,7 +108,7 @@ class MLP(nn.Module):
         activation: str = "sigmoid", bias: bool = True, runs: int | None = None, init: Init = None,
     ) -> None:
         super().__init__()
-        self.activation = ACTIVATIONS[one_of("activation", activation, ACTIVATIONS)]
+        self.activation = ACTIVATION_FUNCTIONS[one_of("activation", activation, ACTIVATIONS)]
         sizes = [in_features, *hidden, out_features]
         self.layers = nn.ModuleList(
             BatchedLinear(n_in, n_out, bias=bias, runs=runs, init=init)

@@ -27,9 +27,9 @@ from torchrl.envs.transforms.utils import _get_reset
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from sde_torchrl.utils.checks import ArgumentError, one_of, positive_int
+from sde_torchrl.utils.options import SCHEDULES
 from sde_torchrl.utils.rng import RunStreams, draw_normal
 
-SCHEDULES = ("episode", "step", "every_n")
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
 
 #: What to do when a policy finds no noise in its input.

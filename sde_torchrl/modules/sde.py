@@ -22,12 +22,11 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from sde_torchrl.modules.distribution import gaussian_log_prob, sde_variance
-from sde_torchrl.modules.noise import ADD_PRIMER, SCHEDULES, SDENoisePrimer, deterministic_exploration
+from sde_torchrl.modules.noise import ADD_PRIMER, SDENoisePrimer, deterministic_exploration
 from sde_torchrl.utils.checks import ArgumentError, one_of, positive_int
+from sde_torchrl.utils.options import SCHEDULES, SHARINGS
 from sde_torchrl.utils.rng import RunStreams
 from sde_torchrl.utils.shapes import align
-
-SHARINGS = ("element", "action", "single")
 
 
 def expln(p: torch.Tensor) -> torch.Tensor:

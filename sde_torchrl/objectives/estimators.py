@@ -27,6 +27,7 @@ from torchrl.objectives import LossModule
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import SDEActor
 from sde_torchrl.utils.checks import NonFiniteInputError, batch_entries, one_of
+from sde_torchrl.utils.options import EPISODE_RETURNS
 
 
 class EpisodesError(ValueError):
@@ -244,8 +245,6 @@ def flatten_scores(scores: dict[str, torch.Tensor], run_dims: int) -> torch.Tens
     return torch.cat([s.flatten(run_dims + 1) for s in scores.values()], dim=-1)
 
 
-#: Return definitions: the paper's text (``mean``) or the authors' PyBrain REINFORCE (``sum``).
-EPISODE_RETURNS = ("sum", "mean")
 
 
 def check_rewards_runs_and_inputs(episodes: TensorDictBase, reward_key: NestedKey, runs: int | None,

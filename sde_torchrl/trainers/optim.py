@@ -21,12 +21,11 @@ from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
 from sde_torchrl.utils.checks import fraction, one_of, positive_int
+from sde_torchrl.utils.options import LR_SCHEDULES
 
 if TYPE_CHECKING:  # torch is imported when an optimiser is made: the config schemas read this module
     import torch
 
-#: ``lr_schedule`` options: the factor on ``α`` from the first update to the last.
-LR_SCHEDULES = ("constant", "linear", "cosine")
 #: Config keys of the ``optimizer`` group that describe the schedule, not the optimiser.
 SCHEDULE_KEYS = ("lr_schedule", "final_lr_fraction")
 #: ``_target_`` values the ``optimizer`` group may name.

@@ -1,31 +1,28 @@
-"""The SDE explorer: expln (23, 24), the action distribution (20, 22), the likelihood's
-gradients against the paper's closed forms (14)-(16), (21) and finite differences, and the
-noise schedule (episode / step / every_n) across full and partial resets; and that the explorer is
-the same SDE as the distribution form (shared ``SDESigma`` parameters, ``SDENormal``'s numbers)."""
+"""SDE's parameters and policy: expln (23, 24), the action distribution (20, 22), the likelihood's
+gradients against the paper's closed forms (14)-(16), (21) and finite differences, the noise
+schedule (episode / step / every_n) across full and partial resets, and that the policy's action
+and log-probability are ``SDENormal``'s (one implementation)."""
 
 from __future__ import annotations
 
-import doctest
 import math
-import warnings
 
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import TensorDictModule
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-import sde_torchrl.modules.exploration
 from sde_torchrl import (
     LinearActor,
     SDENormal,
     SDEParams,
-    StateDependentExplorer,
+    TanhSDENormal,
     expln,
     expln_inverse,
     make_minimize_env,
+    make_sde_actor,
 )
-from sde_torchrl.modules.exploration import SDESigma
 
 SHARINGS = ("element", "action", "single")
 
@@ -76,97 +73,126 @@ def test_expln_inverse_rejects_non_positive_or_non_finite(bad):
 
 # ----------------------------------------------------------------- distribution (20, 22)
 
-def _explorer(sharing="element", dtype=torch.float64, **kwargs):
-    explorer = StateDependentExplorer(2, 3, sharing=sharing, **kwargs).to(dtype)
+def _sde(sharing="element", dtype=torch.float64, **kwargs):
+    sde = SDEParams(2, 3, sharing=sharing, **kwargs).to(dtype)
     with torch.no_grad():  # distinct σ̂ per entry, so sharing mistakes cannot cancel out
-        p = explorer.sigma_param
+        p = sde.sigma_param
         p.copy_(torch.linspace(-2.5, 0.7, p.numel(), dtype=dtype).reshape(p.shape))
-    return explorer
+    return sde
+
+
+def _mean_policy(sde, squash=False):
+    """The SDE policy whose controller mean is the input's ``mean``: the distribution alone."""
+    actor = TensorDictModule(lambda mean: mean, in_keys=["mean"], out_keys=["loc"])
+    return make_sde_actor(actor, sde, squash=squash, low=-1.0, high=1.0)
+
+
+def _step(loc, x, sde, noise=None):
+    batch = loc.shape[:-1]
+    td = TensorDict({"mean": loc, "observation": x,
+                     "sde_noise": torch.randn(*batch, 2, 3, dtype=loc.dtype) if noise is None else noise}, batch)
+    if sde.has_gaussian:
+        td["sde_gaussian_noise"] = torch.randn(*batch, 2, dtype=loc.dtype)
+    return td
 
 
 @pytest.mark.parametrize("sharing", SHARINGS)
 def test_scale_is_eq_20(sharing):
-    explorer = _explorer(sharing)
+    sde = _sde(sharing)
     x = torch.tensor([[0.5, -2.0, 1.5], [3.0, 0.0, -0.1]], dtype=torch.float64)
-    sigma_hat = expln(explorer.sigma_param).expand(2, 3)
+    sigma_hat = expln(sde.sigma_param).expand(2, 3)
     expected = torch.stack([
         torch.sqrt(sum((x[b, i] * sigma_hat[j, i]) ** 2 for i in range(3))) for b in range(2) for j in range(2)
     ]).reshape(2, 2)
-    torch.testing.assert_close(explorer.scale(x), expected)
+    torch.testing.assert_close(sde.scale(x), expected)
 
 
 def test_scale_adds_gaussian_part_eq_22():
-    explorer = _explorer(gaussian_init_param=-1.0)
+    sde = _sde(gaussian_init_param=-1.0)
     x = torch.tensor([[0.5, -2.0, 1.5]], dtype=torch.float64)
-    sde_only = _explorer().scale(x)
-    expected = torch.sqrt(sde_only.square() + math.exp(-1.0) ** 2)
-    torch.testing.assert_close(explorer.scale(x), expected)
+    expected = torch.sqrt(_sde().scale(x).square() + math.exp(-1.0) ** 2)
+    torch.testing.assert_close(sde.scale(x), expected)
 
 
 @pytest.mark.parametrize("gaussian", [None, -1.0])
 def test_actions_follow_the_stated_distribution(gaussian):
     """Over fresh noise draws, u ~ N(loc, scale²) (eq. 20; with eq. 22's part if enabled)."""
     torch.manual_seed(0)
-    explorer = _explorer(schedule="step", gaussian_init_param=gaussian)
+    sde = _sde(gaussian_init_param=gaussian)
     n = 40_000
     x = torch.tensor([0.5, -2.0, 1.5], dtype=torch.float64).expand(n, 3)
     loc = torch.tensor([1.0, -1.0], dtype=torch.float64).expand(n, 2)
-    out = explorer(TensorDict({"loc": loc, "observation": x}, [n]))
+    out = _mean_policy(sde)(_step(loc, x, sde))
     torch.testing.assert_close(out["action"].mean(0), loc[0], atol=0.05, rtol=0)
-    torch.testing.assert_close(out["action"].std(0), out["scale"][0], rtol=0.03, atol=0)
+    torch.testing.assert_close(out["action"].std(0), sde.scale(x[:1])[0], rtol=0.03, atol=0)
 
 
-def test_log_prob_is_gaussian_density_of_pre_squash_sample():
+def test_squashed_policy_keeps_the_sample_and_scores_the_action_by_change_of_variables():
+    """``action = tanh(u)``; ``sde.log_prob`` is the Gaussian density of ``u`` (eqs. 13, 20, what the
+    estimators score); ``action_log_prob`` is the density of the action, ``- Σ log(1 - tanh² u)``."""
     torch.manual_seed(1)
-    explorer = _explorer(squash=True)
-    td = TensorDict({"loc": torch.randn(5, 2, dtype=torch.float64),
-                     "observation": torch.randn(5, 3, dtype=torch.float64)}, [5])
-    out = explorer(td)
-    expected = torch.distributions.Normal(out["loc"], out["scale"]).log_prob(out["action_sample"]).sum(-1)
-    torch.testing.assert_close(out["action_log_prob"], expected)
-    torch.testing.assert_close(out["action"], torch.tanh(out["action_sample"]))
+    sde = _sde()
+    loc, x = torch.randn(5, 2, dtype=torch.float64), torch.randn(5, 3, dtype=torch.float64)
+    out = _mean_policy(sde, squash=True)(_step(loc, x, sde))
+    sample = out["action_sample"]
+    gaussian = torch.distributions.Normal(loc, sde.scale(x)).log_prob(sample).sum(-1)
+    torch.testing.assert_close(sde.log_prob(loc, x, sample), gaussian)
+    torch.testing.assert_close(out["action"], torch.tanh(sample))
+    torch.testing.assert_close(out["action_log_prob"], gaussian - torch.log1p(-torch.tanh(sample) ** 2).sum(-1))
 
 
 @pytest.mark.parametrize("squash", [False, True])
 def test_deterministic_exploration_returns_the_mean(squash):
-    explorer = _explorer(squash=squash)
-    loc = torch.randn(4, 2, dtype=torch.float64)
-    td = TensorDict({"loc": loc, "observation": torch.randn(4, 3, dtype=torch.float64)}, [4])
+    sde = _sde()
+    loc, x = torch.randn(4, 2, dtype=torch.float64), torch.randn(4, 3, dtype=torch.float64)
+    policy = _mean_policy(sde, squash)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        action = explorer(td.clone())["action"]
+        action = policy(TensorDict({"mean": loc, "observation": x}, [4]))["action"]  # no noise needed
     torch.testing.assert_close(action, torch.tanh(loc) if squash else loc)
-    assert not torch.equal(explorer(td)["action"], action)  # exploration is on otherwise
+    assert not torch.equal(policy(_step(loc, x, sde))["action"], action)  # exploration is on otherwise
+
+
+def test_action_is_loc_plus_theta_hat_x():
+    """(18): u = (Θ + Θ̂) x for a linear controller, with Θ̂ = σ̂ ⊙ ξ."""
+    sde = SDEParams(2, 3, init_param=-1.0)
+    x, noise, loc = torch.randn(4, 3), torch.randn(4, 2, 3), torch.randn(4, 2)
+    td = _mean_policy(sde)(TensorDict({"mean": loc, "observation": x, "sde_noise": noise}, [4]))
+    theta_hat = math.exp(-1.0) * noise
+    torch.testing.assert_close(td["action"], loc + (theta_hat @ x.unsqueeze(-1)).squeeze(-1))
 
 
 # ------------------------------------------------- gradients: closed forms (14)-(16), (21)
 
 def _linear_policy(sharing, gaussian=None):
     actor = LinearActor(3, 2, init=[-1.0, 1.0]).double()
-    return actor, _explorer(sharing, gaussian_init_param=gaussian)
+    return actor, _sde(sharing, gaussian_init_param=gaussian)
 
 
-def _log_prob(actor, explorer, x, u):
-    return explorer.log_prob(actor(TensorDict({"observation": x}, x.shape[:-1]))["loc"], x, u)
+def _log_prob(actor, sde, x, u):
+    return sde.log_prob(actor(TensorDict({"observation": x}, x.shape[:-1]))["loc"], x, u)
 
 
-def _sample(actor, explorer, x):
+def _sample(actor, sde, x):
     torch.manual_seed(3)
     with torch.no_grad():
-        td = actor(TensorDict({"observation": x}, x.shape[:-1]))
-        return explorer(td)["action_sample"]
+        td = TensorDict({"observation": x, "sde_noise": torch.randn(*x.shape[:-1], 2, 3, dtype=x.dtype)},
+                        x.shape[:-1])
+        if sde.has_gaussian:
+            td["sde_gaussian_noise"] = torch.randn(*x.shape[:-1], 2, dtype=x.dtype)
+        return make_sde_actor(actor, sde)(td)["action"]
 
 
 @pytest.mark.parametrize("sharing", SHARINGS)
 def test_autograd_matches_closed_forms_16_and_21_with_expln_factor(sharing):
-    actor, explorer = _linear_policy(sharing)
+    actor, sde = _linear_policy(sharing)
     x = torch.tensor([0.7, -1.2, 2.0], dtype=torch.float64)
-    u = _sample(actor, explorer, x)
-    logp = _log_prob(actor, explorer, x, u)
-    d_theta, d_p = torch.autograd.grad(logp, [actor.module.weight, explorer.sigma_param])
+    u = _sample(actor, sde, x)
+    logp = _log_prob(actor, sde, x, u)
+    d_theta, d_p = torch.autograd.grad(logp, [actor.module.weight, sde.sigma_param])
 
     with torch.no_grad():
         mu = actor.module.weight @ x
-        p = explorer.sigma_param
+        p = sde.sigma_param
         sigma_hat = expln(p).expand(2, 3)
         var = (x.square() * sigma_hat.square()).sum(-1)
         diff = u - mu
@@ -185,13 +211,13 @@ def test_autograd_matches_closed_forms_16_and_21_with_expln_factor(sharing):
 
 def test_autograd_matches_eq_15_for_the_gaussian_sigma():
     """With zero features the SDE part vanishes and σ_j is the Gaussian σ alone (eq. 15)."""
-    actor, explorer = _linear_policy("element", gaussian=-0.5)
-    explorer.gaussian_param.data = torch.tensor([-0.5, 0.3], dtype=torch.float64)
+    actor, sde = _linear_policy("element", gaussian=-0.5)
+    sde.gaussian_param.data = torch.tensor([-0.5, 0.3], dtype=torch.float64)
     x = torch.zeros(3, dtype=torch.float64)
     u = torch.tensor([0.4, -0.9], dtype=torch.float64)
-    (d_q,) = torch.autograd.grad(_log_prob(actor, explorer, x, u), [explorer.gaussian_param])
+    (d_q,) = torch.autograd.grad(_log_prob(actor, sde, x, u), [sde.gaussian_param])
     with torch.no_grad():
-        q = explorer.gaussian_param
+        q = sde.gaussian_param
         sigma = expln(q)
         closed_15 = (u.square() - sigma.square()) / sigma**3
         expln_prime = torch.where(q <= 0, torch.exp(q), 1 / (q + 1))
@@ -204,14 +230,14 @@ def test_autograd_matches_eq_14_through_an_mlp():
 
     torch.manual_seed(4)
     actor = MLPActor(3, 2, hidden=[4], init=[-1.0, 1.0]).double()
-    explorer = _explorer("single")
+    sde = _sde("single")
     x = torch.tensor([0.7, -1.2, 2.0], dtype=torch.float64)
-    u = _sample(actor, explorer, x)
+    u = _sample(actor, sde, x)
     params = list(actor.parameters())
-    grads = torch.autograd.grad(_log_prob(actor, explorer, x, u), params)
+    grads = torch.autograd.grad(_log_prob(actor, sde, x, u), params)
     with torch.no_grad():
         mu = actor(TensorDict({"observation": x}, []))["loc"]
-        weight = (u - mu) / explorer.scale(x).square()
+        weight = (u - mu) / sde.scale(x).square()
     jac_rows = [torch.autograd.grad(actor(TensorDict({"observation": x}, []))["loc"][k], params)
                 for k in range(2)]
     for i, g in enumerate(grads):
@@ -221,12 +247,12 @@ def test_autograd_matches_eq_14_through_an_mlp():
 @pytest.mark.parametrize("sharing", SHARINGS)
 @pytest.mark.parametrize("gaussian", [None, 0.4])
 def test_autograd_matches_finite_differences(sharing, gaussian):
-    actor, explorer = _linear_policy(sharing, gaussian)
+    actor, sde = _linear_policy(sharing, gaussian)
     actor.module.bias = None
     x = torch.tensor([[0.7, -1.2, 2.0], [-0.3, 0.5, 0.1]], dtype=torch.float64)
-    u = _sample(actor, explorer, x)
-    params = [p for p in (*actor.parameters(), *explorer.parameters())]
-    grads = torch.autograd.grad(_log_prob(actor, explorer, x, u).sum(), params)
+    u = _sample(actor, sde, x)
+    params = [p for p in (*actor.parameters(), *sde.parameters())]
+    grads = torch.autograd.grad(_log_prob(actor, sde, x, u).sum(), params)
     h = 1e-6
     for param, g in zip(params, grads, strict=True):
         numeric = torch.zeros_like(param)
@@ -234,9 +260,9 @@ def test_autograd_matches_finite_differences(sharing, gaussian):
             with torch.no_grad():
                 flat = param.view(-1)
                 flat[idx] += h
-                up = _log_prob(actor, explorer, x, u).sum()
+                up = _log_prob(actor, sde, x, u).sum()
                 flat[idx] -= 2 * h
-                down = _log_prob(actor, explorer, x, u).sum()
+                down = _log_prob(actor, sde, x, u).sum()
                 flat[idx] += h
             numeric.view(-1)[idx] = (up - down) / (2 * h)
         torch.testing.assert_close(g, numeric, rtol=1e-5, atol=1e-6)
@@ -246,10 +272,10 @@ def test_autograd_matches_finite_differences(sharing, gaussian):
 
 def _rollout(schedule, steps=12, episode_length=5, runs=None, every_n=None, episodes=3):
     torch.manual_seed(0)
-    explorer = StateDependentExplorer(1, 1, schedule=schedule, every_n=every_n, runs=runs)
+    sde = SDEParams(1, 1, schedule=schedule, every_n=every_n, runs=runs)
     env = make_minimize_env(episode_length, episodes=episodes, runs=runs)
-    env.append_transform(explorer.make_tensordict_primer())
-    policy = TensorDictSequential(LinearActor(1, 1, init=-2.0, runs=runs), explorer)
+    env.append_transform(sde.make_tensordict_primer())
+    policy = make_sde_actor(LinearActor(1, 1, init=-2.0, runs=runs), sde)
     with torch.no_grad():
         return env.rollout(steps, policy, break_when_any_done=False)
 
@@ -288,10 +314,23 @@ def test_every_n_schedule_redraws_every_n_steps_and_at_resets(n):
     assert torch.equal(_changes(td["sde_noise"]), expected)
 
 
+def test_every_schedule_draws_the_same_numbers_sde_keeps_the_first_rex_uses_each():
+    """The primer draws one ξ per step from an episode's start whatever the schedule: SDE's
+    episode noise is REX's first step's, and the streams end where they end for REX."""
+    sde_td, rex_td = _rollout("episode", steps=5), _rollout("step", steps=5)
+    assert torch.equal(sde_td["sde_noise"][:, 0], rex_td["sde_noise"][:, 0])
+    assert torch.equal(_rollout_then_draw("episode"), _rollout_then_draw("step"))
+
+
+def _rollout_then_draw(schedule):
+    _rollout(schedule, steps=5)
+    return torch.randn(3)
+
+
 def test_partial_reset_redraws_only_the_reset_elements():
-    explorer = StateDependentExplorer(1, 1)
-    env = make_minimize_env(50, episodes=4).append_transform(explorer.make_tensordict_primer())
-    policy = TensorDictSequential(LinearActor(1, 1, init=-2.0), explorer)
+    sde = SDEParams(1, 1)
+    env = make_minimize_env(50, episodes=4).append_transform(sde.make_tensordict_primer())
+    policy = make_sde_actor(LinearActor(1, 1, init=-2.0), sde)
     with torch.no_grad():
         td = policy(env.reset())
         before = td["sde_noise"].clone()
@@ -302,35 +341,24 @@ def test_partial_reset_redraws_only_the_reset_elements():
     assert changed.tolist() == [True, False, True, False]
 
 
-def test_is_init_mask_is_honoured_per_element_without_env():
-    explorer = StateDependentExplorer(2, 3)
-    noise = torch.randn(4, 2, 3)
-    td = TensorDict({
-        "loc": torch.zeros(4, 2), "observation": torch.ones(4, 3), "sde_noise": noise.clone(),
-        "is_init": torch.tensor([[True], [False], [False], [True]]),
-    }, [4])
-    out = explorer(td)["sde_noise"]
-    assert [not torch.equal(out[i], noise[i]) for i in range(4)] == [True, False, False, True]
+def test_deterministic_exploration_draws_nothing():
+    from sde_torchrl.utils.rng import RunStreams
+
+    sde = SDEParams(1, 1, runs=2)
+    sde.streams = RunStreams(seed=0, runs=2, stream="explore")
+    env = make_minimize_env(5, episodes=3, runs=2).append_transform(sde.make_tensordict_primer())
+    state = sde.streams.state_dict()
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        env.rollout(5, make_sde_actor(LinearActor(1, 1, runs=2), sde), break_when_any_done=False)
+    assert torch.equal(sde.streams.state_dict()["buffer"], state["buffer"])
+    assert all(torch.equal(a, b) for a, b in zip(sde.streams.state_dict()["generators"], state["generators"],
+                                                 strict=True))
 
 
-def test_module_works_without_primer_and_keeps_its_noise():
-    explorer = StateDependentExplorer(2, 3)
-    td = explorer(TensorDict({"loc": torch.zeros(4, 2), "observation": torch.ones(4, 3)}, [4]))
-    noise = td["sde_noise"].clone()
-    assert noise.shape == (4, 2, 3)
-    td = explorer(td)
-    assert torch.equal(td["sde_noise"], noise)
-
-
-def test_action_is_loc_plus_theta_hat_x():
-    """(18): u = (Θ + Θ̂) x for a linear controller, with Θ̂ = σ̂ ⊙ ξ."""
-    explorer = StateDependentExplorer(2, 3, init_param=-1.0)
-    x = torch.randn(4, 3)
-    noise = torch.randn(4, 2, 3)
-    loc = torch.randn(4, 2)
-    td = explorer(TensorDict({"loc": loc, "observation": x, "sde_noise": noise}, [4]))
-    theta_hat = math.exp(-1.0) * noise
-    torch.testing.assert_close(td["action"], loc + (theta_hat @ x.unsqueeze(-1)).squeeze(-1))
+def test_policy_without_noise_says_to_add_the_primer():
+    policy = make_sde_actor(LinearActor(3, 2), SDEParams(2, 3))
+    with pytest.raises(KeyError, match="make_tensordict_primer"):
+        policy(TensorDict({"observation": torch.ones(4, 3)}, [4]))
 
 
 # -------------------------------------------------------------------------- bad input
@@ -345,91 +373,39 @@ def test_action_is_loc_plus_theta_hat_x():
 ])
 def test_bad_options_are_rejected_by_name(kwargs, match):
     with pytest.raises(ValueError, match=match):
-        StateDependentExplorer(2, 3, **kwargs)
+        SDEParams(2, 3, **kwargs)
 
 
 def test_wrong_shapes_are_rejected_by_name():
-    explorer = StateDependentExplorer(2, 3)
+    sde = SDEParams(2, 3)
+    noise = torch.zeros(4, 2, 3)
     with pytest.raises(ValueError, match="observation"):
-        explorer(TensorDict({"loc": torch.zeros(4, 2), "observation": torch.ones(4, 5)}, [4]))
+        sde(TensorDict({"loc": torch.zeros(4, 2), "observation": torch.ones(4, 5), "sde_noise": noise}, [4]))
     with pytest.raises(ValueError, match="loc"):
-        explorer(TensorDict({"loc": torch.zeros(4, 1), "observation": torch.ones(4, 3)}, [4]))
+        sde(TensorDict({"loc": torch.zeros(4, 1), "observation": torch.ones(4, 3), "sde_noise": noise}, [4]))
 
 
-def test_carried_noise_without_is_init_warns_once():
-    """A rollout that carries the noise but has no InitTracker would never redraw it: say so."""
-    from tensordict import TensorDict
+# -------------------------------------------------------- one implementation: SDENormal's numbers
 
-    explorer = StateDependentExplorer(action_dim=1, feature_dim=2)
-    td = TensorDict({"loc": torch.zeros(3, 1), "observation": torch.ones(3, 2)}, [3])
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        out = explorer(td)  # a first call without noise: nothing to say
-    with pytest.warns(UserWarning, match="never redrawn.*InitTracker"):
-        explorer(out.clone())
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        explorer(out.clone())  # once per explorer
-        out["is_init"] = torch.zeros(3, 1, dtype=torch.bool)
-        StateDependentExplorer(action_dim=1, feature_dim=2)(out.clone())  # with is_init: fine
-
-
-# ------------------------------------------------------------- one implementation with SDENormal
-
-def _explorer_and_step(sharing, runs, gaussian=None):
-    torch.manual_seed(3)
-    explorer = _explorer(sharing, runs=runs, gaussian_init_param=gaussian)
-    if gaussian is not None:
-        with torch.no_grad():
-            explorer.gaussian_param.uniform_(-1.0, 0.5)
-    batch = (5,) if runs is None else (runs, 5)
-    td = TensorDict({"loc": torch.randn(*batch, 2, dtype=torch.float64),
-                     "observation": torch.randn(*batch, 3, dtype=torch.float64),
-                     "sde_noise": torch.randn(*batch, 2, 3, dtype=torch.float64),
-                     "is_init": torch.zeros(*batch, 1, dtype=torch.bool)}, batch)
-    return explorer, td
-
-
-def _sde_normal(explorer, td):
-    """The SDENormal that SDEParams, loaded with the explorer's state dict, parameterises."""
-    sde = SDEParams(2, 3, sharing=explorer.sharing, runs=explorer.runs,
-                    gaussian_init_param=0.0 if explorer.has_gaussian else None).double()
-    sde.load_state_dict(explorer.state_dict())  # the same parameter names
-    params = sde(td.clone())
-    return SDENormal(params["loc"], params["sde_sigma_hat"], params["observation"], params["sde_noise"],
-                     params.get("sde_gaussian_scale", None))
-
-
+@pytest.mark.parametrize("squash", [False, True])
+@pytest.mark.parametrize("gaussian", [None, -0.7])
 @pytest.mark.parametrize("runs", [None, 2])
 @pytest.mark.parametrize("sharing", SHARINGS)
-def test_explorer_acts_and_scores_as_sde_normal_with_the_same_parameters(sharing, runs):
-    """Given the carried ξ, SDENormal takes the explorer's very action and scores it alike."""
-    explorer, td = _explorer_and_step(sharing, runs)
-    out = explorer(td.clone())
-    dist = _sde_normal(explorer, td)
-    assert torch.equal(out["sde_noise"], td["sde_noise"])  # held: no reset
-    assert torch.equal(dist.rsample(), out["action_sample"])  # eqs. 17-19, one formula
-    torch.testing.assert_close(dist.stddev, out["scale"])  # eq. 20
-    torch.testing.assert_close(dist.log_prob(out["action_sample"]), out["action_log_prob"])  # eq. 13
-
-
-@pytest.mark.parametrize("runs", [None, 2])
-def test_gaussian_part_scores_as_sde_normal(runs):
-    explorer, td = _explorer_and_step("action", runs, gaussian=-0.7)
-    out = explorer(td.clone())
-    dist = _sde_normal(explorer, td)
-    torch.testing.assert_close(dist.stddev, out["scale"])  # eqs. 20, 22
-    torch.testing.assert_close(dist.log_prob(out["action_sample"]), out["action_log_prob"])
-
-
-def test_explorer_and_sde_params_share_the_sigma_module():
-    explorer, sde = StateDependentExplorer(2, 3, runs=4), SDEParams(2, 3, runs=4)
-    assert isinstance(explorer, SDESigma) and isinstance(sde, SDESigma)
-    assert [name for name, _ in explorer.named_parameters()] == [name for name, _ in sde.named_parameters()]
-    x = torch.randn(4, 6, 3)
-    torch.testing.assert_close(explorer.scale(x), sde.scale(x))
-
-
-def test_exploration_doctests():
-    result = doctest.testmod(sde_torchrl.modules.exploration, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted > 0 and result.failed == 0
+def test_policy_acts_and_scores_as_sde_normal(sharing, runs, gaussian, squash):
+    """Given the carried ξ (and ε), the policy's action is SDENormal's sample (eqs. 17-19, 22),
+    its log-probability the distribution's, and ``sde.log_prob`` of the sample eq. 13 with eq. 20."""
+    torch.manual_seed(3)
+    sde = _sde(sharing, runs=runs, gaussian_init_param=gaussian)
+    batch = (5,) if runs is None else (runs, 5)
+    loc, x = torch.randn(*batch, 2, dtype=torch.float64), torch.randn(*batch, 3, dtype=torch.float64)
+    td = _step(loc, x, sde)
+    out = _mean_policy(sde, squash)(td.clone())
+    cls = TanhSDENormal if squash else SDENormal
+    dist = cls(loc, out["sde_sigma_hat"], x, td["sde_noise"], out.get("sde_gaussian_scale", None),
+               td.get("sde_gaussian_noise", None))
+    sample = SDENormal.rsample(dist)
+    assert torch.equal(out["action_sample" if squash else "action"], sample)
+    torch.testing.assert_close(out["action_log_prob"], dist.log_prob(out["action"]))
+    plain = SDENormal(loc, out["sde_sigma_hat"], x, gaussian_scale=out.get("sde_gaussian_scale", None))
+    torch.testing.assert_close(sde.log_prob(loc, x, sample), plain.log_prob(sample))
+    torch.testing.assert_close(plain.stddev, sde.scale(x))
