@@ -1,7 +1,7 @@
 """Benchmark: batched ball-catching env (with a linear SDE or REX policy in the loop) vs raw pybullet.
 
-The policy is the paper's controller class, ``tanh(Θ x + Θ̂ x)`` (``LinearActor`` +
-``StateDependentExplorer``), with ``Θ`` set to the arm model's scripted catching controller
+The policy is the paper's controller class, ``tanh(Θ x + Θ̂ x)`` (``LinearActor`` in
+``make_sde_actor``), with ``Θ`` set to the arm model's scripted catching controller
 (:func:`~sde_torchrl.envs.ballcatch.models.scripted_weights`) and ``σ̂ = e^-3``: the regime of
 a trained policy, where the ball is held for the whole episode and every world is simulated at
 every step. (A dropping policy is cheaper still: grounded worlds are frozen.) Its exploration
@@ -48,33 +48,36 @@ import time
 import pybullet
 import torch
 from tensordict import TensorDict
-from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, TransformedEnv
 
-from sde_torchrl.collectors.rollout import linear_episode_env, linear_episode_rollout, tensor_rollout, tensor_step_env
+from sde_torchrl.collectors.rollout import (
+    linear_episode_env,
+    linear_episode_rollout,
+    noise_primer,
+    tensor_rollout,
+    tensor_step_env,
+)
 from sde_torchrl.envs.ballcatch import ARM_MODELS, BallCatchConfig, BatchedBallCatchEnv, make_parallel_ballcatch
 from sde_torchrl.envs.ballcatch.models import scripted_weights
 from sde_torchrl.modules.actors import LinearActor
-from sde_torchrl.modules.exploration import StateDependentExplorer
+from sde_torchrl.modules.sde import SDEParams
+from sde_torchrl.modules.sde_actor import SDEActor, make_sde_actor
 
 SIGMA_PARAM = -3.0
 """log-scale of the exploration noise of the benchmark policy (σ̂ = e^-3)."""
 SCHEDULES = {"sde": "episode", "rex": "step"}
-"""The explorer's schedule for each exploration method."""
+"""The noise schedule for each exploration method."""
 
 
-def catching_policy(
-    seed: int, model: str, schedule: str = "episode"
-) -> tuple[TensorDictSequential, StateDependentExplorer]:
+def catching_policy(seed: int, model: str, schedule: str = "episode") -> tuple[SDEActor, SDEParams]:
     """The linear policy with ``Θ`` = the model's scripted catching controller and exploration
     redrawn per ``schedule`` (``episode``: SDE, ``step``: REX)."""
     torch.manual_seed(seed)
     actor = LinearActor(3, 4, bias=False)
     with torch.no_grad():
         actor.module.weight.copy_(torch.as_tensor(scripted_weights(model), dtype=torch.float32))
-    explorer = StateDependentExplorer(action_dim=4, feature_dim=3, schedule=schedule, squash=True,
-                                      init_param=SIGMA_PARAM)
-    return TensorDictSequential(actor, explorer), explorer
+    sde = SDEParams(action_dim=4, feature_dim=3, schedule=schedule, init_param=SIGMA_PARAM)
+    return make_sde_actor(actor, sde, squash=True, low=-1.0, high=1.0), sde
 
 
 def joint_forces(env: BatchedBallCatchEnv, actions: torch.Tensor) -> list[list[list[float]]]:
@@ -122,24 +125,24 @@ def time_collect(
 ) -> tuple[float, torch.Tensor, float]:
     """One collection as the trainer does it, by whole episodes per world (``episodes``) or by
     stepping all worlds together; returns ``(world-steps/s, actions [N, K, 4], mean reward)``."""
-    policy, explorer = catching_policy(seed, env.config.model, schedule)
-    tenv = TransformedEnv(env, Compose(InitTracker(), explorer.make_tensordict_primer()))
+    policy, sde = catching_policy(seed, env.config.model, schedule)
+    tenv = TransformedEnv(env, Compose(InitTracker(), sde.make_tensordict_primer()))
     base = linear_episode_env(tenv, policy) if episodes else tensor_step_env(tenv, policy)
     if base is None:
         raise RuntimeError(f"the {'whole-episode' if episodes else 'tensor-stepping'} path refused the policy")
     collect = linear_episode_rollout if episodes else tensor_rollout
     with torch.no_grad():
-        collect(base, policy, 2)  # warm-up (first-call overheads)
+        collect(base, policy, 2, noise_primer(tenv))  # warm-up (first-call overheads)
         start = time.perf_counter()
-        td = collect(base, policy, steps)
+        td = collect(base, policy, steps, noise_primer(tenv))
         elapsed = time.perf_counter() - start
     return steps * env.num_worlds / elapsed, td["action"].clone(), float(td["next", "reward"].mean())
 
 
 def time_torchrl(env, steps: int, seed: int, num_worlds: int, model: str) -> float:
     """World-steps per second of ``TransformedEnv(env, ...).rollout(steps, policy)``."""
-    policy, explorer = catching_policy(seed, model)
-    tenv = TransformedEnv(env, Compose(InitTracker(), explorer.make_tensordict_primer()))
+    policy, sde = catching_policy(seed, model)
+    tenv = TransformedEnv(env, Compose(InitTracker(), sde.make_tensordict_primer()))
     tenv.set_seed(seed)
     with torch.no_grad():
         tenv.rollout(2, policy)
