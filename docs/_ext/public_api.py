@@ -36,6 +36,25 @@ def _layer(obj: object) -> str:
     return parts[1] if len(parts) > 2 else "other"
 
 
+def summary_line(obj: object) -> str:
+    """The first paragraph of ``obj``'s docstring, on one line (the table's description)."""
+    doc = inspect.getdoc(obj) or ""
+    return " ".join(doc.split("\n\n")[0].split())
+
+
+def _signature(app, what, name, obj, options, signature, return_annotation):
+    """A class whose base defines ``__new__(cls, *args, **kwargs)`` (tensordict's modules) shows its
+    ``__init__``'s parameters instead of ``(*args, **kwargs)``; annotations stay in the docstring's Args."""
+    if what != "class" or signature != "(*args, **kwargs)":
+        return None
+    try:
+        parameters = list(inspect.signature(obj.__init__).parameters.values())[1:]
+    except (TypeError, ValueError):
+        return None
+    bare = [p.replace(annotation=inspect.Parameter.empty) for p in parameters]
+    return str(inspect.Signature(bare)), None
+
+
 def api_markdown(package: str = "sde_torchrl") -> str:
     """The MyST text that replaces the placeholder: a summary table, then the entries by layer."""
     module = importlib.import_module(package)
@@ -43,8 +62,11 @@ def api_markdown(package: str = "sde_torchrl") -> str:
     for name in public_names(package):
         groups.setdefault(_layer(getattr(module, name)), []).append(name)
     order = [layer for layer in LAYERS if layer in groups] + sorted(set(groups) - set(LAYERS))
-    lines = ["```{eval-rst}", ".. autosummary::", ""]
-    lines += [f"   {package}.{name}" for layer in order for name in groups[layer]]
+    lines = ["```{eval-rst}", ".. list-table::", "   :header-rows: 1", "   :widths: 30 70", "",
+             "   * - name", "     - what it is"]
+    for layer in order:
+        for name in groups[layer]:
+            lines += [f"   * - :py:obj:`{package}.{name}`", f"     - {summary_line(getattr(module, name))}"]
     lines += ["```", ""]
     for layer in order:
         lines += [f"## {LAYERS.get(layer, f'`{package}.{layer}`')}", ""]
@@ -63,4 +85,5 @@ def _source_read(app, docname: str, source: list[str]) -> None:
 
 def setup(app):
     app.connect("source-read", _source_read)
+    app.connect("autodoc-process-signature", _signature)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
