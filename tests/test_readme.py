@@ -1,13 +1,22 @@
-"""The README's TorchRL example runs as written."""
+"""The README is a front door that stays true: short, its examples and quick start run as written,
+and its results table is what ``docs/readme_results.py`` writes from the committed result files."""
 
 from __future__ import annotations
 
+import os
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 README = Path(__file__).resolve().parents[1] / "README.md"
+REPO = README.parent
+sys.path.insert(0, str(REPO / "docs"))
+import readme_results  # noqa: E402
+
+# scripts run from a temporary folder import this checkout's package, not another installed copy
+CHECKOUT_ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
 
 
 def _example() -> str:
@@ -17,6 +26,10 @@ def _example() -> str:
     return block.group(1)
 
 
+def test_readme_is_at_most_250_lines():
+    assert len(README.read_text().splitlines()) <= 250
+
+
 def test_readme_example_is_short():
     assert len(_example().strip().splitlines()) <= 25
 
@@ -24,7 +37,54 @@ def test_readme_example_is_short():
 def test_readme_example_runs(tmp_path):
     script = tmp_path / "example.py"
     script.write_text(_example())
-    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
+                            env=CHECKOUT_ENV)
     assert result.returncode == 0, result.stderr[-2000:]
     returns = [float(m) for m in re.findall(r"update \d: mean return (-?\d+\.\d+)", result.stdout)]
     assert len(returns) == 3 and all(-17 < r < 0 for r in returns), result.stdout
+
+
+def test_readme_results_are_what_the_script_writes_from_the_committed_results():
+    text = README.read_text()
+    assert readme_results.replaced(text) == text, "README's results table differs: run python docs/readme_results.py"
+
+
+def test_the_results_check_fails_on_a_changed_figure(monkeypatch, tmp_path):
+    text = README.read_text()
+    block = text[text.index(readme_results.START):text.index(readme_results.END)]
+    changed = text.replace(block, block.replace("%", " %", 1))
+    fake = tmp_path / "README.md"
+    fake.write_text(changed)
+    monkeypatch.setattr(readme_results, "README", fake)
+    assert readme_results.main(["--check"]) == 1
+
+
+def test_no_hand_typed_result_table_outside_the_generated_block():
+    text = README.read_text()
+    outside = text[:text.index(readme_results.START)] + text[text.index(readme_results.END):]
+    assert not re.search(r"^\|.*\d+ %", outside, re.M), "a table of results outside <!-- results:start/end -->"
+
+
+def _quick_start() -> list[str]:
+    section = README.read_text().split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    block = re.search(r"```bash\n(.*?)```", section, re.S)
+    assert block, "no bash block in the README's quick start"
+    return block.group(1).strip().splitlines()
+
+
+def test_quick_start_is_two_commands_the_training_one_and_the_tests():
+    commands = _quick_start()
+    assert len(commands) == 2
+    assert commands[0].endswith("python train.py +experiment=ballcatch") and "pip install -e \".[dev]\"" in commands[0]
+    assert commands[1].endswith("python -m pytest")
+
+
+def test_quick_start_training_command_runs(tmp_path):
+    """The quick start's training command as written, cut to 2 updates of one run (the full job is minutes)."""
+    command = shlex.split(_quick_start()[0].split("&&")[-1])
+    assert command[:2] == ["python", "train.py"]
+    short = ["runs=1", "updates=2", "episode_queue=2", "eval_period=1", f"hydra.run.dir={tmp_path / 'run'}"]
+    result = subprocess.run([sys.executable, *command[1:], *short], cwd=REPO, capture_output=True, text=True,
+                            timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (tmp_path / "run" / "summary.json").exists()

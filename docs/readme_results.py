@@ -1,0 +1,108 @@
+"""The README's results summary, written from the result files the analysis scripts commit.
+
+The README holds a short table of the headline results between the lines ``<!-- results:start -->``
+and ``<!-- results:end -->``. This script writes that table from ``docs/table1/table1.json``,
+``docs/ballcatch/{fig5,fig6,methods,selected/fig5}.json`` and ``docs/ppo/bench_ppo.json``, so that
+no figure in the README is typed by hand::
+
+    python docs/readme_results.py           # rewrite the README's table
+    python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
+
+``tests/test_readme.py`` runs the check. Rerun an analysis script, then this one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+README = DOCS.parent / "README.md"
+START, END = "<!-- results:start -->", "<!-- results:end -->"
+CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
+PAGES = {"docs/reproduce/table1.md": "Table 1", "docs/reproduce/fig5_6.md": "Fig. 5 and 6",
+         "docs/reproduce/methods.md": "methods", "docs/reproduce/ppo.md": "PPO"}
+
+
+def _load(path: str) -> dict:
+    return json.loads((DOCS / path).read_text())
+
+
+def _percent(explorer: dict, which: str = "best") -> str:
+    runs, count = explorer["runs"], explorer[which][CATCH]
+    low, high = explorer[f"{which}_interval"][CATCH]
+    return f"{round(100 * count / runs)} % [{round(100 * low)}, {round(100 * high)}]"
+
+
+def summary() -> str:
+    """The README's results table (Markdown), from the committed result files."""
+    table1 = _load("table1/table1.json")["rows"]
+    ours = [row["speedup"] for row in table1]
+    paper = [row["paper"]["speedup"] for row in table1]
+    faster = sum(row["speedup_significant"] and row["speedup_ci"][0] > 1 for row in table1)
+    fig5, fig6 = _load("ballcatch/fig5.json")["explorers"], _load("ballcatch/fig6.json")["explorers"]
+    methods = _load("ballcatch/methods.json")["explorers"]
+    selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
+    ppo = _load("ppo/bench_ppo.json")
+    ratio = ppo["sde_over_sb3"]
+
+    def mean_sd(values: list[float]) -> str:
+        return f"{statistics.mean(values):.0f} ± {statistics.stdev(values):.0f}"
+
+    rows = [
+        ("Table 1: episodes REX needs / SDE needs, 8 settings of the toy task",
+         f"{min(ours):.1f}× to {max(ours):.1f}×, SDE significantly faster in {faster} of {len(table1)}",
+         f"{min(paper):.1f}× to {max(paper):.1f}×", "docs/reproduce/table1.md"),
+        (f"Fig. 5 (REINFORCE, paper's setting): runs reaching a catch, {fig5['sde']['runs']} runs each",
+         f"SDE {_percent(fig5['sde'])}, REX {_percent(fig5['rex'])}",
+         f"SDE {fig5['sde']['paper'][CATCH]} %", "docs/reproduce/fig5_6.md"),
+        (f"Fig. 6 (ENAC): runs reaching a catch, {fig6['sde']['runs']} runs each",
+         f"SDE {_percent(fig6['sde'])}, REX {_percent(fig6['rex'])}",
+         f"SDE {fig6['sde']['paper'][CATCH]} %, REX {fig6['rex']['paper'][CATCH]} %", "docs/reproduce/fig5_6.md"),
+        (f"`+experiment=ballcatch` (selected learner), {selected['runs']} runs: ending with a catch",
+         f"{selected['final'][CATCH]} of {selected['runs']} ({_percent(selected, 'final')}); "
+         f"{selected['best'][CATCH]} reach one", f"{selected['paper'][CATCH]} % reach one",
+         "docs/reproduce/fig5_6.md"),
+        (f"PGPE on Fig. 5's setting, {methods['pgpe']['runs']} runs: reaching a catch",
+         f"PGPE {_percent(methods['pgpe'])}, SDE + GPOMDP {_percent(methods['sde+gpomdp'])}", "(not in the paper)",
+         "docs/reproduce/methods.md"),
+        ("PPO on HalfCheetahBullet, final return (seeds)",
+         f"SDE {mean_sd(ppo['sde']['final'])} ({len(ppo['sde']['final'])}), SB3 gSDE "
+         f"{mean_sd(ppo['sb3']['final'])} ({len(ppo['sb3']['final'])}): "
+         f"{ratio['final']['estimate']:.2f}× [{ratio['final']['low']:.2f}, {ratio['final']['high']:.2f}]",
+         "(not in the paper)", "docs/reproduce/ppo.md"),
+    ]
+    lines = ["| result | ours [95 % interval] | paper | page |", "| --- | --- | --- | --- |"]
+    lines += [f"| {what} | {value} | {theirs} | [{PAGES[page]}]({page}) |" for what, value, theirs, page in rows]
+    return "\n".join(lines) + "\n"
+
+
+def replaced(text: str) -> str:
+    """``text`` (the README) with its results block rewritten."""
+    head, sep, rest = text.partition(START)
+    _, sep2, tail = rest.partition(END)
+    if not sep or not sep2:
+        raise ValueError(f"README.md lacks the lines {START} and {END}")
+    return f"{head}{START}\n{summary()}{END}{tail}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if the README differs, write nothing")
+    args = parser.parse_args(argv)
+    text = README.read_text()
+    new = replaced(text)
+    if args.check:
+        if new != text:
+            print("README.md's results table is not what docs/readme_results.py writes: run it", file=sys.stderr)
+            return 1
+        return 0
+    README.write_text(new)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
