@@ -14,6 +14,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
+from sde_torchrl.utils.checks import multiple_of
+
 
 class EpisodeQueue:
     """The last ``size`` episodes of each run, renewed by ``per_update`` episodes per update.
@@ -33,8 +35,7 @@ class EpisodeQueue:
     """
 
     def __init__(self, size: int, per_update: int, keys: Sequence[NestedKey]) -> None:
-        if size % per_update:
-            raise ValueError(f"episode_queue={size}: a multiple of episodes_per_update ({per_update})")
+        multiple_of("episode_queue", size, "episodes_per_update", per_update)
         self.size, self.per_update, self.keys = size, per_update, list(keys)
         self.episodes: TensorDictBase | None = None
 

@@ -9,7 +9,7 @@ off the env, per-run random streams) and wires the pieces.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, fields
+from dataclasses import asdict
 from typing import Any
 
 import torch
@@ -18,12 +18,11 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import TransformedEnv
 
-from sde_torchrl.config.schemas import PGPEExplorerConf, TrainConf, validate
+from sde_torchrl.config.schemas import PGPEExplorerConf, TrainConf, loop_settings, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.objectives.estimators import ENACEstimator
 from sde_torchrl.trainers.optim import make_optimizer
-from sde_torchrl.trainers.settings import TrainingSettings
 from sde_torchrl.trainers.trainer import Trainer
 from sde_torchrl.utils.rng import RunStreams
 
@@ -41,13 +40,6 @@ def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
     if hasattr(base, "allow_nonfinite"):  # MinimizeEnv: the trainer's FiniteGuard names a diverged run
         base.allow_nonfinite = True
     return env
-
-
-def training_settings(conf: TrainConf) -> TrainingSettings:
-    """The trainer's settings: each field read from the config's top level, except
-    ``episode_length``, which is the env's."""
-    values = {**vars(conf), "episode_length": conf.env.episode_length}
-    return TrainingSettings(**{f.name: values[f.name] for f in fields(TrainingSettings)})
 
 
 def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Trainer:
@@ -99,7 +91,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     logger = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
-    return Trainer(env, eval_env, policy, estimator, optimizer, training_settings(conf), logger,
+    return Trainer(env, eval_env, policy, estimator, optimizer, loop_settings(conf), logger,
                    lr_schedule=lr_schedule)
 
 

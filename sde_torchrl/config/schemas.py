@@ -13,19 +13,21 @@ allowed>``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 from sde_torchrl.jobs.resources import check_memory, launcher_request
+from sde_torchrl.trainers.settings import TrainingSettings
 from sde_torchrl.utils.checks import (
     ArgumentError,
     finite,
     fraction,
     is_finite_number,
     is_int,
+    noise_schedule,
     non_negative_int,
     one_of,
     positive_int,
@@ -37,7 +39,6 @@ from sde_torchrl.utils.options import (
     LR_SCHEDULES,
     NORMALIZATIONS,
     REWARD_STATES,
-    SCHEDULES,
     SHARINGS,
 )
 
@@ -283,12 +284,8 @@ class ExplorerConf:
     squash: bool = False
 
     def __post_init__(self) -> None:
-        one_of("explorer.schedule", self.schedule, SCHEDULES)
+        noise_schedule(self.schedule, self.every_n, "explorer.")
         one_of("explorer.sharing", self.sharing, SHARINGS)
-        if self.schedule == "every_n":
-            positive_int("explorer.every_n", self.every_n)
-        elif self.every_n is not None:
-            raise ArgumentError("explorer.every_n", self.every_n, "null unless explorer.schedule=every_n")
         finite("explorer.init_param", self.init_param)
         if self.gaussian_init_param is not None:
             finite("explorer.gaussian_init_param", self.gaussian_init_param)
@@ -554,24 +551,31 @@ class TrainConf:
     max_memory_gb: Optional[float] = None
 
     def __post_init__(self) -> None:
-        for name in ("runs", "updates", "episodes_per_update", "eval_episodes", "threads"):
+        for name in ("runs", "threads"):
             positive_int(name, getattr(self, name))
-        for name in ("seed", "first_run", "eval_period", "checkpoint_period", "episode_queue"):
+        for name in ("seed", "checkpoint_period"):
             non_negative_int(name, getattr(self, name))
-        if self.episode_queue % self.episodes_per_update:
-            raise ArgumentError("episode_queue", self.episode_queue,
-                                f"0 or a multiple of episodes_per_update ({self.episodes_per_update})")
         finite("lr", self.lr, minimum=0, strict=True)
-        if self.r_lim is not None and not is_finite_number(self.r_lim):
-            raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
-        if self.stop_at_threshold and self.r_lim is None:
-            raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")
+        loop_settings(self)  # the training loop's own fields: TrainingSettings checks them
         if self.max_memory_gb is not None:
             finite("max_memory_gb", self.max_memory_gb, minimum=0, strict=True)
         _check_can_learn(self)
         _check_pgpe(self)
         if self.env is not None and self.estimator is not None:
             check_memory(self)
+
+
+def loop_settings(conf: TrainConf) -> TrainingSettings:
+    """The training loop's settings from the config's top level (each field of
+    :class:`~sde_torchrl.trainers.settings.TrainingSettings` by its name) and the env's
+    ``episode_length``; their rules are checked there, once.
+
+    Examples:
+        >>> loop_settings(TrainConf(updates=3)).updates
+        3
+    """
+    values = {**vars(conf), "episode_length": getattr(conf.env, "episode_length", 1)}
+    return TrainingSettings(**{f.name: values[f.name] for f in fields(TrainingSettings)})
 
 
 def _check_pgpe(conf: TrainConf) -> None:

@@ -26,8 +26,7 @@ from torchrl.envs import TensorDictPrimer
 from torchrl.envs.transforms.utils import _get_reset
 from torchrl.envs.utils import ExplorationType, exploration_type
 
-from sde_torchrl.utils.checks import ArgumentError, one_of, positive_int
-from sde_torchrl.utils.options import SCHEDULES
+from sde_torchrl.utils.checks import noise_schedule, positive_int
 from sde_torchrl.utils.rng import RunStreams, draw_normal
 
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
@@ -125,11 +124,7 @@ class SDENoisePrimer(TensorDictPrimer):
         streams: RunStreams | None = None,
         done_key: NestedKey = "done",
     ) -> None:
-        one_of("schedule", schedule, SCHEDULES)
-        if schedule == "every_n":
-            positive_int("every_n", every_n)
-        elif every_n is not None:
-            raise ArgumentError("every_n", every_n, "null unless schedule=every_n")
+        noise_schedule(schedule, every_n)
         self.action_dim = positive_int("action_dim", action_dim)
         self.feature_dim = positive_int("feature_dim", feature_dim)
         specs = {noise_key: Unbounded(shape=(action_dim, feature_dim), dtype=dtype)}

@@ -23,8 +23,8 @@ from torch import nn
 
 from sde_torchrl.modules.distribution import gaussian_log_prob, sde_variance
 from sde_torchrl.modules.noise import ADD_PRIMER, SDENoisePrimer, deterministic_exploration
-from sde_torchrl.utils.checks import ArgumentError, one_of, positive_int
-from sde_torchrl.utils.options import SCHEDULES, SHARINGS
+from sde_torchrl.utils.checks import noise_schedule, one_of, positive_int
+from sde_torchrl.utils.options import SHARINGS
 from sde_torchrl.utils.rng import RunStreams
 from sde_torchrl.utils.shapes import align
 
@@ -169,12 +169,8 @@ class SDEParams(TensorDictModuleBase):
         super().__init__()
         self.action_dim = positive_int("action_dim", action_dim)
         self.feature_dim = positive_int("feature_dim", feature_dim)
-        self.schedule = one_of("schedule", schedule, SCHEDULES)
-        if schedule == "every_n":
-            positive_int("every_n", every_n)
-        elif every_n is not None:
-            raise ArgumentError("every_n", every_n, "null unless schedule=every_n")
-        self.every_n, self.sharing = every_n, one_of("sharing", sharing, SHARINGS)
+        self.schedule, self.every_n = noise_schedule(schedule, every_n)
+        self.sharing = one_of("sharing", sharing, SHARINGS)
         self.runs = None if runs is None else positive_int("runs", runs)
         self.run_dims = 0 if runs is None else 1
         self.streams: RunStreams | None = None

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sde_torchrl.utils.checks import ArgumentError, non_negative_int, positive_int
+from sde_torchrl.utils.checks import ArgumentError, is_finite_number, multiple_of, non_negative_int, positive_int
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainingSettings:
-    """What one training job does.
+    """What one training job does: the one home of these fields' rules (the config's
+    :class:`~sde_torchrl.config.schemas.TrainConf` has them checked here).
 
     Attributes:
         updates: number of policy updates.
@@ -55,8 +56,8 @@ class TrainingSettings:
             positive_int(name, getattr(self, name))
         for name in ("eval_period", "episode_queue", "first_run"):
             non_negative_int(name, getattr(self, name))
-        if self.episode_queue % self.episodes_per_update:
-            raise ArgumentError("episode_queue", self.episode_queue,
-                                f"0 or a multiple of episodes_per_update ({self.episodes_per_update})")
+        multiple_of("episode_queue", self.episode_queue, "episodes_per_update", self.episodes_per_update)
+        if self.r_lim is not None and not is_finite_number(self.r_lim):
+            raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
         if self.stop_at_threshold and self.r_lim is None:
             raise ArgumentError("stop_at_threshold", True, "needs a convergence threshold r_lim (not null)")

@@ -16,6 +16,8 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from sde_torchrl.utils.options import SCHEDULES
+
 
 class ArgumentError(ValueError):
     """A value that is not allowed.
@@ -183,3 +185,48 @@ def one_of(name: str, value: Any, allowed: Iterable[str]) -> str:
     if value not in allowed:
         raise ArgumentError(name, value, f"one of {', '.join(allowed)}")
     return value
+
+
+def multiple_of(name: str, value: int, base_name: str, base: int) -> int:
+    """Returns ``value`` if it is 0 or a multiple of ``base``; raises :class:`ArgumentError` otherwise.
+
+    Examples:
+        >>> multiple_of("episode_queue", 7, "episodes_per_update", 2)
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: episode_queue=7: 0 or a multiple of episodes_per_update (2)
+    """
+    if value % base:
+        raise ArgumentError(name, value, f"0 or a multiple of {base_name} ({base})")
+    return value
+
+
+def noise_schedule(schedule: Any, every_n: Any, prefix: str = "") -> tuple[str, int | None]:
+    """Checks an SDE noise schedule: one of :data:`~sde_torchrl.utils.options.SCHEDULES`, and
+    ``every_n`` a positive integer with ``"every_n"``, ``None`` otherwise.
+
+    Args:
+        schedule: the schedule.
+        every_n: the redraw period.
+        prefix: the options' prefix in messages (``"explorer."`` for the config).
+
+    Returns:
+        ``(schedule, every_n)``.
+
+    Raises:
+        ArgumentError: naming the option.
+
+    Examples:
+        >>> noise_schedule("every_n", 5)
+        ('every_n', 5)
+        >>> noise_schedule("episode", 3, "explorer.")
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: explorer.every_n=3: null unless explorer.schedule=every_n
+    """
+    one_of(f"{prefix}schedule", schedule, SCHEDULES)
+    if schedule == "every_n":
+        positive_int(f"{prefix}every_n", every_n)
+    elif every_n is not None:
+        raise ArgumentError(f"{prefix}every_n", every_n, f"null unless {prefix}schedule=every_n")
+    return schedule, every_n
