@@ -78,31 +78,25 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     from sde_torchrl.trainers.summary import mean_reward_factor
 
     runs: dict[str, dict[int, dict]] = {}
-    for directory in directories:
-        for job in finished_runs(directory):
-            summary = job.summary
-            explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
-            if explorer is None:
-                continue
-            scale = mean_reward_factor(summary)
-            evals: dict[int, list[tuple[int, float]]] = {}
-            collapse: dict[int, dict[str, int | None]] = {}
-            for row in job.rows:
-                if row["eval_return"]:
-                    evals.setdefault(int(row["run"]), []).append(
-                        (int(row["update"]), scale * float(row["eval_return"])))
-                if row.get("sigma_min"):
-                    first = collapse.setdefault(int(row["run"]), {"any": None, "all": None})
-                    for key, column in (("any", "sigma_min"), ("all", "sigma_max")):
-                        if first[key] is None and float(row[column]) < COLLAPSE:
-                            first[key] = int(row["update"])
-            for offset, final in enumerate(summary["final_eval_return"]):
-                index = summary["first_run"] + offset
-                run = {"evals": evals[index], "final": scale * final, "collapse": collapse.get(index)}
-                previous = runs.setdefault(explorer, {}).setdefault(index, run)
-                if previous != run:
-                    raise ValueError(f"run {index} of {explorer} appears twice with different results "
-                                     f"(second copy in {job.path})")
+    for job in finished_runs(*directories):
+        summary = job.summary
+        explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
+        if explorer is None:
+            continue
+        scale = mean_reward_factor(summary)
+        evals = job.series("eval_return")
+        smallest, largest = job.series("sigma_min"), job.series("sigma_max")
+        for offset, final in enumerate(summary["final_eval_return"]):
+            index = summary["first_run"] + offset
+            collapse = None if index not in smallest else {  # recorded: the first update below COLLAPSE
+                key: next((update for update, sigma in series[index] if sigma < COLLAPSE), None)
+                for key, series in (("any", smallest), ("all", largest))}
+            run = {"evals": [(update, scale * value) for update, value in evals[index]], "final": scale * final,
+                   "collapse": collapse}
+            previous = runs.setdefault(explorer, {}).setdefault(index, run)
+            if previous != run:
+                raise ValueError(f"run {index} of {explorer} appears twice with different results "
+                                 f"(second copy in {job.path})")
     return runs
 
 

@@ -157,14 +157,10 @@ def load_runs(directory: Path) -> list[dict]:
 
     runs = []
     for job in finished_runs(directory):
-        summary = job.summary
-        if summary.get("experiment") not in EXPERIMENTS:
+        if job.summary.get("experiment") not in EXPERIMENTS:
             continue
-        curves: dict[int, list[float]] = {}
-        for row in job.rows:
-            curves.setdefault(int(row["run"]), []).append(float(row["return_mean"]))
-        summary["curves"] = [curves[r] for r in sorted(curves)]  # [runs][updates]
-        runs.append(summary)
+        curves = job.values("return_mean")
+        runs.append(job.summary | {"curves": [curves[r] for r in sorted(curves)]})  # [runs][updates]
     return runs
 
 
