@@ -56,6 +56,8 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from figures import bounds, ratio_of_means, saved_figure, style
+
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 #: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE and PGPE.
 METHODS = ("rex", "sde", "sde_gpomdp", "pgpe")
@@ -179,12 +181,7 @@ def _interval(values, statistic=None) -> list[float]:
     from sde_torchrl.utils.intervals import bootstrap_interval
 
     kwargs = {} if statistic is None else {"statistic": statistic}
-    interval = bootstrap_interval(values, level=LEVEL, resamples=RESAMPLES, seed=0, **kwargs)
-    return [interval.low, interval.high]
-
-
-def _ratio_of_means(a, b):
-    return a.mean(-1) / b.mean(-1)
+    return bounds(bootstrap_interval(values, level=LEVEL, resamples=RESAMPLES, seed=0, **kwargs))
 
 
 def table_rows(runs: list[dict]) -> list[dict]:
@@ -219,7 +216,7 @@ def table_rows(runs: list[dict]) -> list[dict]:
         for key, (slow, fast) in RATIOS.items():
             if row.get(f"{slow}_episodes") and row.get(f"{fast}_episodes"):
                 row[key] = row[f"{slow}_episodes"] / row[f"{fast}_episodes"]
-                row[f"{key}_ci"] = _interval((reached_by[slow], reached_by[fast]), _ratio_of_means)
+                row[f"{key}_ci"] = _interval((reached_by[slow], reached_by[fast]), ratio_of_means)
                 row[f"{key}_significant"] = not row[f"{key}_ci"][0] <= 1 <= row[f"{key}_ci"][1]
         paper = PAPER.get(setting)
         if paper:
@@ -310,8 +307,7 @@ def _mlp_intervals(smoothed: dict, per_update: int, tail: int) -> dict:
         return reached["rex"] / reached["sde"]
 
     def interval(statistic, values):
-        found = bootstrap_interval(values, statistic, LEVEL, MLP_RESAMPLES, seed=0)
-        return [found.low, found.high]
+        return bounds(bootstrap_interval(values, statistic, LEVEL, MLP_RESAMPLES, seed=0))
 
     indices = (np.arange(len(smoothed["rex"])), np.arange(len(smoothed["sde"])))
     return {
@@ -465,28 +461,20 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
 def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
     """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX, SDE,
     SDE + GPOMDP and PGPE (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     chosen = sorted((s for s in runs if SWEEP_NAMES.get(s["experiment"]) == sweep),
                     key=lambda s: _setting(s))
     settings = sorted({_setting(s) for s in chosen})
-    fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
-    for ax, setting in zip(axes[0], settings, strict=True):
-        for summary in (s for s in chosen if _setting(s) == setting):
-            _plot_band(ax, summary, LABELS[_method(summary)], robust=True)
-            ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
-        label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
-        r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
-        ax.set(title=label, xlabel="episodes", xscale="log",
-               ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
-    axes[0][0].set_ylabel("return R (median, quartiles)")
-    axes[0][0].legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with saved_figure(path, 1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False) as (_, axes):
+        for ax, setting in zip(axes[0], settings, strict=True):
+            for summary in (s for s in chosen if _setting(s) == setting):
+                _plot_band(ax, summary, LABELS[_method(summary)], robust=True)
+                ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
+            label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
+            r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
+            ax.set(title=label, xlabel="episodes", xscale="log",
+                   ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
+        axes[0][0].set_ylabel("return R (median, quartiles)")
+        axes[0][0].legend(loc="lower right")
 
 
 def _lower_limit(chosen: list[dict], setting: tuple) -> float:
@@ -505,32 +493,23 @@ def _plot_band(ax, summary: dict, label: str, smooth: int = 1, robust: bool = Fa
         low, high = [m - s for m, s in zip(centre, std, strict=True)], [m + s for m, s in zip(centre, std, strict=True)]
     per_update = summary["settings"]["episodes_per_update"]
     episodes = [(i + 1) * per_update for i in range(len(centre))]
-    style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"},
-             "SDE + GPOMDP": {"color": "tab:green", "ls": "-."}, "PGPE": {"color": "tab:purple", "ls": ":"}}[label]
-    ax.plot(episodes, centre, label=label, **style)
-    ax.fill_between(episodes, low, high, color=style["color"], alpha=0.2)
+    line = style(label)
+    ax.plot(episodes, centre, label=label, **line)
+    ax.fill_between(episodes, low, high, color=line["color"], alpha=0.2)
 
 
 def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
     """Fig. 3 right: the 2-D MLP task, REX and SDE, with REX's final plateau."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.4))
-    for summary in sorted((s for s in runs if s["experiment"] == "minimize2d_mlp"),
-                          key=lambda s: s["explorer"]):
-        _plot_band(ax, summary, LABELS[_method(summary)], SMOOTH)
-    ax.axhline(mlp["rex_plateau"], color="grey", lw=0.8, ls=":", label="REX final plateau")
-    start = min(statistics.mean(c[0] for c in s["curves"]) for s in runs
-                if s["experiment"] == "minimize2d_mlp")
-    ax.set(xlabel="episodes", ylabel=f"mean return R ({SMOOTH}-update average)",
-           title="2-D task, MLP with 18 parameters", ylim=(1.5 * start, 0))
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with saved_figure(path, figsize=(5, 3.4)) as (_, ax):
+        for summary in sorted((s for s in runs if s["experiment"] == "minimize2d_mlp"),
+                              key=lambda s: s["explorer"]):
+            _plot_band(ax, summary, LABELS[_method(summary)], SMOOTH)
+        ax.axhline(mlp["rex_plateau"], color="grey", lw=0.8, ls=":", label="REX final plateau")
+        start = min(statistics.mean(c[0] for c in s["curves"]) for s in runs
+                    if s["experiment"] == "minimize2d_mlp")
+        ax.set(xlabel="episodes", ylabel=f"mean return R ({SMOOTH}-update average)",
+               title="2-D task, MLP with 18 parameters", ylim=(1.5 * start, 0))
+        ax.legend(loc="lower right")
 
 
 def main(argv: list[str] | None = None) -> int:

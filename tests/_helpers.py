@@ -30,7 +30,10 @@ def build(*overrides: str):
 
 
 def load_script(name: str) -> ModuleType:
-    """``analysis/<name>.py`` as a module: the analysis scripts are run as files, not installed."""
+    """``analysis/<name>.py`` as a module: the analysis scripts are run as files, not installed;
+    as for a script, ``analysis/`` is on ``sys.path`` (their shared ``runner.py``, ``figures.py``)."""
+    if str(REPO / "analysis") not in sys.path:
+        sys.path.insert(0, str(REPO / "analysis"))
     spec = importlib.util.spec_from_file_location(name, REPO / "analysis" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
