@@ -2,7 +2,8 @@
 
 Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
 ``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
-that ``analysis/learner_search.py`` chose) on a pool of worker processes, or reads finished run
+that ``analysis/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
+into ``DIR/runs``; a rerun skips the finished jobs and resumes the others), or reads finished run
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
 paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
@@ -53,10 +54,10 @@ import os
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from figures import bounds, ratio_of_means, saved_figure, style
+from runner import TrainJob, run_train_jobs
 
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 #: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE and PGPE.
@@ -98,27 +99,10 @@ def sweep_jobs(experiment: str) -> list[list[str]]:
             for combo in itertools.product(*params.values())]
 
 
-def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
-    """Trains one job (in a worker process) into ``out_dir``; returns ``out_dir``."""
-    import torch
-    from omegaconf import open_dict
-
-    from sde_torchrl.config.build import run_job
-    from sde_torchrl.config.compose import compose
-
-    torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
-    cfg = compose([f"+experiment={experiment}", *overrides], return_hydra_config=True)
-    choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
-    with open_dict(cfg):
-        del cfg["hydra"]
-    run_job(cfg, out_dir, choices)
-    return out_dir
-
-
-def run_all(out: Path, workers: int, extra: list[str]) -> Path:
-    """Runs every job of :data:`EXPERIMENTS`, longest first, on ``workers`` processes."""
-    runs_dir = out / "runs"
-    jobs = []
+def jobs(runs_dir: Path, extra: list[str]) -> list[TrainJob]:
+    """Every job of :data:`EXPERIMENTS` (with the :data:`ADDED` methods' variants of the 1-D
+    sweeps' SDE jobs), each in ``runs_dir/<experiment>__<overrides>``, ``extra`` overrides last."""
+    found = []
     for experiment in EXPERIMENTS:
         for overrides in sweep_jobs(experiment):
             variants = [overrides]
@@ -126,13 +110,9 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
                 variants += [_variant(overrides, added) for added in ADDED.values()]
             for variant in variants:
                 name = experiment + "__" + "_".join(o.replace("=", "-") for o in variant)
-                jobs.append((experiment, variant + extra, str(runs_dir / name)))
-    jobs.sort(key=_expected_cost, reverse=True)
-    start = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for done in pool.map(run_one, *zip(*jobs, strict=True)):
-            log.info("finished %s after %.0f s", Path(done).name, time.perf_counter() - start)
-    return runs_dir
+                found.append(TrainJob(name, (f"+experiment={experiment}", *variant, *extra), runs_dir / name,
+                                      _expected_cost(experiment, variant + extra)))
+    return found
 
 
 def _variant(overrides: list[str], added: list[str]) -> list[str]:
@@ -141,8 +121,7 @@ def _variant(overrides: list[str], added: list[str]) -> list[str]:
     return [o for o in overrides if o.split("=", 1)[0] not in groups] + added
 
 
-def _expected_cost(job: tuple[str, list[str], str]) -> float:
-    experiment, overrides, _ = job
+def _expected_cost(experiment: str, overrides: list[str]) -> float:
     if experiment == "minimize2d_mlp":
         return 1e9
     length = next((int(o.split("=")[1]) for o in overrides if o.startswith("env.episode_length=")), 15)
@@ -524,7 +503,11 @@ def main(argv: list[str] | None = None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    source = args.source or run_all(args.out, args.workers, args.overrides)
+    source = args.source
+    if source is None:
+        source = args.out / "runs"
+        if run_train_jobs(jobs(source, args.overrides), args.workers):
+            return 1  # the failed jobs are named in the log; a rerun resumes them
     runs = load_runs(source)
     if not runs:
         log.error("no finished runs under %s", source)
