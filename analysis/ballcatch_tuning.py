@@ -2,8 +2,9 @@
 ``docs/ballcatch/learner_selection.md``: the same 8 candidates for every method, one job of 8
 runs each on the tuning seed, the candidate with the most final catches chosen per method.
 
-``run`` trains the (method, candidate) jobs through ``train.py``, a few at a time, into
-``OUT/<method>/<candidate>`` (a rerun skips the finished jobs and resumes the others); ``report`` reads them and
+``run`` trains the (method, candidate) jobs through ``train.py``, a few at a time
+(``analysis/runner.py``), into ``OUT/<method>/<candidate>``, and keeps no checkpoint of a finished
+one (a rerun skips the finished jobs and resumes the others); ``report`` reads them and
 writes ``tuning.md`` and ``tuning.json``: per method and candidate the final catches, good
 catches and mean final evaluation (the paper's mean reward per step), and the chosen candidate.
 
@@ -17,12 +18,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from runner import TrainJob, run_train_jobs
+
 SEED, RUNS = 1000, 8
 CATCH, GOOD_CATCH = -1.1, -1.0
 
@@ -55,9 +55,6 @@ CANDIDATES = {
                                                        *_DECAY]),
 }
 
-log = logging.getLogger("ballcatch_tuning")
-
-
 def job_overrides(method: str, candidate: str) -> list[str]:
     """The ``train.py`` overrides of one tuning job.
 
@@ -72,27 +69,14 @@ def job_overrides(method: str, candidate: str) -> list[str]:
             "eval_period=50", "checkpoint_period=50", "logger=none"]
 
 
-def run_job(out: Path, method: str, candidate: str) -> int:
-    """Trains (or resumes) one job; returns ``train.py``'s exit code. A job whose directory holds a
-    finished run (committed ones have no checkpoint to resume from) is left as it is."""
-    from sde_torchrl.jobs.run_dir import UnfinishedRunError, read_finished_run
+def jobs(out: Path, methods: list[str], candidates: list[str]) -> list[TrainJob]:
+    """The (method, candidate) jobs, each in ``out/<method>/<candidate>``.
 
-    run_dir = out / method / candidate
-    try:
-        read_finished_run(run_dir)
-    except (UnfinishedRunError, FileNotFoundError):
-        pass
-    else:
-        log.info("finished already: %s %s", method, candidate)
-        return 0
-    command = [sys.executable, "train.py", *job_overrides(method, candidate), f"hydra.run.dir={run_dir}"]
-    log.info("start %s %s", method, candidate)
-    code = subprocess.run(command, cwd=REPO, capture_output=True, text=True).returncode
-    for checkpoint in run_dir.glob("checkpoint*.pt"):  # run outputs are committed, checkpoints are not
-        if code == 0:
-            checkpoint.unlink()
-    log.info("done %s %s: exit %d", method, candidate, code)
-    return code
+    Examples:
+        >>> [job.name for job in jobs(Path("tuning"), ["enac_sde"], ["C1", "C2"])]
+        ['enac_sde/C1', 'enac_sde/C2']
+    """
+    return [TrainJob(f"{m}/{c}", tuple(job_overrides(m, c)), out / m / c) for m in methods for c in candidates]
 
 
 def final_evaluations(run_dir: Path) -> list[float] | None:
@@ -112,7 +96,7 @@ def select(results: dict[str, list[float] | None]) -> str | None:
     earlier candidate; a failed job counts as no catch (``None`` if no job has a summary).
 
     Examples:
-        >>> select({"C1": [-1.0, -2.0], "C2": [-1.05, -1.5], "C3": None})
+        >>> select({"C1": [-1.0, -2.0], "C2": [-1.2, -1.5], "C3": None})
         'C1'
         >>> select({"C1": [-1.2, -2.0], "C2": [-1.5, -1.6]})
         'C2'
@@ -196,12 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.workers < 1:
         parser.error(f"--workers={args.workers}: a positive integer")
-    jobs = [(m, c) for m in args.methods for c in args.candidates]
-    with ThreadPoolExecutor(args.workers) as pool:
-        codes = list(pool.map(lambda job: run_job(args.out, *job), jobs))
-    failed = [f"{m}/{c}" for (m, c), code in zip(jobs, codes, strict=True) if code]
-    if failed:
-        log.error("failed jobs (their error.txt says why): %s", ", ".join(failed))
+    failed = run_train_jobs(jobs(args.out, args.methods, args.candidates), args.workers, command=True,
+                            keep_checkpoints=False)  # run outputs are committed, checkpoints are not
     return 1 if failed else 0
 
 

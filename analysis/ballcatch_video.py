@@ -43,18 +43,16 @@ class Run(NamedTuple):
 def find_runs(directories: list[Path], explorer: str, estimator: str) -> list[Run]:
     """The runs of ``explorer`` with ``estimator`` under ``directories``."""
     runs = []
-    for directory in directories:
-        for job in finished_runs(directory):
-            summary = job.summary
-            if (summary.get("explorer"), summary.get("estimator"), summary.get("env")) != (
-                    explorer, estimator, "ballcatch"):
-                continue
-            scale = mean_reward_factor(summary)
-            model = summary["config"]["env"].get("model", "cup")  # summaries without it predate the choice
-            weights = summary["final_parameters"][WEIGHT]
-            for offset, final in enumerate(summary["final_eval_return"]):
-                theta = np.asarray(weights[offset], dtype=np.float64).reshape(4, 3)
-                runs.append(Run(summary["first_run"] + offset, scale * final, theta, model))
+    for job in finished_runs(*directories):
+        summary = job.summary
+        if [summary.get(key) for key in ("explorer", "estimator", "env")] != [explorer, estimator, "ballcatch"]:
+            continue
+        scale = mean_reward_factor(summary)
+        model = job.config["env"].get("model", "cup")  # summaries without it predate the choice
+        weights = summary["final_parameters"][WEIGHT]
+        for offset, final in enumerate(summary["final_eval_return"]):
+            theta = np.asarray(weights[offset], dtype=np.float64).reshape(4, 3)
+            runs.append(Run(summary["first_run"] + offset, scale * final, theta, model))
     if not runs:
         raise SystemExit(f"error: no {explorer}/{estimator} ball-catching runs under {[str(d) for d in directories]}")
     return runs

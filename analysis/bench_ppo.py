@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from figures import ratio_of_means, saved_figure
 
 from sde_torchrl.utils.intervals import bootstrap_interval
 
@@ -376,10 +377,6 @@ def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
     return np.array([points[which == b, 1].mean() if (which == b).any() else np.nan for b in range(len(edges) - 1)])
 
 
-def _ratio_of_means(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
-    return ours.mean(-1) / theirs.mean(-1)
-
-
 def report(folder: Path, out: Path) -> str:
     runs = load_runs(folder)
     names = {"plain": "TorchRL PPO, Gaussian", "sde": "TorchRL PPO, SDE (ours)", "sb3": "SB3 PPO, gSDE",
@@ -402,7 +399,7 @@ def report(folder: Path, out: Path) -> str:
     if "sde" in stats and "sb3" in stats:
         ratios = {}
         for quantity in ("final", "speed"):
-            ratios[quantity] = bootstrap_interval((stats["sde"][quantity], stats["sb3"][quantity]), _ratio_of_means)
+            ratios[quantity] = bootstrap_interval((stats["sde"][quantity], stats["sb3"][quantity]), ratio_of_means)
         stats["sde_over_sb3"] = {q: ratio._asdict() for q, ratio in ratios.items()}
         ret, spd = ratios["final"], ratios["speed"]
         lines += ["", f"SDE / SB3 gSDE: final return {ret.estimate:.2f}× [{ret.low:.2f}, {ret.high:.2f}] "
@@ -417,32 +414,24 @@ def report(folder: Path, out: Path) -> str:
 
 
 def _plot(runs: dict[str, list[dict]], names: dict[str, str], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4))
     bin_steps = 50_000
-    for method, method_runs in runs.items():
-        if not method_runs:
-            continue
-        total = max(r["env_steps"] for r in method_runs)
-        curves = np.stack([binned_curve(r, bin_steps, total) for r in method_runs])
-        x = (np.arange(curves.shape[1]) + 1) * bin_steps
-        with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-        ax.plot(x, mean, label=f"{names[method]} ({len(method_runs)} seeds)")
-        if len(method_runs) > 1:
-            ax.fill_between(x, low, high, alpha=0.2)
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("training episode return (raw)")
-    ax.set_title(f"PPO on {ENV_ID} (rl-zoo settings); band: min-max over seeds", fontsize=9)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with saved_figure(path, figsize=(6.4, 4)) as (_, ax):
+        for method, method_runs in runs.items():
+            if not method_runs:
+                continue
+            total = max(r["env_steps"] for r in method_runs)
+            curves = np.stack([binned_curve(r, bin_steps, total) for r in method_runs])
+            x = (np.arange(curves.shape[1]) + 1) * bin_steps
+            with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
+            ax.plot(x, mean, label=f"{names[method]} ({len(method_runs)} seeds)")
+            if len(method_runs) > 1:
+                ax.fill_between(x, low, high, alpha=0.2)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("training episode return (raw)")
+        ax.set_title(f"PPO on {ENV_ID} (rl-zoo settings); band: min-max over seeds", fontsize=9)
+        ax.legend()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,6 +33,8 @@ import json
 import sys
 from pathlib import Path
 
+from figures import bounds, difference_of_means, saved_figure, style
+
 #: Levels of the paper's right-hand plots: "slowed down", "kept on the fingers", "catch",
 #: "good catch".
 LEVELS = (-2.0, -1.5, -1.1, -1.0)
@@ -78,31 +80,25 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     from sde_torchrl.trainers.summary import mean_reward_factor
 
     runs: dict[str, dict[int, dict]] = {}
-    for directory in directories:
-        for job in finished_runs(directory):
-            summary = job.summary
-            explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
-            if explorer is None:
-                continue
-            scale = mean_reward_factor(summary)
-            evals: dict[int, list[tuple[int, float]]] = {}
-            collapse: dict[int, dict[str, int | None]] = {}
-            for row in job.rows:
-                if row["eval_return"]:
-                    evals.setdefault(int(row["run"]), []).append(
-                        (int(row["update"]), scale * float(row["eval_return"])))
-                if row.get("sigma_min"):
-                    first = collapse.setdefault(int(row["run"]), {"any": None, "all": None})
-                    for key, column in (("any", "sigma_min"), ("all", "sigma_max")):
-                        if first[key] is None and float(row[column]) < COLLAPSE:
-                            first[key] = int(row["update"])
-            for offset, final in enumerate(summary["final_eval_return"]):
-                index = summary["first_run"] + offset
-                run = {"evals": evals[index], "final": scale * final, "collapse": collapse.get(index)}
-                previous = runs.setdefault(explorer, {}).setdefault(index, run)
-                if previous != run:
-                    raise ValueError(f"run {index} of {explorer} appears twice with different results "
-                                     f"(second copy in {job.path})")
+    for job in finished_runs(*directories):
+        summary = job.summary
+        explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
+        if explorer is None:
+            continue
+        scale = mean_reward_factor(summary)
+        evals = job.series("eval_return")
+        smallest, largest = job.series("sigma_min"), job.series("sigma_max")
+        for offset, final in enumerate(summary["final_eval_return"]):
+            index = summary["first_run"] + offset
+            collapse = None if index not in smallest else {  # recorded: the first update below COLLAPSE
+                key: next((update for update, sigma in series[index] if sigma < COLLAPSE), None)
+                for key, series in (("any", smallest), ("all", largest))}
+            run = {"evals": [(update, scale * value) for update, value in evals[index]], "final": scale * final,
+                   "collapse": collapse}
+            previous = runs.setdefault(explorer, {}).setdefault(index, run)
+            if previous != run:
+                raise ValueError(f"run {index} of {explorer} appears twice with different results "
+                                 f"(second copy in {job.path})")
     return runs
 
 
@@ -171,7 +167,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
         n, stats = len(by_run), {"runs": len(by_run)}
         for kind in ("best", "final"):
             stats[kind] = {level: sum(hits) for level, hits in flags[explorer][kind].items()}
-            stats[f"{kind}_interval"] = {level: list(binomial_interval(k, n)[1:]) for level, k in stats[kind].items()}
+            stats[f"{kind}_interval"] = {level: bounds(binomial_interval(k, n)) for level, k in stats[kind].items()}
         stats["paper"] = {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}
         stats["improvement"] = improvement(by_run, (initial or {}).get(explorer, {}))
         stats["collapse"] = collapsed(by_run)
@@ -184,7 +180,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
             out[kind] = {}
             for level in flags[method][kind]:
                 ours, theirs = flags[method][kind][level], flags[baseline][kind][level]
-                estimate, low, high = bootstrap_interval((ours, theirs), lambda a, b: a.mean(-1) - b.mean(-1))
+                estimate, low, high = bootstrap_interval((ours, theirs), difference_of_means)
                 out[kind][level] = {"estimate": estimate, "interval": [low, high],
                                     "significant": not low <= 0.0 <= high}
         return out
@@ -266,21 +262,19 @@ def mean_curve(by_run: dict[int, dict]) -> tuple[list[int], list[tuple[float, fl
 def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str) -> None:
     """Left: mean evaluation curves with 95 % bands; right: percent of runs reaching each level
     (best evaluated policy) with 95 % intervals, and the paper's where it states them."""
-    import matplotlib
+    with saved_figure(path, 1, 2, figsize=(9, 3.4)) as (_, (left, right)):
+        _plot_panels(runs, result, left, right, title)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.4))
-    styles = {"sde": {"color": "tab:blue", "ls": "-"}, "rex": {"color": "tab:red", "ls": "--"},
-              "sde+gpomdp": {"color": "tab:green", "ls": "-."}, "pgpe": {"color": "tab:purple", "ls": ":"}}
+def _plot_panels(runs: dict[str, dict[int, dict]], result: dict, left, right, title: str) -> None:
+    """The two panels of :func:`plot`, drawn on the axes ``left`` and ``right``."""
     labels = [str(level) for level in LEVELS]
     shifts = [0.12 * (i - (len(runs) - 1) / 2) for i in range(len(runs))]
     for shift, (explorer, by_run) in zip(shifts, sorted(runs.items()), strict=True):
-        style = styles.get(explorer, {})
+        line = style(explorer)
         x, curve = mean_curve(by_run)
-        left.plot(x, [m for m, _, _ in curve], label=explorer.upper(), **style)
-        left.fill_between(x, [lo for _, lo, _ in curve], [hi for _, _, hi in curve], color=style.get("color"),
+        left.plot(x, [m for m, _, _ in curve], label=explorer.upper(), **line)
+        left.fill_between(x, [lo for _, lo, _ in curve], [hi for _, _, hi in curve], color=line.get("color"),
                           alpha=0.2)
         stats = result["explorers"][explorer]
         fraction = [100 * stats["best"][f"{level}"] / stats["runs"] for level in LEVELS]
@@ -289,19 +283,16 @@ def plot(runs: dict[str, dict[int, dict]], result: dict, path: Path, title: str)
         positions = [i + shift for i in range(len(LEVELS))]
         right.errorbar(positions, fraction, yerr=[[max(f - lo, 0) for f, lo in zip(fraction, low, strict=True)],
                                                   [max(hi - f, 0) for f, hi in zip(fraction, high, strict=True)]],
-                       marker="o", capsize=3, label=f"{explorer.upper()} ({stats['runs']} runs)", **style)
+                       marker="o", capsize=3, label=f"{explorer.upper()} ({stats['runs']} runs)", **line)
         paper = [(i, stats["paper"][f"{level}"]) for i, level in enumerate(LEVELS) if f"{level}" in stats["paper"]]
         if paper:
-            right.scatter([i for i, _ in paper], [v for _, v in paper], marker="x", s=60, color=style.get("color"),
+            right.scatter([i for i, _ in paper], [v for _, v in paper], marker="x", s=60, color=line.get("color"),
                           label=f"{explorer.upper()}, paper", zorder=3)
     left.set(xlabel="policy updates", ylabel="deterministic return R (mean reward)", title=title)
     right.set(xlabel="level: runs with R ≥ level", ylabel="% of runs (best evaluation)",
               title="runs reaching a level (95 % CI)", xticks=range(len(LEVELS)), xticklabels=labels, ylim=(-3, 103))
     left.legend(loc="lower right")
     right.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:

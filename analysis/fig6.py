@@ -6,10 +6,15 @@ Usage:
 
 from __future__ import annotations
 
-import runpy
 import sys
-from pathlib import Path
+
+import fig5
+
+
+def main(argv: list[str] | None = None) -> int:
+    """:func:`fig5.main` with ENAC's runs: ``fig6.json``, ``fig6.md`` and ``fig6.png``."""
+    return fig5.main(argv, estimator="enac")
+
 
 if __name__ == "__main__":
-    fig5 = runpy.run_path(str(Path(__file__).with_name("fig5.py")))  # a sibling script, not a module
-    sys.exit(fig5["main"](estimator="enac"))
+    sys.exit(main())

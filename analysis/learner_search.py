@@ -51,9 +51,10 @@ import os
 import statistics
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+from runner import JobPool
 
 BUDGET = 15_000  # episodes per run
 RUNS = 10
@@ -127,27 +128,17 @@ def run_job(experiment: str, overrides: list[str]) -> dict:
             "mean_episodes": statistics.mean(reached) if reached else None, "episodes": first}
 
 
-def try_candidate(pool: ProcessPoolExecutor, candidate: Candidate) -> dict:
-    """Runs the 16 jobs of ``candidate`` (fragile settings first), stopping at its first failure."""
+def try_candidate(pool: JobPool, candidate: Candidate) -> dict:
+    """Runs the 16 jobs of ``candidate`` (fragile settings first), stopping at its first failure
+    (the jobs already started finish and are recorded)."""
     base = [f"runs={RUNS}", f"seed={SEED}", *candidate.overrides()]
-    pending: dict[Future, tuple[str, str]] = {}
-    for experiment, setting, label in SETTINGS:
-        for explorer in ("rex", "sde"):
-            pending[pool.submit(run_job, experiment, [*base, setting, f"explorer={explorer}"])] = (label, explorer)
+    tasks = {(label, explorer): (experiment, [*base, setting, f"explorer={explorer}"])
+             for experiment, setting, label in SETTINGS for explorer in ("rex", "sde")}
+    found = pool.run(run_job, tasks, stop=lambda result: result["outcome"] != "reached")
     results: dict[str, dict[str, dict]] = {}
-    failure = None
-    while pending and failure is None:
-        done, _ = wait(pending, return_when=FIRST_COMPLETED)
-        for future in done:
-            label, explorer = pending.pop(future)
-            result = results.setdefault(label, {})[explorer] = future.result()
-            if result["outcome"] != "reached" and failure is None:
-                failure = result["outcome"]
-    for future in pending:
-        future.cancel()
-    for future, (label, explorer) in pending.items():  # started before the failure: let them finish
-        if not future.cancelled():
-            results.setdefault(label, {})[explorer] = future.result()
+    for (label, explorer), result in found.items():
+        results.setdefault(label, {})[explorer] = result
+    failure = next((r["outcome"] for r in found.values() if r["outcome"] != "reached"), None)
     total = None if failure else sum(r["mean_episodes"] for per in results.values() for r in per.values())
     return {"candidate": asdict(candidate), "passed": failure is None, "failure": failure,
             "total_episodes": total, "settings": results}
@@ -157,22 +148,28 @@ def search(workers: int, run_all_pairs: bool, out: Path, resume: bool = False) -
     """Applies the selection rule of the module docstring; writes the table after every candidate.
 
     With ``resume``, candidates already in ``out/learner_search.json`` are not run again: their
-    recorded results enter the rule as if just run.
+    recorded results enter the rule as if just run (and if none is left to run, the recorded
+    wall time is kept: the files are rewritten as they were).
     """
     tried, passing, chosen = [], {}, None
-    done = {}
+    done, recorded_wall_s = {}, None
     if resume and (out / "learner_search.json").exists():
-        done = {Candidate(**r["candidate"]): r for r in json.loads((out / "learner_search.json").read_text())["tried"]}
+        recorded = json.loads((out / "learner_search.json").read_text())
+        done = {Candidate(**r["candidate"]): r for r in recorded["tried"]}
+        recorded_wall_s = recorded.get("wall_s")
     offset = max((r["wall_s"] for r in done.values()), default=0.0)
     start = time.perf_counter() - offset
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    ran = False
+    with JobPool(workers) as pool:
         for scores, bound in PAIRS:
             if chosen is not None and not run_all_pairs:
                 break
             for n in EPISODES_PER_UPDATE:
                 for alpha in ALPHAS[scores]:
                     candidate = Candidate(scores, bound, n, alpha)
-                    result = done.get(candidate) or try_candidate(pool, candidate)
+                    result = done.get(candidate)
+                    if result is None:
+                        result, ran = try_candidate(pool, candidate), True
                     result.setdefault("wall_s", round(time.perf_counter() - start, 1))
                     tried.append(result)
                     log.info("%s: %s", result["candidate"], "passed" if result["passed"] else result["failure"])
@@ -188,7 +185,9 @@ def search(workers: int, run_all_pairs: bool, out: Path, resume: bool = False) -
                              key=lambda r: (-r["candidate"]["alpha"], r["total_episodes"]))["candidate"]
     if chosen is None:  # step 5
         chosen = min(tried, key=failed_runs)["candidate"]
-    write_outputs(tried, passing, chosen, out, wall_s=time.perf_counter() - start)
+    # nothing run in this session: the search's wall time is the one recorded
+    wall_s = time.perf_counter() - start if ran or recorded_wall_s is None else recorded_wall_s
+    write_outputs(tried, passing, chosen, out, wall_s=wall_s)
     return {"chosen": chosen, "tried": tried}
 
 

@@ -2,7 +2,8 @@
 
 Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
 ``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
-that ``analysis/learner_search.py`` chose) on a pool of worker processes, or reads finished run
+that ``analysis/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
+into ``DIR/runs``; a rerun skips the finished jobs and resumes the others), or reads finished run
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
 paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
@@ -53,8 +54,10 @@ import os
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+from figures import bounds, ratio_of_means, saved_figure, style
+from runner import TrainJob, run_train_jobs
 
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 #: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE and PGPE.
@@ -96,27 +99,10 @@ def sweep_jobs(experiment: str) -> list[list[str]]:
             for combo in itertools.product(*params.values())]
 
 
-def run_one(experiment: str, overrides: list[str], out_dir: str) -> str:
-    """Trains one job (in a worker process) into ``out_dir``; returns ``out_dir``."""
-    import torch
-    from omegaconf import open_dict
-
-    from sde_torchrl.config.build import run_job
-    from sde_torchrl.config.compose import compose
-
-    torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
-    cfg = compose([f"+experiment={experiment}", *overrides], return_hydra_config=True)
-    choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
-    with open_dict(cfg):
-        del cfg["hydra"]
-    run_job(cfg, out_dir, choices)
-    return out_dir
-
-
-def run_all(out: Path, workers: int, extra: list[str]) -> Path:
-    """Runs every job of :data:`EXPERIMENTS`, longest first, on ``workers`` processes."""
-    runs_dir = out / "runs"
-    jobs = []
+def jobs(runs_dir: Path, extra: list[str]) -> list[TrainJob]:
+    """Every job of :data:`EXPERIMENTS` (with the :data:`ADDED` methods' variants of the 1-D
+    sweeps' SDE jobs), each in ``runs_dir/<experiment>__<overrides>``, ``extra`` overrides last."""
+    found = []
     for experiment in EXPERIMENTS:
         for overrides in sweep_jobs(experiment):
             variants = [overrides]
@@ -124,13 +110,9 @@ def run_all(out: Path, workers: int, extra: list[str]) -> Path:
                 variants += [_variant(overrides, added) for added in ADDED.values()]
             for variant in variants:
                 name = experiment + "__" + "_".join(o.replace("=", "-") for o in variant)
-                jobs.append((experiment, variant + extra, str(runs_dir / name)))
-    jobs.sort(key=_expected_cost, reverse=True)
-    start = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for done in pool.map(run_one, *zip(*jobs, strict=True)):
-            log.info("finished %s after %.0f s", Path(done).name, time.perf_counter() - start)
-    return runs_dir
+                found.append(TrainJob(name, (f"+experiment={experiment}", *variant, *extra), runs_dir / name,
+                                      _expected_cost(experiment, variant + extra)))
+    return found
 
 
 def _variant(overrides: list[str], added: list[str]) -> list[str]:
@@ -139,8 +121,7 @@ def _variant(overrides: list[str], added: list[str]) -> list[str]:
     return [o for o in overrides if o.split("=", 1)[0] not in groups] + added
 
 
-def _expected_cost(job: tuple[str, list[str], str]) -> float:
-    experiment, overrides, _ = job
+def _expected_cost(experiment: str, overrides: list[str]) -> float:
     if experiment == "minimize2d_mlp":
         return 1e9
     length = next((int(o.split("=")[1]) for o in overrides if o.startswith("env.episode_length=")), 15)
@@ -157,14 +138,10 @@ def load_runs(directory: Path) -> list[dict]:
 
     runs = []
     for job in finished_runs(directory):
-        summary = job.summary
-        if summary.get("experiment") not in EXPERIMENTS:
+        if job.summary.get("experiment") not in EXPERIMENTS:
             continue
-        curves: dict[int, list[float]] = {}
-        for row in job.rows:
-            curves.setdefault(int(row["run"]), []).append(float(row["return_mean"]))
-        summary["curves"] = [curves[r] for r in sorted(curves)]  # [runs][updates]
-        runs.append(summary)
+        curves = job.values("return_mean")
+        runs.append(job.summary | {"curves": [curves[r] for r in sorted(curves)]})  # [runs][updates]
     return runs
 
 
@@ -183,12 +160,7 @@ def _interval(values, statistic=None) -> list[float]:
     from sde_torchrl.utils.intervals import bootstrap_interval
 
     kwargs = {} if statistic is None else {"statistic": statistic}
-    interval = bootstrap_interval(values, level=LEVEL, resamples=RESAMPLES, seed=0, **kwargs)
-    return [interval.low, interval.high]
-
-
-def _ratio_of_means(a, b):
-    return a.mean(-1) / b.mean(-1)
+    return bounds(bootstrap_interval(values, level=LEVEL, resamples=RESAMPLES, seed=0, **kwargs))
 
 
 def table_rows(runs: list[dict]) -> list[dict]:
@@ -223,7 +195,7 @@ def table_rows(runs: list[dict]) -> list[dict]:
         for key, (slow, fast) in RATIOS.items():
             if row.get(f"{slow}_episodes") and row.get(f"{fast}_episodes"):
                 row[key] = row[f"{slow}_episodes"] / row[f"{fast}_episodes"]
-                row[f"{key}_ci"] = _interval((reached_by[slow], reached_by[fast]), _ratio_of_means)
+                row[f"{key}_ci"] = _interval((reached_by[slow], reached_by[fast]), ratio_of_means)
                 row[f"{key}_significant"] = not row[f"{key}_ci"][0] <= 1 <= row[f"{key}_ci"][1]
         paper = PAPER.get(setting)
         if paper:
@@ -314,8 +286,7 @@ def _mlp_intervals(smoothed: dict, per_update: int, tail: int) -> dict:
         return reached["rex"] / reached["sde"]
 
     def interval(statistic, values):
-        found = bootstrap_interval(values, statistic, LEVEL, MLP_RESAMPLES, seed=0)
-        return [found.low, found.high]
+        return bounds(bootstrap_interval(values, statistic, LEVEL, MLP_RESAMPLES, seed=0))
 
     indices = (np.arange(len(smoothed["rex"])), np.arange(len(smoothed["sde"])))
     return {
@@ -469,28 +440,20 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
 def plot_convergence(runs: list[dict], sweep: str, path: Path) -> None:
     """One panel per setting of ``sweep``: median and quartiles of the returns over runs, REX, SDE,
     SDE + GPOMDP and PGPE (a mean would follow single REX runs on excursions to returns of -10³ and below)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     chosen = sorted((s for s in runs if SWEEP_NAMES.get(s["experiment"]) == sweep),
                     key=lambda s: _setting(s))
     settings = sorted({_setting(s) for s in chosen})
-    fig, axes = plt.subplots(1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False)
-    for ax, setting in zip(axes[0], settings, strict=True):
-        for summary in (s for s in chosen if _setting(s) == setting):
-            _plot_band(ax, summary, LABELS[_method(summary)], robust=True)
-            ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
-        label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
-        r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
-        ax.set(title=label, xlabel="episodes", xscale="log",
-               ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
-    axes[0][0].set_ylabel("return R (median, quartiles)")
-    axes[0][0].legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with saved_figure(path, 1, len(settings), figsize=(3.2 * len(settings), 3.0), squeeze=False) as (_, axes):
+        for ax, setting in zip(axes[0], settings, strict=True):
+            for summary in (s for s in chosen if _setting(s) == setting):
+                _plot_band(ax, summary, LABELS[_method(summary)], robust=True)
+                ax.axhline(summary["settings"]["r_lim"], color="grey", lw=0.8, ls=":")
+            label = f"σ_noise = {setting[1]}" if sweep == "noise" else f"EL = {setting[2]}"
+            r_lim = next(s["settings"]["r_lim"] for s in chosen if _setting(s) == setting)
+            ax.set(title=label, xlabel="episodes", xscale="log",
+                   ylim=(_lower_limit(chosen, setting), 0.5 * r_lim))
+        axes[0][0].set_ylabel("return R (median, quartiles)")
+        axes[0][0].legend(loc="lower right")
 
 
 def _lower_limit(chosen: list[dict], setting: tuple) -> float:
@@ -509,32 +472,23 @@ def _plot_band(ax, summary: dict, label: str, smooth: int = 1, robust: bool = Fa
         low, high = [m - s for m, s in zip(centre, std, strict=True)], [m + s for m, s in zip(centre, std, strict=True)]
     per_update = summary["settings"]["episodes_per_update"]
     episodes = [(i + 1) * per_update for i in range(len(centre))]
-    style = {"SDE": {"color": "tab:blue", "ls": "-"}, "REX": {"color": "tab:red", "ls": "--"},
-             "SDE + GPOMDP": {"color": "tab:green", "ls": "-."}, "PGPE": {"color": "tab:purple", "ls": ":"}}[label]
-    ax.plot(episodes, centre, label=label, **style)
-    ax.fill_between(episodes, low, high, color=style["color"], alpha=0.2)
+    line = style(label)
+    ax.plot(episodes, centre, label=label, **line)
+    ax.fill_between(episodes, low, high, color=line["color"], alpha=0.2)
 
 
 def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
     """Fig. 3 right: the 2-D MLP task, REX and SDE, with REX's final plateau."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.4))
-    for summary in sorted((s for s in runs if s["experiment"] == "minimize2d_mlp"),
-                          key=lambda s: s["explorer"]):
-        _plot_band(ax, summary, LABELS[_method(summary)], SMOOTH)
-    ax.axhline(mlp["rex_plateau"], color="grey", lw=0.8, ls=":", label="REX final plateau")
-    start = min(statistics.mean(c[0] for c in s["curves"]) for s in runs
-                if s["experiment"] == "minimize2d_mlp")
-    ax.set(xlabel="episodes", ylabel=f"mean return R ({SMOOTH}-update average)",
-           title="2-D task, MLP with 18 parameters", ylim=(1.5 * start, 0))
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    with saved_figure(path, figsize=(5, 3.4)) as (_, ax):
+        for summary in sorted((s for s in runs if s["experiment"] == "minimize2d_mlp"),
+                              key=lambda s: s["explorer"]):
+            _plot_band(ax, summary, LABELS[_method(summary)], SMOOTH)
+        ax.axhline(mlp["rex_plateau"], color="grey", lw=0.8, ls=":", label="REX final plateau")
+        start = min(statistics.mean(c[0] for c in s["curves"]) for s in runs
+                    if s["experiment"] == "minimize2d_mlp")
+        ax.set(xlabel="episodes", ylabel=f"mean return R ({SMOOTH}-update average)",
+               title="2-D task, MLP with 18 parameters", ylim=(1.5 * start, 0))
+        ax.legend(loc="lower right")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -549,7 +503,11 @@ def main(argv: list[str] | None = None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    source = args.source or run_all(args.out, args.workers, args.overrides)
+    source = args.source
+    if source is None:
+        source = args.out / "runs"
+        if run_train_jobs(jobs(source, args.overrides), args.workers):
+            return 1  # the failed jobs are named in the log; a rerun resumes them
     runs = load_runs(source)
     if not runs:
         log.error("no finished runs under %s", source)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
+import importlib
 import json
 import subprocess
 import sys
@@ -30,11 +30,12 @@ def build(*overrides: str):
 
 
 def load_script(name: str) -> ModuleType:
-    """``analysis/<name>.py`` as a module: the analysis scripts are run as files, not installed."""
-    spec = importlib.util.spec_from_file_location(name, REPO / "analysis" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """``analysis/<name>.py`` as a module, imported as the scripts import each other (their shared
+    ``runner.py`` and ``figures.py``, ``fig6.py``'s ``fig5``): the analysis scripts are run as files,
+    not installed, and Python puts a script's folder first on ``sys.path``."""
+    if str(REPO / "analysis") not in sys.path:
+        sys.path.insert(0, str(REPO / "analysis"))
+    return importlib.import_module(name)
 
 
 def train_command(*overrides: str, run_dir: Path, multirun: bool = False) -> list[str]:

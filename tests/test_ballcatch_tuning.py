@@ -78,5 +78,5 @@ def test_run_leaves_a_finished_job_as_it_is(tmp_path):
     job = tmp_path / "reinforce_sde" / "C1"
     shutil.copytree(REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", job)
     before = {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()}
-    assert tuning.run_job(tmp_path, "reinforce_sde", "C1") == 0
+    assert tuning.main(["run", "--out", str(tmp_path), "--methods", "reinforce_sde", "--candidates", "C1"]) == 0
     assert {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()} == before

@@ -3,22 +3,19 @@ shards (first_run=0,2 of runs=2) reproduce one process training all runs (runs=4
 
 from __future__ import annotations
 
-import csv
 import subprocess
 import sys
 from pathlib import Path
+
+from sde_torchrl.jobs.run_dir import finished_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMON = ["+experiment=minimize", "updates=6", "logger=none", "eval_period=3"]
 
 
-def _metrics(directory: Path) -> dict[tuple[int, int], tuple[str, str]]:
-    rows = {}
-    for path in directory.rglob("metrics.csv"):
-        with open(path) as f:
-            for row in csv.DictReader(f):
-                rows[int(row["run"]), int(row["update"])] = (row["return_mean"], row["eval_return"])
-    return rows
+def _metrics(directory: Path) -> dict[tuple[int, int], tuple[float, float | None]]:
+    return {(row.run, row.update): (row.return_mean, row.eval_return)
+            for job in finished_runs(directory) for row in job.rows}
 
 
 def _train(*overrides: str, multirun: bool = False) -> None:
@@ -34,4 +31,4 @@ def test_joblib_shards_equal_one_process(tmp_path):
            f"hydra.sweep.dir={tmp_path / 'shards'}", multirun=True)
     one, shards = _metrics(tmp_path / "one"), _metrics(tmp_path / "shards")
     assert len(one) == 4 * 6 and len(list((tmp_path / "shards").rglob("summary.json"))) == 2
-    assert shards == one  # the same strings: bitwise the same numbers
+    assert shards == one  # bitwise the same numbers

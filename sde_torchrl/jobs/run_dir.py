@@ -14,6 +14,11 @@
 A directory without a checkpoint starts a new job: :meth:`RunDirectory.start_new_job` removes
 the outputs of an earlier, unfinished or failed job there, so that no stale file is mistaken
 for this job's.
+
+Read back, beside the writer: :func:`read_metrics` is the one parser of ``metrics.csv`` (typed
+:class:`MetricRow` rows), and :func:`read_finished_run` / :func:`finished_runs` the one reader of
+a finished job (summary, config and rows), which refuses a directory a live job holds or whose
+files disagree; the analysis scripts read run directories through them only.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 
@@ -96,6 +101,61 @@ def csv_lines(rows: Sequence[dict[str, Any]]) -> list[bytes]:
     writer.writeheader()
     writer.writerows(rows)
     return text.getvalue().encode().splitlines(keepends=True)
+
+
+class MetricRow(NamedTuple):
+    """One ``metrics.csv`` row, typed: one run after one update (:data:`METRIC_FIELDS`).
+
+    ``eval_return`` is ``None`` for an update without an evaluation; ``grad_norm`` and the
+    exploration state (:data:`EXPLORATION_FIELDS`) are ``None`` in files written before they were
+    recorded (their column is missing or empty).
+
+    Examples:
+        >>> row = MetricRow(run=0, update=3, episodes=40, return_mean=-1.0, eval_return=None)
+        >>> row.eval_return is None, row.sigma_min is None
+        (True, True)
+    """
+
+    run: int
+    update: int
+    episodes: int
+    return_mean: float
+    eval_return: float | None = None
+    grad_norm: float | None = None
+    sigma_min: float | None = None
+    sigma_max: float | None = None
+    weight_max: float | None = None
+
+
+def read_metrics(path: str | os.PathLike) -> list[MetricRow]:
+    """Reads ``metrics.csv`` into typed rows, in file order (update by update, runs within an
+    update): the one parser of the file :class:`MetricsFile` writes.
+
+    Args:
+        path: the CSV file.
+
+    Returns:
+        One :class:`MetricRow` per line after the header.
+
+    Raises:
+        FileNotFoundError: there is no such file.
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "metrics.csv"
+        >>> _ = path.write_bytes(b"".join(csv_lines(metric_rows(
+        ...     0, 0, 5, torch.tensor([-1.5, -2.0]), None, torch.tensor([0.5, 0.25]),
+        ...     torch.tensor([[0.125, 0.25], [0.5, 0.75], [1.0, 2.0]])))))
+        >>> [(row.run, row.return_mean, row.eval_return, row.sigma_max) for row in read_metrics(path)]
+        [(0, -1.5, None, 0.5), (1, -2.0, None, 0.75)]
+    """
+    def number(text: str | None) -> float | None:
+        return float(text) if text else None
+
+    with open(path, newline="") as f:
+        return [MetricRow(int(row["run"]), int(row["update"]), int(row["episodes"]), float(row["return_mean"]),
+                          *(number(row.get(name)) for name in METRIC_FIELDS[4:]))
+                for row in csv.DictReader(f)]
 
 
 class RunDirectory:
@@ -232,12 +292,41 @@ class FinishedRun:
     Attributes:
         path: the run directory.
         summary: ``summary.json``.
-        rows: ``metrics.csv``'s rows as strings, one per (update, run).
+        rows: ``metrics.csv``'s rows (:func:`read_metrics`), one per (update, run).
+
+    Examples:
+        >>> rows = [MetricRow(run, update, 10 * update, -float(run), -0.5 if update else None)
+        ...         for update in range(2) for run in (4, 5)]
+        >>> job = FinishedRun(Path("runs/0"), {"first_run": 4, "runs": 2, "config": {"seed": 1}}, rows)
+        >>> job.series("eval_return"), job.config
+        ({4: [(1, -0.5)], 5: [(1, -0.5)]}, {'seed': 1})
+        >>> job.values("return_mean")
+        {4: [-4.0, -4.0], 5: [-5.0, -5.0]}
     """
 
     path: Path
     summary: dict[str, Any]
-    rows: list[dict[str, str]]
+    rows: list[MetricRow]
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The resolved config the job ran with (the summary's ``config`` label; empty if none)."""
+        return self.summary.get("config", {})
+
+    def series(self, field: str) -> dict[int, list[tuple[int, float]]]:
+        """One column per run: global run index → ``(update, value)`` in update order, the updates
+        without a value (``None``: no evaluation, not recorded) left out; a run without any value
+        is left out."""
+        found: dict[int, list[tuple[int, float]]] = {}
+        for row in self.rows:
+            value = getattr(row, field)
+            if value is not None:
+                found.setdefault(row.run, []).append((row.update, value))
+        return found
+
+    def values(self, field: str) -> dict[int, list[float]]:
+        """:meth:`series` without the updates: global run index → the column's values in update order."""
+        return {run: [value for _, value in points] for run, points in self.series(field).items()}
 
 
 def read_finished_run(path: str | os.PathLike) -> FinishedRun:
@@ -251,7 +340,7 @@ def read_finished_run(path: str | os.PathLike) -> FinishedRun:
         path: the run directory.
 
     Returns:
-        The summary and the metrics rows.
+        The summary and the typed metrics rows.
 
     Raises:
         UnfinishedRunError: the job is running, did not finish, or its files disagree.
@@ -272,13 +361,12 @@ def read_finished_run(path: str | os.PathLike) -> FinishedRun:
     if not (path / "summary.json").exists():
         raise UnfinishedRunError(path, "it has no summary.json", again)
     summary = read_summary(path / "summary.json")
-    with open(path / "metrics.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_metrics(path / "metrics.csv")
     runs, updates = summary.get("runs"), summary.get("updates_done")
     if not isinstance(runs, int) or not isinstance(updates, int):
         raise UnfinishedRunError(path, "its summary.json names no runs and updates_done", again)
-    if len(rows) != runs * updates or (rows and int(rows[-1]["update"]) != updates - 1):
-        last = rows[-1]["update"] if rows else "none"
+    if len(rows) != runs * updates or (rows and rows[-1].update != updates - 1):
+        last = rows[-1].update if rows else "none"
         raise UnfinishedRunError(path, f"metrics.csv has {len(rows)} rows up to update {last}, summary.json says "
                                        f"{runs} runs × {updates} updates", again)
     if (path / CHECKPOINT).exists():
@@ -290,15 +378,24 @@ def read_finished_run(path: str | os.PathLike) -> FinishedRun:
     return FinishedRun(path, summary, rows)
 
 
-def finished_runs(directory: str | os.PathLike) -> list[FinishedRun]:
-    """Every run directory under ``directory`` (each one holding a ``metrics.csv``), read by
-    :func:`read_finished_run`, in path order: one that is not finished refuses the whole set,
-    naming it, rather than giving results with a run missing or cut short.
+def finished_runs(*directories: str | os.PathLike) -> list[FinishedRun]:
+    """Every run directory under ``directories`` (each one holding a ``metrics.csv``), read by
+    :func:`read_finished_run`, directory by directory in path order: one that is not finished
+    refuses the whole set, naming it, rather than giving results with a run missing or cut short.
+
+    Args:
+        directories: sweep or run directories (shards of one sweep may be given together).
 
     Raises:
-        UnfinishedRunError: a run directory under ``directory`` is not finished.
+        UnfinishedRunError: a run directory under ``directories`` is not finished.
+
+    Examples:
+        >>> import tempfile
+        >>> finished_runs(tempfile.mkdtemp(), tempfile.mkdtemp())
+        []
     """
-    return [read_finished_run(metrics.parent) for metrics in sorted(Path(directory).rglob("metrics.csv"))]
+    return [read_finished_run(metrics.parent) for directory in directories
+            for metrics in sorted(Path(directory).rglob("metrics.csv"))]
 
 
 def read_summary(path: str | os.PathLike) -> dict[str, Any]:
