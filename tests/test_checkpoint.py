@@ -23,7 +23,13 @@ from _helpers import (
     train_command,
 )
 
-from sde_torchrl.jobs.checkpoint import CheckpointMismatchError, config_differences, load_checkpoint
+from sde_torchrl.jobs.checkpoint import (
+    FORMAT,
+    CheckpointMismatchError,
+    config_differences,
+    load_checkpoint,
+    save_checkpoint,
+)
 from sde_torchrl.utils.files import write_json_atomic
 
 # ------------------------------------------------------------------------------ in process
@@ -50,6 +56,27 @@ def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
     assert (tmp_path / "resumed" / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
     reference.pop("wall_s"), resumed.pop("wall_s")
     assert resumed == reference
+
+
+def test_a_format_3_checkpoint_resumes_bit_for_bit(tmp_path):
+    """Format 3 (before TorchRL's GlobalRNGState) named torch's generator ``torch``: a job
+    interrupted under it resumes under format 4 to the uninterrupted outputs."""
+    budget = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5")
+    build(*budget).train(tmp_path / "ref", checkpoint_period=4)
+    crashed = build(*budget)
+    crash_at(crashed, 10)
+    with pytest.raises(Crash):
+        crashed.train(tmp_path / "resumed", checkpoint_period=4)
+    path = tmp_path / "resumed" / "checkpoint.pt"
+    state = load_checkpoint(path)
+    assert state["format"] == FORMAT == 4 and sorted(state["random"]) == ["numpy", "python", "torch_cpu"]
+    generators = state["random"]
+    state["format"], state["random"] = 3, {"torch": generators["torch_cpu"], "numpy": list(generators["numpy"]),
+                                           "python": generators["python"]}
+    save_checkpoint(path, state)
+    torch.manual_seed(1234)
+    build(*budget).train(tmp_path / "resumed", checkpoint_period=4)
+    assert (tmp_path / "resumed" / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
 
 
 def test_finished_job_is_not_trained_again(tmp_path):

@@ -413,6 +413,35 @@ def test_kill_during_a_run_leaves_no_stale_lock(tmp_path):
         pass
 
 
+FORKING_HOLD = "import os, sys, time; from sde_torchrl.jobs.lock import hold_run_directory\n" \
+               "with hold_run_directory(sys.argv[1]):\n" \
+               "    if os.fork() == 0:  # the child, past fork's handlers\n" \
+               "        print(os.getpid(), flush=True); time.sleep(120); os._exit(0)\n" \
+               "    time.sleep(120)\n"
+
+
+def test_a_forked_child_does_not_keep_a_dead_holders_lock(tmp_path):
+    """A worker forked by the job (multiprocessing's "fork") outlives the job's kill -9: the
+    directory must not stay locked in the dead job's name (filelock closes the inherited
+    descriptor in the child; a bare flock would stay held through the child's copy)."""
+    from sde_torchrl.jobs.lock import held_by
+
+    holder = subprocess.Popen([sys.executable, "-c", FORKING_HOLD, str(tmp_path)], cwd=REPO, stdout=subprocess.PIPE,
+                              text=True)
+    child = int(holder.stdout.readline())
+    try:
+        assert held_by(tmp_path) == str(holder.pid)
+        holder.kill()
+        holder.wait()
+        assert held_by(tmp_path) is None
+        with hold_run_directory(tmp_path):
+            pass
+    finally:
+        holder.kill()
+        holder.wait()
+        os.kill(child, signal.SIGKILL)
+
+
 def test_a_sweep_relaunched_with_other_values_leaves_the_finished_jobs_alone(tmp_path):
     """Relaunching a sweep into the same directory with another value: each finished job is
     refused (exit 2) with advice naming hydra.sweep.dir, and its directory is not changed:

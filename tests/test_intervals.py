@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import doctest
 import math
+from statistics import NormalDist
 
 import numpy as np
 import pytest
@@ -46,6 +47,56 @@ def test_wilson_exact_coverage_is_near_the_level(p):
     coverage = sum(math.comb(n, k) * p**k * (1 - p) ** (n - k)
                    for k in range(n + 1) if binomial_interval(k, n).low <= p <= binomial_interval(k, n).high)
     assert 0.92 <= coverage <= 0.99
+
+
+def numpy_bootstrap(values, statistic=lambda a: a.mean(-1), level=0.95, resamples=10_000, seed=0) -> Interval:
+    """The implementation before SciPy's (the committed pages were written with it)."""
+    samples = tuple(np.asarray(v, dtype=float) for v in (values if isinstance(values, tuple) else (values,)))
+    rng = np.random.default_rng(seed)
+    resampled = [s[rng.integers(0, s.size, size=(resamples, s.size))] for s in samples]
+    replicates = np.asarray(statistic(*resampled), dtype=float)
+    low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2], method="inverted_cdf")
+    return Interval(float(statistic(*samples)), float(low), float(high))
+
+
+def wilson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """The Wilson interval's closed form, as written before SciPy's."""
+    z = NormalDist().inv_cdf((1 + level) / 2)
+    centre = (k + z * z / 2) / (n + z * z)
+    half = z / (n + z * z) * math.sqrt(k * (n - k) / n + z * z / 4)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def ratio(a, b):
+    return a.mean(-1) / b.mean(-1)
+
+
+@pytest.mark.parametrize("case", range(12))
+def test_bootstrap_is_the_numpy_bootstrap_to_the_bit(case):
+    """SciPy draws the same resamples from the same generator: the committed pages' numbers stay."""
+    rng = np.random.default_rng(100 + case)
+    one, other = rng.gamma(2.0, 500.0, rng.integers(2, 60)), rng.normal(3.0, 1.0, rng.integers(2, 60))
+    one[rng.random(one.size) < 0.1] = np.inf  # runs that never reach a level
+    values, statistic = [
+        (one, lambda a: a.mean(-1)), (one, lambda a: np.median(a, -1)), ((other, one), ratio),
+        ((one, other, other[:1]), lambda a, b, c: np.median(a, -1) - b.mean(-1) * c[..., 0]),
+    ][case % 4]
+    level, resamples, seed = [(0.95, 10_000, 0), (0.9, 2000, 7), (0.99, 501, 3)][case % 3]
+    expected = numpy_bootstrap(values, statistic, level, resamples, seed)
+    assert bootstrap_interval(values, statistic, level, resamples, seed) == expected
+
+
+def test_bootstrap_of_a_sample_of_one_run_is_its_value():
+    assert bootstrap_interval([7.0]) == Interval(7.0, 7.0, 7.0) == numpy_bootstrap([7.0])
+
+
+def test_wilson_is_the_closed_form_and_exact_at_the_ends():
+    for level in (0.8, 0.95, 0.99):
+        for n in (1, 2, 3, 5, 16, 40, 50, 100):  # 40, 50 and 100 runs: the committed pages
+            for k in range(n + 1):
+                interval = binomial_interval(k, n, level)
+                assert interval[1:] == pytest.approx(wilson(k, n, level), abs=1e-15), (k, n, level)
+            assert binomial_interval(0, n, level).low == 0.0 and binomial_interval(n, n, level).high == 1.0
 
 
 def test_bootstrap_of_a_constant_sample_is_the_constant():

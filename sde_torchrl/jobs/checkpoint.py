@@ -2,8 +2,9 @@
 
 A job's state between two updates is: the policy and optimiser state dicts, the number of
 updates done, every random generator it draws from (the explorer's and the envs' per-run
-:class:`~sde_torchrl.utils.rng.RunStreams`, torch's, NumPy's and Python's global generators) and the
-bookkeeping the summary is computed from. Restoring all of it and continuing produces exactly
+:class:`~sde_torchrl.utils.rng.RunStreams`; Python's, NumPy's, torch's and any initialised
+accelerator's global generators, as TorchRL's :class:`~torchrl.checkpoint.GlobalRNGState` captures
+them) and the bookkeeping the summary is computed from. Restoring all of it and continuing produces exactly
 the numbers an uninterrupted job produces (on CPU).
 
 :func:`save_job` and :func:`restore_job` write and read that whole state; the checkpoint file is
@@ -13,6 +14,17 @@ damaged file raises :class:`~sde_torchrl.utils.files.DamagedFileError` rather th
 wrong numbers. The checksum covers the loaded content (every tensor's bytes, dtype and shape,
 every plain value), not the zip container, so what it accepts is exactly what was saved, and
 ``torch.load("checkpoint.pt", weights_only=True)`` still reads the file.
+
+Why the file is ours and not a :class:`torchrl.checkpoint.Checkpoint` (read in TorchRL 0.14.1):
+its save replaces an existing checkpoint in two renames (the old one aside, then the new one in),
+so a kill between them leaves no checkpoint under its name, and nothing is fsynced; its manifest
+lists file names but no checksums, so a damaged tensor payload loads without a word; its load
+restores each component in place as it reads it, where a resume must first check the whole file
+(checksum, config, fit to the job) and change nothing if any check fails; and it writes a
+directory tree or a zip of per-tensor files, not one file ``torch.load`` reads.
+:class:`~torchrl.checkpoint.CheckpointRotation` rotates such checkpoints only (named by step,
+newest chosen by manifest, so a damaged newest one is still chosen): :func:`keep_previous` keeps
+the one before, as a hard link.
 """
 
 from __future__ import annotations
@@ -20,13 +32,12 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
-import random
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
+from torchrl.checkpoint import GlobalRNGState
 
 from sde_torchrl.utils.files import DamagedFileError, write_atomically
 from sde_torchrl.utils.rng import RunStreams
@@ -37,8 +48,11 @@ CHECKPOINT = "checkpoint.pt"
 #: The checkpoint before the last one, kept by :func:`save_job`: a damaged ``checkpoint.pt``
 #: then costs the updates since it, not the whole job.
 PREVIOUS = "checkpoint.prev.pt"
-#: Bumped when the checkpoint layout changes; older checkpoints are refused.
-FORMAT = 3
+#: Bumped when the checkpoint layout changes; older checkpoints are refused, but for :data:`READABLE`.
+FORMAT = 4
+#: Formats this version resumes: 3 differs from 4 only in naming torch's generator ``torch``
+#: (ours) where :class:`~torchrl.checkpoint.GlobalRNGState` names it ``torch_cpu``.
+READABLE = (3, 4)
 #: Config keys that do not change the numbers a job produces: they may differ on resume.
 NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress", "max_memory_gb")
 
@@ -67,7 +81,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
         >>> path = Path(tempfile.mkdtemp()) / "checkpoint.pt"
         >>> save_checkpoint(path, {"format": FORMAT, "updates": 3})
         >>> load_checkpoint(path)
-        {'format': 3, 'updates': 3}
+        {'format': 4, 'updates': 3}
     """
     path = Path(path)
     remedy = (f"nothing was resumed from it; to train the job again from the start, delete {path.name} "
@@ -84,7 +98,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(state, dict):
         raise DamagedFileError(path, f"it holds a {type(state).__name__}, not a checkpoint", remedy)
     digest = state.pop("sha256", None)
-    if digest is None and state.get("format") != FORMAT:
+    if digest is None and state.get("format") not in READABLE:
         raise CheckpointMismatchError(
             f"{path} has checkpoint format {state.get('format')!r}, this version reads {FORMAT}; "
             "finish the job with the version that wrote it, or delete it to start over"
@@ -92,7 +106,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if digest != content_digest(state):
         problem = "its checksum is missing" if digest is None else "its content does not match its checksum"
         raise DamagedFileError(path, problem, remedy)
-    if state.get("format") != FORMAT:
+    if state.get("format") not in READABLE:
         raise CheckpointMismatchError(f"{path} has checkpoint format {state.get('format')!r}, this version "
                                       f"reads {FORMAT}; delete it to start over")
     return state
@@ -151,19 +165,36 @@ def config_differences(saved: Any, current: Any, prefix: str = "") -> list[str]:
 
 
 def global_random_state() -> dict[str, Any]:
-    """States of torch's, NumPy's and Python's global generators (tensors and plain data, so
-    that ``torch.load(..., weights_only=True)`` reads them)."""
-    kind, keys, pos, has_gauss, cached = np.random.get_state()
-    numpy_state = [kind, torch.from_numpy(keys.astype(np.int64)), int(pos), int(has_gauss), float(cached)]
-    return {"torch": torch.get_rng_state(), "numpy": numpy_state, "python": random.getstate()}
+    """States of Python's, NumPy's, torch's and any initialised accelerator's global generators
+    (:class:`~torchrl.checkpoint.GlobalRNGState`: tensors and plain data, so that
+    ``torch.load(..., weights_only=True)`` reads them).
+
+    Examples:
+        >>> sorted(global_random_state())
+        ['numpy', 'python', 'torch_cpu']
+    """
+    return GlobalRNGState().state_dict()
 
 
 def set_global_random_state(state: dict[str, Any]) -> None:
-    """Restores what :func:`global_random_state` returned."""
-    torch.set_rng_state(state["torch"])
-    kind, keys, pos, has_gauss, cached = state["numpy"]
-    np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, cached))
-    random.setstate(state["python"])
+    """Restores what :func:`global_random_state` returned (or a format-3 checkpoint's ``random``).
+
+    Raises:
+        CheckpointMismatchError: it holds an accelerator's generators and this machine has none.
+
+    Examples:
+        >>> state = global_random_state()
+        >>> first = torch.rand(2)
+        >>> set_global_random_state(state)
+        >>> bool((torch.rand(2) == first).all())
+        True
+    """
+    if "torch" in state:  # format 3
+        state = {**{k: v for k, v in state.items() if k != "torch"}, "torch_cpu": state["torch"]}
+    try:
+        GlobalRNGState().load_state_dict(state)
+    except RuntimeError as error:  # "Checkpoint contains CUDA RNG state but CUDA is unavailable."
+        raise CheckpointMismatchError(f"the checkpoint cannot be resumed here: {error}") from error
 
 
 def env_streams(env: Any) -> RunStreams | None:

@@ -1,13 +1,19 @@
 """One process per run directory: an OS file lock on ``<run dir>/.lock``, held for the job's life.
 
-The lock is ``fcntl.flock`` on the open file: the OS releases it when the process ends, however
-it ends (a ``kill -9`` leaves no stale lock), and a second process asking for it is refused at
-once. The holder writes its pid into the file, for the refusal message, and empties it on
-release. The file itself stays (removing it would let two processes lock two different files).
+Holding is the ``filelock`` package's :class:`~filelock.FileLock` (``fcntl.flock`` on Unix): the OS
+releases it when the process ends, however it ends (a ``kill -9`` leaves no stale lock), a second
+process asking for it is refused at once (``blocking=False``), nested holds in one process share
+the one lock (``is_singleton=True``, its hold counter), and a process forked while holding it does
+not keep it alive after the holder has died (filelock closes the inherited descriptor in the
+child). Two things are ours, because filelock has neither: the holder's pid, written into the
+file for the refusal message (``on_acquired``) and emptied on release, and :func:`held_by`, a
+probe (a shared ``flock``) that takes no lock a job could be refused by and writes nothing. The
+file itself stays (``preserve_lock_file=True``: removing it would let two processes lock two
+different files).
 
-This module uses the standard library only: ``train.py`` takes the lock before importing torch,
-so that a second command on a live run directory is refused in about a second and changes
-nothing.
+This module imports neither torch nor anything that does: ``train.py`` takes the lock before
+importing torch, so that a second command on a live run directory is refused in about a second
+and changes nothing.
 """
 
 from __future__ import annotations
@@ -19,13 +25,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from filelock import FileLock, Timeout
+
 from sde_torchrl.utils.checks import ArgumentError
 
 LOCK = ".lock"
-
-#: Run directories this process holds: resolved path → (pid, descriptor, depth). Nested holds
-#: (``train.py`` around :meth:`~sde_torchrl.trainers.trainer.Trainer.train`) share the one lock.
-_HELD: dict[Path, tuple[int, int, int]] = {}
 
 
 class RunDirectoryInUse(RuntimeError):
@@ -65,23 +69,17 @@ def hold_run_directory(path: str | os.PathLike) -> Iterator[None]:
     """
     key = Path(path).resolve()
     make_run_directory(path)
-    held = _HELD.get(key)
-    if held is not None and held[0] == os.getpid():
-        _HELD[key] = (held[0], held[1], held[2] + 1)
-        try:
-            yield
-        finally:
-            pid, fd, depth = _HELD[key]
-            _HELD[key] = (pid, fd, depth - 1)
-        return
-    fd = _acquire(key)
-    _HELD[key] = (os.getpid(), fd, 1)
+    lock = _run_lock(key)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise RunDirectoryInUse(key, _holder(key / LOCK)) from None
     try:
         yield
     finally:
-        del _HELD[key]
-        os.ftruncate(fd, 0)  # no pid: nobody holds it
-        os.close(fd)  # releases the lock
+        if lock.lock_counter == 1:  # the outermost hold ends: no pid left, nobody holds it
+            os.truncate(key / LOCK, 0)
+        lock.release()
 
 
 def make_run_directory(path: str | os.PathLike) -> Path:
@@ -107,10 +105,17 @@ def held_by(path: str | os.PathLike) -> str | None:
     """The pid of the live process that holds the run directory ``path``, or ``None`` (also
     for a directory without a lock file); nothing is written, and no lock is kept.
 
+    A shared ``flock`` on a read-only descriptor: it contends with the holder's exclusive lock
+    but not with other probes (filelock's locks and :func:`filelock.lock_descriptor` are
+    exclusive, and opening a :class:`~filelock.FileLock` creates the file).
+
     Examples:
         >>> import tempfile
         >>> directory = tempfile.mkdtemp()
         >>> held_by(directory) is None
+        True
+        >>> with hold_run_directory(directory):
+        ...     held_by(directory) == str(os.getpid())
         True
     """
     lock = Path(path) / LOCK
@@ -120,7 +125,7 @@ def held_by(path: str | os.PathLike) -> str | None:
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except BlockingIOError:
-        return _holder(fd)
+        return _holder(lock)
     else:
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
@@ -128,27 +133,25 @@ def held_by(path: str | os.PathLike) -> str | None:
         os.close(fd)
 
 
-def _acquire(directory: Path) -> int:
-    """Opens ``directory/.lock``, locks it without waiting and writes this process's pid."""
-    fd = os.open(directory / LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = _holder(fd)
-        os.close(fd)
-        raise RunDirectoryInUse(directory, holder) from None
-    except BaseException:
-        os.close(fd)
-        raise
+def _run_lock(directory: Path) -> FileLock:
+    """The lock of ``directory``: one instance per path in this process, so holds nest."""
+    return FileLock(directory / LOCK, mode=0o644, blocking=False, is_singleton=True, thread_local=False,
+                    preserve_lock_file=True, on_acquired=_write_pid)
+
+
+def _write_pid(fd: int) -> None:
+    """Writes this process's pid into the lock file just acquired (filelock's ``on_acquired``)."""
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-    return fd
 
 
-def _holder(fd: int) -> str:
+def _holder(lock: Path) -> str:
     """The pid the holder wrote (it may be writing it this instant: a short wait)."""
     for _ in range(20):
-        text = os.pread(fd, 64, 0).decode(errors="replace").strip()
+        try:
+            text = lock.read_bytes()[:64].decode(errors="replace").strip()
+        except FileNotFoundError:
+            text = ""
         if text:
             return text
         time.sleep(0.01)
