@@ -27,8 +27,10 @@ from sde_torchrl.envs.ballcatch.demo import write_gif
 from sde_torchrl.jobs.run_dir import finished_runs
 from sde_torchrl.trainers.summary import mean_reward_factor
 
-WEIGHT = "module.0.module.weight"
-"""The linear controller's ``Θ`` in the policy's state dict (``summary.json: final_parameters``)."""
+WEIGHTS = ("module.0.module.0.module.weight", "module.0.module.weight")
+"""The linear controller's ``Θ`` in the policy's state dict (``summary.json: final_parameters``):
+under ``make_sde_actor`` (0.3 on), or under ``TensorDictSequential(actor, explorer)`` (the
+committed runs made before, and PGPE)."""
 
 
 class Run(NamedTuple):
@@ -49,7 +51,7 @@ def find_runs(directories: list[Path], explorer: str, estimator: str) -> list[Ru
             continue
         scale = mean_reward_factor(summary)
         model = job.config["env"].get("model", "cup")  # summaries without it predate the choice
-        weights = summary["final_parameters"][WEIGHT]
+        weights = next(summary["final_parameters"][name] for name in WEIGHTS if name in summary["final_parameters"])
         for offset, final in enumerate(summary["final_eval_return"]):
             theta = np.asarray(weights[offset], dtype=np.float64).reshape(4, 3)
             runs.append(Run(summary["first_run"] + offset, scale * final, theta, model))

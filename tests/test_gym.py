@@ -74,8 +74,8 @@ def test_explorers_and_estimators_train(tmp_path, overrides):
     assert summary["updates_done"] == 3
     assert all(torch.isfinite(torch.tensor(summary["final_return"])))
     if "env.constant_feature=true" in overrides:  # Θ̂ sees [x, 1]: σ̂ has S + 1 = 4 columns
-        assert len(summary["final_parameters"]["module.1.sigma_param"][0]) == 4
-        assert "module.0.module.bias" in summary["final_parameters"]
+        assert len(summary["final_parameters"]["module.0.module.1.sigma_param"][0]) == 4
+        assert "module.0.module.0.module.bias" in summary["final_parameters"]
 
 
 def test_gym_resume_is_bitwise(tmp_path):

@@ -578,10 +578,10 @@ def test_another_config_before_the_first_checkpoint_is_refused_like_after_it(tmp
 
 @pytest.mark.parametrize("damage, problem", [
     ("negative update", "its update counter is -3, outside [0, 12]"),
-    ("int64 weights", "its policy entry 'module.0.module.weight' is (2, 1, 1) torch.int64, this job's is (2, 1, 1) "
-                      "torch.float32"),
-    ("wrong shape", "its policy entry 'module.0.module.weight' is (2, 1, 2) torch.float32, this job's is (2, 1, 1) "
-                    "torch.float32"),
+    ("int64 weights", "its policy entry 'module.0.module.0.module.weight' is (2, 1, 1) torch.int64, this job's is "
+                      "(2, 1, 1) torch.float32"),
+    ("wrong shape", "its policy entry 'module.0.module.0.module.weight' is (2, 1, 2) torch.float32, this job's is "
+                    "(2, 1, 1) torch.float32"),
 ])
 def test_a_checkpoint_whose_content_does_not_fit_the_job_is_refused(crashed, damage, problem):
     """Its checksum matches (it is what was written), but it cannot be this job's state."""
@@ -589,13 +589,13 @@ def test_a_checkpoint_whose_content_does_not_fit_the_job_is_refused(crashed, dam
 
     path = crashed / "checkpoint.pt"
     state = load_checkpoint(path)
-    weight = state["policy"]["module.0.module.weight"]
+    weight = state["policy"]["module.0.module.0.module.weight"]
     if damage == "negative update":
         state["updates"] = state["loop"]["update"] = -3
     elif damage == "int64 weights":
-        state["policy"]["module.0.module.weight"] = weight.long()
+        state["policy"]["module.0.module.0.module.weight"] = weight.long()
     else:
-        state["policy"]["module.0.module.weight"] = torch.cat([weight, weight], -1)
+        state["policy"]["module.0.module.0.module.weight"] = torch.cat([weight, weight], -1)
     save_checkpoint(path, state)
     before = snapshot(crashed, skip=(".lock",))
     with pytest.raises(DamagedFileError, match=re.escape(problem)):

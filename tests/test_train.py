@@ -211,7 +211,7 @@ def test_short_job_writes_documented_outputs(jobs):
         "eval_period": EVAL_PERIOD, "eval_episodes": 5, "r_lim": -1.8, "first_run": 0,
     }
     assert {k: summary["settings"].get(k) for k in expected_settings} == expected_settings
-    assert sorted(summary["final_parameters"]) == ["module.0.module.weight", "module.1.sigma_param"]
+    assert sorted(summary["final_parameters"]) == ["module.0.module.0.module.weight", "module.0.module.1.sigma_param"]
     for name, values in summary["final_parameters"].items():
         assert len(values) == SHORT_RUNS and all(len(v) == 1 for v in values), name
     assert summary["env_steps"] == SHORT_UPDATES * EPISODES * EPISODE_LENGTH * SHORT_RUNS == 7500
@@ -228,9 +228,10 @@ def test_short_job_writes_documented_outputs(jobs):
     # The exploration state after the last update: σ̂ = expln(p) of the one element, |θ|.
     final = summary["final_parameters"]
     for run, row in enumerate(last):
-        sigma = float(expln(torch.tensor(final["module.1.sigma_param"][run][0])))
+        sigma = float(expln(torch.tensor(final["module.0.module.1.sigma_param"][run][0])))
         assert float(row["sigma_min"]) == float(row["sigma_max"]) == pytest.approx(sigma, rel=1e-6)
-        assert float(row["weight_max"]) == pytest.approx(abs(final["module.0.module.weight"][run][0]), rel=1e-6)
+        weight = final["module.0.module.0.module.weight"][run][0]
+        assert float(row["weight_max"]) == pytest.approx(abs(weight), rel=1e-6)
     for run in range(SHORT_RUNS):
         above = [k for k in range(SHORT_UPDATES) if float(by_update[k][run]["return_mean"]) > -1.8]
         expected = (above[0] + 1) * EPISODES if above else None
@@ -265,7 +266,7 @@ def test_checkpoint_loads_into_a_fresh_policy(jobs):
     for name, values in summary["final_parameters"].items():
         assert trained[name] == values, name  # exact: the checkpoint holds the final weights
     # Training moved the controller away from its initial -2.
-    assert all(v[0] != -2.0 for v in trained["module.0.module.weight"])
+    assert all(v[0] != -2.0 for v in trained["module.0.module.0.module.weight"])
 
 
 # --------------------------------------------------------------------------------------------

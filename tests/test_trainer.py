@@ -56,9 +56,9 @@ def test_huge_step_names_the_parameter_and_the_runs(tmp_path):
         trainer.train(tmp_path)
     error = info.value
     assert error.what == "parameter" and error.update == 0
-    assert error.parameter == "module.0.module.weight"
+    assert error.parameter == "module.0.module.0.module.weight"
     assert error.runs and set(error.runs) <= {0, 1, 2}
-    assert "non-finite parameter module.0.module.weight at update 0 in run" in str(error)
+    assert "non-finite parameter module.0.module.0.module.weight at update 0 in run" in str(error)
 
 
 @pytest.mark.parametrize("what", ["gradient", "score"])
@@ -74,16 +74,16 @@ def test_nan_gradient_or_score_names_the_parameter(tmp_path, what):
         trainer.estimator.estimate = broken
     else:
         def infinite_sample(episodes):  # an infinite action sample: finite returns, non-finite σ̂ score
-            episodes["action_sample"][0, 1, 4] = float("inf")
+            episodes[trainer.policy.sample_key][0, 1, 4] = float("inf")
             episodes["next", "reward"][0, 1, 4] = 0.0
         tamper(trainer, 2, infinite_sample)
     with pytest.raises(NonFiniteError) as info:
         trainer.train(tmp_path)
     error = info.value
     assert error.what == what
-    assert error.parameter in {"module.1.sigma_param", "module.0.module.weight"}
+    assert error.parameter in {"module.0.module.1.sigma_param", "module.0.module.0.module.weight"}
     if what == "gradient":
-        assert (error.update, error.runs, error.parameter) == (0, [1], "module.1.sigma_param")
+        assert (error.update, error.runs, error.parameter) == (0, [1], "module.0.module.1.sigma_param")
     else:
         assert (error.update, error.runs) == (2, [0])
     assert f"non-finite {what} of parameter {error.parameter} at update {error.update}" in str(error)
@@ -94,7 +94,7 @@ def test_overflowing_score_norm_names_its_run(tmp_path):
     """Finite scores whose norm overflows float32 (seen with an unbounded gradient) name the run."""
     trainer = build("runs=3", "updates=5")
     # a finite action sample so far off that the scores square past float32
-    tamper(trainer, 1, lambda episodes: episodes["action_sample"].__setitem__((2, 0, 4), 1e17))
+    tamper(trainer, 1, lambda episodes: episodes[trainer.policy.sample_key].__setitem__((2, 0, 4), 1e17))
     with pytest.raises(NonFiniteError) as info:
         trainer.train(tmp_path)
     error = info.value
