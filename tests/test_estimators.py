@@ -23,12 +23,12 @@ from sde_torchrl import (
     make_minimize_env,
     make_sde_actor,
 )
+from sde_torchrl.objectives.base import rescale_largest_entry
 from sde_torchrl.objectives.estimators import (
     EpisodeLogLikelihood,
     enac_gradient,
     flatten_scores,
     reinforce_gradient,
-    rescale_largest_entry,
 )
 
 

@@ -23,6 +23,7 @@ import torch
 from _helpers import build, compose_config, crash_at, read_rows, sde_policy
 from tensordict import TensorDict
 
+import sde_torchrl
 import sde_torchrl.objectives.estimators
 from sde_torchrl import LinearActor, MLPActor, ReinforceEstimator, make_minimize_env
 from sde_torchrl.config.schemas import validate
@@ -91,7 +92,7 @@ def test_step_rewards_sum_to_the_episode_returns():
     rewards = TensorDict({"next": {"reward": torch.randn(2, 3, 5, 1)}}, [2, 3, 5])
     for kind in ("mean", "sum"):
         torch.testing.assert_close(step_rewards(rewards, kind=kind).sum(-1),
-                                   sde_torchrl.objectives.estimators.episode_returns(rewards, kind=kind))
+                                   sde_torchrl.episode_returns(rewards, kind=kind))
 
 
 # --------------------------------------------------------- closed form on the 1-D task

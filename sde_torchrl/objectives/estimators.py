@@ -17,64 +17,23 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
 from tensordict.utils import NestedKey
 from torch import nn
 from torch.func import functional_call, grad, vmap
-from torchrl.objectives import LossModule
 
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import SDEActor
-from sde_torchrl.utils.checks import NonFiniteInputError, batch_entries, one_of
+from sde_torchrl.objectives.base import (
+    EpisodesError,
+    GradientEstimator,
+    MissingEpisodesKeyError,
+    NonFiniteEpisodesError,
+    check_rewards_runs_and_inputs,
+)
+from sde_torchrl.utils.checks import batch_entries, one_of
 from sde_torchrl.utils.options import EPISODE_RETURNS
-
-
-class EpisodesError(ValueError):
-    """Episodes the estimators cannot use: the message names the key (or the shape) and the fix.
-
-    Attributes:
-        key: the TensorDict key concerned, or ``None`` for the batch shape.
-
-    Examples:
-        >>> str(EpisodesError("episodes lack key 'observation'", "observation"))
-        "episodes lack key 'observation'"
-    """
-
-    def __init__(self, message: str, key: NestedKey | None = None) -> None:
-        self.key = key
-        super().__init__(message)
-
-
-class MissingEpisodesKeyError(EpisodesError, KeyError):
-    """Episodes that lack a key the estimator reads (a ``KeyError`` too, as TensorDict's own).
-
-    Examples:
-        >>> str(MissingEpisodesKeyError("episodes lack key 'loc'", "loc"))
-        "episodes lack key 'loc'"
-    """
-
-    def __str__(self) -> str:
-        return str(self.args[0])  # as ValueError does: KeyError would quote the message
-
-
-class NonFiniteEpisodesError(EpisodesError, NonFiniteInputError):
-    """Episodes holding NaN or infinity in a key the estimator reads (or scores or a gradient
-    that overflowed): the estimate would be NaN.
-
-    Attributes:
-        key: the key (``"observation"``, ``("next", "reward")``) or ``"scores"``/``"gradient"``.
-        where: the runs and episodes concerned, in words.
-
-    Examples:
-        >>> str(NonFiniteEpisodesError("'observation'", "run 1 episode 0", "re-collect them"))
-        "'observation': NaN/inf in run 1 episode 0; re-collect them"
-    """
-
-    def __init__(self, name: str, where: str, fix: str, key: NestedKey | None = None) -> None:
-        NonFiniteInputError.__init__(self, name, where, fix)
-        self.key = name if key is None else key
-
 
 #: The expected policy, as the errors name it.
 POLICY_FORM = "make_sde_actor(actor, SDEParams(...)), an SDEActor"
@@ -247,66 +206,6 @@ def flatten_scores(scores: dict[str, torch.Tensor], run_dims: int) -> torch.Tens
 
 
 
-def check_rewards_runs_and_inputs(episodes: TensorDictBase, reward_key: NestedKey, runs: int | None,
-                                  input_keys: list[NestedKey]) -> None:
-    """What every estimator needs of its episodes beyond their keys: one reward per step, the
-    runs the policy's parameters are stacked over in the leading dimension, floating-point
-    inputs for the controller (those of ``input_keys`` the episodes hold).
-
-    Raises:
-        EpisodesError: naming the key or the shape, and the fix.
-
-    Examples:
-        >>> from tensordict import TensorDict
-        >>> td = TensorDict({"next": {"reward": torch.zeros(2, 4, 5, 3)}}, [2, 4, 5])
-        >>> try:
-        ...     check_rewards_runs_and_inputs(td, ("next", "reward"), 2, [])
-        ... except EpisodesError as error:
-        ...     print(str(error).split(":")[0])
-        episodes key ('next', 'reward') has shape (2, 4, 5, 3), expected (2, 4, 5, 1)
-    """
-    shape = tuple(episodes.batch_size)
-    reward = episodes.get(reward_key)
-    if tuple(reward.shape) not in (shape, (*shape, 1)):
-        raise EpisodesError(f"episodes key {reward_key!r} has shape {tuple(reward.shape)}, expected {(*shape, 1)}: one "
-                            "reward per step (sum or select the reward terms into one number first)", reward_key)
-    if runs is not None and (len(shape) != 3 or shape[0] != runs):
-        raise EpisodesError(f"episodes have batch shape {shape}, but the policy's parameters are stacked over "
-                            f"runs={runs}: expected [{runs}, N, T], one row of episodes per run")
-    for key in input_keys:
-        value = episodes.get(key, None)
-        if value is not None and not value.is_floating_point():
-            raise EpisodesError(f"episodes key {key!r} is {value.dtype}; the controller needs floating-point inputs: "
-                                f"episodes.set({key!r}, episodes.get({key!r}).float()), or collect them through "
-                                "TorchRL's DTypeCastTransform", key)
-
-
-def episode_returns(
-    episodes: TensorDictBase, reward_key: NestedKey = ("next", "reward"), kind: str = "mean",
-) -> torch.Tensor:
-    """``R = (1/T) Σ_t r_t`` (``mean``, the undiscounted average reward of section 2.1) or
-    ``R = Σ_t r_t`` (``sum``, what the authors' PyBrain REINFORCE uses:
-    ``getSumOverSequences('reward')``) of each episode.
-
-    Args:
-        episodes: TensorDict shaped ``[*runs, N, T]``.
-        reward_key: where the per-step rewards are.
-        kind: ``"mean"`` or ``"sum"``.
-
-    Returns:
-        Tensor of shape ``[*runs, N]``.
-
-    Examples:
-        >>> from tensordict import TensorDict
-        >>> td = TensorDict({"next": {"reward": torch.tensor([[[[-1.0], [-3.0]]]])}}, [1, 1, 2])
-        >>> episode_returns(td).item(), episode_returns(td, kind="sum").item()
-        (-2.0, -4.0)
-    """
-    one_of("kind", kind, EPISODE_RETURNS)
-    per_step = episodes.get(reward_key).reshape(*episodes.batch_size, -1).sum(-1)
-    return per_step.sum(-1) if kind == "sum" else per_step.mean(-1)
-
-
 def reinforce_gradient(scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Episodic REINFORCE (eq. 11) with the optimal per-parameter baseline (Peters & Schaal).
 
@@ -370,28 +269,7 @@ def enac_gradient(
     return coefficients[..., :-1], coefficients[..., -1], rank, condition.to(scores.dtype)
 
 
-def clip_per_run(gradient: torch.Tensor, max_norm: float) -> torch.Tensor:
-    """Rescales each run's gradient ``[*runs, K]`` to norm at most ``max_norm``."""
-    norm = gradient.norm(dim=-1, keepdim=True)
-    return gradient * (max_norm / norm.clamp_min(max_norm))
-
-
-def rescale_largest_entry(gradient: torch.Tensor, max_entry: float) -> torch.Tensor:
-    """Rescales each run's gradient ``[*runs, K]`` whose largest entry exceeds ``max_entry`` so
-    that this entry equals ``max_entry``, as the authors' PyBrain policy-gradient learner does
-    before its step (with 1000). The largest entry is the signed maximum, not the largest
-    magnitude: a gradient whose entries are all negative is never rescaled.
-
-    Examples:
-        >>> rescale_largest_entry(torch.tensor([[2000.0, -500.0], [-3000.0, 10.0]]), 1000.0)
-        tensor([[ 1000.,  -250.],
-                [-3000.,    10.]])
-    """
-    largest = gradient.max(dim=-1, keepdim=True).values
-    return torch.where(largest > max_entry, gradient * (max_entry / largest), gradient)
-
-
-class EpisodicEstimator(LossModule):
+class EpisodicEstimator(GradientEstimator):
     """Base class: scores and returns of a batch of episodes → gradient → surrogate loss.
 
     Subclasses implement :meth:`estimate`. The forward pass returns a TensorDict with
@@ -445,7 +323,7 @@ class EpisodicEstimator(LossModule):
         >>> ReinforceEstimator(policy)(episodes)
         Traceback (most recent call last):
         ...
-        sde_torchrl.objectives.estimators.NonFiniteEpisodesError: episodes key 'observation': NaN/inf in episode 2; ...
+        sde_torchrl.objectives.base.NonFiniteEpisodesError: episodes key 'observation': NaN/inf in episode 2; ...
     """
 
     @dataclass
@@ -480,13 +358,7 @@ class EpisodicEstimator(LossModule):
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
         allow_nonfinite: bool = False,
     ) -> None:
-        super().__init__()
-        for name, bound in (("max_grad_norm", max_grad_norm), ("max_grad_entry", max_grad_entry)):
-            if bound is not None and not bound > 0:
-                raise ValueError(f"{name} must be > 0 or None, got {bound!r}")
-        one_of("episode_return", episode_return, EPISODE_RETURNS)
-        self.max_grad_norm, self.max_grad_entry, self.episode_return = max_grad_norm, max_grad_entry, episode_return
-        self.allow_nonfinite = allow_nonfinite
+        super().__init__(max_grad_norm, max_grad_entry, episode_return, allow_nonfinite)
         self.log_likelihood = EpisodeLogLikelihood(policy, variance_weighted)
         self._tensor_keys = self.default_keys()
         self._set_in_keys()
@@ -510,10 +382,6 @@ class EpisodicEstimator(LossModule):
     def learnable_parameters(self) -> dict[str, nn.Parameter]:
         """The parameters the scores cover, in the order of the flattened gradient."""
         return {n: p for n, p in self.log_likelihood.named_parameters() if p.requires_grad}
-
-    def returns(self, episodes: TensorDictBase) -> torch.Tensor:
-        """Each episode's return ``[*runs, N]`` in this estimator's definition (``episode_return``)."""
-        return episode_returns(episodes, self.tensor_keys.reward, self.episode_return)
 
     def scores(self, episodes: TensorDictBase) -> dict[str, torch.Tensor]:
         """Each episode's score ``ψ_n`` per learnable parameter (eq. 9, :func:`episode_scores`)."""
@@ -651,22 +519,7 @@ class EpisodicEstimator(LossModule):
             sizes = [s[(0,) * (run_dims + 1)].numel() for s in per_parameter.values()]
             self._check_finite("gradient", dict(zip(per_parameter, gradient.split(sizes, -1), strict=True)),
                                run_dims, per_episode=False)
-        diagnostics["gradient_norm"] = gradient.norm(dim=-1)
-        if self.max_grad_entry is not None:
-            gradient = rescale_largest_entry(gradient, self.max_grad_entry)
-        if self.max_grad_norm is not None:
-            gradient = clip_per_run(gradient, self.max_grad_norm)
-        theta = torch.cat([p.flatten(run_dims) for p in self.learnable_parameters().values()], -1)
-        return TensorDict(
-            {
-                "loss_objective": -(gradient.detach() * theta).sum(),
-                "return_mean": returns.mean(-1),
-                "gradient": gradient.detach(),
-                "score_norm": scores.norm(dim=-1).mean(-1),
-                **diagnostics,
-            },
-            batch_size=[],
-        )
+        return self.surrogate(gradient, returns, run_dims, score_norm=scores.norm(dim=-1).mean(-1), **diagnostics)
 
 
 class ReinforceEstimator(EpisodicEstimator):
@@ -721,6 +574,7 @@ def step_scores(log_likelihood: EpisodeLogLikelihood, episodes: TensorDictBase) 
     Examples:
         >>> from sde_torchrl import LinearActor, SDEParams, make_sde_actor
         >>> log_likelihood = EpisodeLogLikelihood(make_sde_actor(LinearActor(3, 2), SDEParams(2, 3)))
+        >>> from tensordict import TensorDict
         >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action": torch.randn(4, 10, 2)}, [4, 10])
         >>> per_step = step_scores(log_likelihood, steps)
         >>> {name: tuple(s.shape) for name, s in per_step.items()}
@@ -744,6 +598,7 @@ def step_rewards(
     (``mean``) or ``r_t`` (``sum``).
 
     Examples:
+        >>> from tensordict import TensorDict
         >>> td = TensorDict({"next": {"reward": torch.tensor([[[[-1.0], [-3.0]]]])}}, [1, 1, 2])
         >>> step_rewards(td), step_rewards(td, kind="sum")
         (tensor([[[-0.5000, -1.5000]]]), tensor([[[-1., -3.]]]))

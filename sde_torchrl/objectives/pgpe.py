@@ -29,24 +29,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
 from tensordict.utils import NestedKey
 from torch import nn
-from torchrl.objectives import LossModule
 
 from sde_torchrl.modules.pgpe import ParameterExplorer
-from sde_torchrl.objectives.estimators import (
-    EPISODE_RETURNS,
+from sde_torchrl.objectives.base import (
     EpisodesError,
+    GradientEstimator,
     MissingEpisodesKeyError,
     NonFiniteEpisodesError,
     check_rewards_runs_and_inputs,
-    clip_per_run,
-    episode_returns,
-    rescale_largest_entry,
 )
-from sde_torchrl.utils.checks import batch_entries, one_of
+from sde_torchrl.utils.checks import batch_entries
 
 
 def batch_mean_baseline(returns: torch.Tensor) -> torch.Tensor:
@@ -140,7 +136,7 @@ def parameter_scores(perturbations: torch.Tensor, sigma: torch.Tensor) -> tuple[
 POLICY_FORM = "TensorDictSequential(actor, ParameterExplorer(actor))"
 
 
-class PGPEEstimator(LossModule):
+class PGPEEstimator(GradientEstimator):
     """PGPE's estimate of the gradient of ``μ`` (the actor's parameters) and ``σ`` (the
     explorer's), from whole episodes collected with a :class:`~sde_torchrl.modules.pgpe.ParameterExplorer`.
 
@@ -201,7 +197,7 @@ class PGPEEstimator(LossModule):
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
         allow_nonfinite: bool = False,
     ) -> None:
-        super().__init__()
+        super().__init__(max_grad_norm, max_grad_entry, episode_return, allow_nonfinite)
         modules = list(policy.module) if isinstance(policy, TensorDictSequential) else []
         if len(modules) != 2 or not isinstance(modules[1], ParameterExplorer):
             raise TypeError(f"policy: got {type(policy).__name__}"
@@ -209,12 +205,7 @@ class PGPEEstimator(LossModule):
         if modules[1].network is not modules[0].module:
             raise TypeError(f"policy: the ParameterExplorer explores another actor's parameters; "
                             f"expected {POLICY_FORM}")
-        for name, bound in (("max_grad_norm", max_grad_norm), ("max_grad_entry", max_grad_entry)):
-            if bound is not None and not bound > 0:
-                raise ValueError(f"{name} must be > 0 or None, got {bound!r}")
-        one_of("episode_return", episode_return, EPISODE_RETURNS)
-        self.max_grad_norm, self.max_grad_entry, self.episode_return = max_grad_norm, max_grad_entry, episode_return
-        self.variance_weighted, self.allow_nonfinite = variance_weighted, allow_nonfinite
+        self.variance_weighted = variance_weighted
         self.actor, self.explorer = modules
         self._tensor_keys = self._AcceptedKeys(parameters=self.explorer.parameters_key)
         self._forward_value_estimator_keys()
@@ -232,10 +223,6 @@ class PGPEEstimator(LossModule):
         if self._learns_sigma():
             out["explorer.sigma"] = self.explorer.sigma
         return out
-
-    def returns(self, episodes: TensorDictBase) -> torch.Tensor:
-        """Each episode's return ``[*runs, N]`` (``episode_return``)."""
-        return episode_returns(episodes, self.tensor_keys.reward, self.episode_return)
 
     def perturbations(self, episodes: TensorDictBase) -> torch.Tensor:
         """``θ_n − μ`` of each episode under the current ``μ``, ``[*runs, N, K]``."""
@@ -323,19 +310,5 @@ class PGPEEstimator(LossModule):
             g_mu, g_sigma, baseline = pgpe_gradient(perturbations, returns, sigma, self.variance_weighted)
         gradient = torch.cat([g_mu, g_sigma], -1) if self._learns_sigma() else g_mu
         score_norm = self._flat_scores(perturbations, sigma).norm(dim=-1).mean(-1)
-        gradient_norm = gradient.norm(dim=-1)
-        if self.max_grad_entry is not None:
-            gradient = rescale_largest_entry(gradient, self.max_grad_entry)
-        if self.max_grad_norm is not None:
-            gradient = clip_per_run(gradient, self.max_grad_norm)
-        run_dims = self.explorer.run_dims
-        rho = torch.cat([p.flatten(run_dims) for p in self.learnable_parameters().values()], -1)
-        return TensorDict({
-            "loss_objective": -(gradient.detach() * rho).sum(),
-            "return_mean": returns.mean(-1),
-            "gradient": gradient.detach(),
-            "gradient_norm": gradient_norm,
-            "score_norm": score_norm,
-            "baseline": baseline,
-        }, batch_size=[])
+        return self.surrogate(gradient, returns, self.explorer.run_dims, score_norm=score_norm, baseline=baseline)
 
