@@ -24,7 +24,7 @@ from sde_torchrl import (
     make_sde_actor,
 )
 
-SHARINGS = ("element", "action", "single")
+SHARINGS = ("element", "action", "single", "feature")
 
 
 # ----------------------------------------------------------------------------- expln (23, 24)
@@ -202,6 +202,8 @@ def test_autograd_matches_closed_forms_16_and_21_with_expln_factor(sharing):
             d_sigma_hat = per_element_21
         elif sharing == "action":
             d_sigma_hat = per_element_21.sum(-1, keepdim=True)
+        elif sharing == "feature":  # one σ̂ per feature, shared over the actions (SB3's full_std=False)
+            d_sigma_hat = per_element_21.sum(0, keepdim=True)
         else:
             d_sigma_hat = per_element_21.sum().reshape(1, 1)
         expln_prime = torch.where(p <= 0, torch.exp(p), 1 / (p + 1))  # eq. 24

@@ -40,6 +40,7 @@ from sde_torchrl.utils.options import (
     NORMALIZATIONS,
     REWARD_STATES,
     SHARINGS,
+    SIGMA_TRANSFORMS,
 )
 
 # ``typing`` generics, not ``list[int]`` or ``X | None``: OmegaConf reads these annotations at runtime.
@@ -260,10 +261,15 @@ class ExplorerConf:
 
     Attributes:
         schedule: when ``Θ̂`` is redrawn: every ``episode`` (SDE), every ``step`` (REX, emulated
-            as in the paper) or ``every_n`` steps; always at a reset.
-        every_n: the period for ``schedule=every_n``, else ``null``.
-        sharing: one ``σ̂`` per matrix ``element`` (``A×S``), per ``action`` (``A``), or a
-            ``single`` one.
+            as in the paper) or ``every_n`` steps, always at a reset; or as SB3's
+            ``sde_sample_freq`` counts, through resets: ``every_n_steps`` of a rollout or once per
+            ``rollout`` (:class:`~sde_torchrl.modules.noise.SDENoisePrimer`).
+        every_n: the period for ``schedule=every_n`` or ``every_n_steps``, else ``null``.
+        rollout_steps: steps per rollout for ``every_n_steps`` and ``rollout`` (``null``: until
+            an explicit redraw or a fresh reset); ``null`` for the other schedules.
+        sharing: one ``σ̂`` per matrix ``element`` (``A×S``), per ``action`` (``A``), a
+            ``single`` one, or one per ``feature`` shared over the actions (SB3's ``full_std=False``).
+        sigma_transform: ``σ̂ = expln(p)`` (eq. 23) or ``exp`` (SB3's ``use_expln=False``).
         init_param: ``σ̂ = expln(init_param)`` at the start (``-2``: ``σ̂ ≈ 0.135``).
         gaussian_init_param: set for eq. 22's extra i.i.d. Gaussian noise, ``σ = expln(q)``.
         learn_sigma: learn ``σ̂`` (else it stays at its start value).
@@ -277,15 +283,18 @@ class ExplorerConf:
     _target_: str = "sde_torchrl.modules.sde.SDEParams"
     schedule: str = "episode"
     every_n: Optional[int] = None
+    rollout_steps: Optional[int] = None
     sharing: str = "element"
+    sigma_transform: str = "expln"
     init_param: float = -2.0
     gaussian_init_param: Optional[float] = None
     learn_sigma: bool = True
     squash: bool = False
 
     def __post_init__(self) -> None:
-        noise_schedule(self.schedule, self.every_n, "explorer.")
+        noise_schedule(self.schedule, self.every_n, "explorer.", rollout_steps=self.rollout_steps)
         one_of("explorer.sharing", self.sharing, SHARINGS)
+        one_of("explorer.sigma_transform", self.sigma_transform, SIGMA_TRANSFORMS)
         finite("explorer.init_param", self.init_param)
         if self.gaussian_init_param is not None:
             finite("explorer.gaussian_init_param", self.gaussian_init_param)

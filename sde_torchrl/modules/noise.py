@@ -2,7 +2,9 @@
 
 The exploration matrix is ``Θ̂ = σ̂ ⊙ ξ`` with ``ξ ~ N(0, I)`` (eq. 18), held for a whole
 episode (SDE), redrawn at every step (REX, the paper's random-exploration baseline, section 4.1)
-or every ``n`` steps (gSDE's sampling frequency). :class:`SDENoisePrimer`, an env transform,
+or every ``n`` steps of an episode; or, counted as Stable-Baselines3 counts its
+``sde_sample_freq``, held across episode boundaries and redrawn every ``n`` steps of a rollout
+(``every_n_steps``) or once per rollout (``rollout``). :class:`SDENoisePrimer`, an env transform,
 keeps ``ξ`` in the tensordict and owns that schedule; its tensor-level methods
 (:meth:`~SDENoisePrimer.start`, :meth:`~SDENoisePrimer.advance`) are what the fast collection
 paths call, so every way of collecting draws the same numbers. :func:`draw_noise` is the draw.
@@ -11,7 +13,17 @@ The stream is consumed the same way under every schedule: one ``ξ`` (then one `
 22's part) per step from an episode's start, the first at the reset, each later one after a
 step that some episode of the batch goes on from. The schedule only decides which draws are
 used: SDE keeps the first for the episode, REX uses each. Two learners on the same seed thus see
-the same numbers whatever their schedule.
+the same numbers whatever their schedule (the SB3-style schedules below also draw after a step
+that ends every episode, since their ``ξ`` goes on through the reset).
+
+SB3's counting (``every_n_steps``, ``rollout``): ``sde_age`` then holds the number of steps
+collected since the rollout began (modulo ``rollout_steps`` when given), and the reset of done
+envs during a collection (TorchRL's ``maybe_reset``, which passes the reset flags) keeps ``ξ``
+and the count (the primer holds what it last wrote); an explicit reset (``env.reset()``, the
+start of ``env.rollout`` or of a ``Collector``) starts a new rollout. ``ξ`` is redrawn before step ``t`` of the
+rollout when ``t % n == 0`` (``every_n_steps``), at ``t = 0`` when the rollout length is known
+(``rollout_steps``), or by :meth:`SDENoisePrimer.resample`: SB3's ``reset_noise`` at the start
+of ``collect_rollouts`` and every ``sde_sample_freq`` steps of it.
 """
 
 from __future__ import annotations
@@ -27,6 +39,7 @@ from torchrl.envs.transforms.utils import _get_reset
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from sde_torchrl.utils.checks import noise_schedule, positive_int
+from sde_torchrl.utils.options import ROLLOUT_SCHEDULES
 from sde_torchrl.utils.rng import RunStreams, draw_normal
 
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
@@ -79,20 +92,33 @@ class SDENoisePrimer(TensorDictPrimer):
 
     At every full or partial reset the reset envs get a fresh standard-normal ``ξ`` (and
     ``sde_age = 0``); after each step ``ξ`` is held (``"episode"``: the paper's SDE), redrawn
-    (``"step"``: REX, paper section 4.1) or redrawn once ``n`` steps have used it (``"every_n"``,
-    gSDE's sampling frequency). With ``gaussian``, eq. (22)'s i.i.d. ``ε`` (``[A]`` per env) is
-    redrawn at every step. Under deterministic exploration nothing is drawn. Being a
-    ``TensorDictPrimer``, TorchRL's ``Collector`` recognises it and does not add it twice.
+    (``"step"``: REX, paper section 4.1) or redrawn once ``n`` steps of the episode have used it
+    (``"every_n"``). With ``gaussian``, eq. (22)'s i.i.d. ``ε`` (``[A]`` per env) is redrawn at
+    every step. Under deterministic exploration nothing is drawn. Being a ``TensorDictPrimer``,
+    TorchRL's ``Collector`` recognises it and does not add it twice.
+
+    SB3's ``sde_sample_freq`` counts collected steps over a rollout, not over an episode; the
+    schedules ``"every_n_steps"`` (``sde_sample_freq=n``) and ``"rollout"``
+    (``sde_sample_freq=-1``) do the same: ``ξ`` and the count (``sde_age``, steps since the
+    rollout began) go on through episode boundaries, and ``ξ`` is redrawn before the rollout's
+    steps ``0, n, 2n, ...`` (``"every_n_steps"``) and, with ``rollout_steps=R``, before every
+    ``R``-th step (a new rollout: the count restarts). With TorchRL's ``Collector`` set
+    ``rollout_steps = frames_per_batch // num_envs``; in a hand-written loop, call
+    :meth:`resample` at the start of each rollout instead.
 
     Args:
         action_dim: ``A``.
         feature_dim: ``S``.
-        schedule: ``"episode"``, ``"step"`` or ``"every_n"``.
-        every_n: redraw period for ``"every_n"``.
+        schedule: ``"episode"``, ``"step"``, ``"every_n"``, ``"every_n_steps"`` or ``"rollout"``.
+        every_n: redraw period for ``"every_n"`` and ``"every_n_steps"``.
+        rollout_steps: steps per rollout for ``"every_n_steps"`` and ``"rollout"`` (the count
+            restarts and ``ξ`` is redrawn every ``rollout_steps`` steps), or ``None``: one rollout
+            until :meth:`resample` or a reset without carried noise.
         gaussian: carry eq. (22)'s i.i.d. Gaussian noise ``ε`` too.
         noise_key: the tensordict key of ``ξ``.
         gaussian_noise_key: the key of ``ε``.
-        age_key: steps the current ``ξ`` has been used (``"every_n"`` only).
+        age_key: steps the current ``ξ`` has been used (``"every_n"``), or steps since the rollout
+            began (``"every_n_steps"``, ``"rollout"``); absent otherwise.
         dtype: dtype of the noise (the policy's).
         streams: per-run streams over the env's leading batch dimension, or ``None`` for torch's
             global generator.
@@ -107,6 +133,10 @@ class SDENoisePrimer(TensorDictPrimer):
         >>> env = TransformedEnv(GymEnv("Pendulum-v1"), SDENoisePrimer(1, 3, schedule="step"))
         >>> env.reset()["sde_noise"].shape
         torch.Size([1, 3])
+        >>> sb3 = TransformedEnv(GymEnv("Pendulum-v1"), SDENoisePrimer(1, 3, schedule="every_n_steps", every_n=4))
+        >>> td = sb3.rollout(10, break_when_any_done=False)
+        >>> td["sde_age"].flatten().tolist()  # steps into the rollout when each action was taken
+        [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
     """
 
     def __init__(
@@ -116,6 +146,7 @@ class SDENoisePrimer(TensorDictPrimer):
         *,
         schedule: str = "episode",
         every_n: int | None = None,
+        rollout_steps: int | None = None,
         gaussian: bool = False,
         noise_key: NestedKey = "sde_noise",
         gaussian_noise_key: NestedKey = "sde_gaussian_noise",
@@ -124,16 +155,19 @@ class SDENoisePrimer(TensorDictPrimer):
         streams: RunStreams | None = None,
         done_key: NestedKey = "done",
     ) -> None:
-        noise_schedule(schedule, every_n)
+        noise_schedule(schedule, every_n, rollout_steps=rollout_steps)
         self.action_dim = positive_int("action_dim", action_dim)
         self.feature_dim = positive_int("feature_dim", feature_dim)
         specs = {noise_key: Unbounded(shape=(action_dim, feature_dim), dtype=dtype)}
         if gaussian:
             specs[gaussian_noise_key] = Unbounded(shape=(action_dim,), dtype=dtype)
-        if schedule == "every_n":
+        if schedule not in ("episode", "step"):
             specs[age_key] = Unbounded(shape=(1,), dtype=torch.int64)
         super().__init__(Composite(specs), default_value=0, expand_specs=True)
         self.schedule, self.every_n, self.gaussian, self.streams = schedule, every_n, gaussian, streams
+        self.rollout_steps = rollout_steps
+        #: Whether ``ξ`` and the count go on through resets (SB3's counting over a rollout).
+        self.counts_rollout = schedule in ROLLOUT_SCHEDULES
         self.noise_key, self.gaussian_noise_key, self.age_key = noise_key, gaussian_noise_key, age_key
         self.noise_dtype, self.done_key = dtype, done_key
 
@@ -155,7 +189,7 @@ class SDENoisePrimer(TensorDictPrimer):
 
         Returns:
             ``(ξ, ε, age)``; ``ε`` is ``None`` without eq. (22)'s part, ``age`` (zeros,
-            ``[*batch, 1]``) is ``None`` unless ``"every_n"``.
+            ``[*batch, 1]``) is ``None`` for ``"episode"`` and ``"step"``.
 
         Examples:
             >>> primer = SDENoisePrimer(2, 3, schedule="every_n", every_n=2)
@@ -164,7 +198,8 @@ class SDENoisePrimer(TensorDictPrimer):
             (torch.Size([4, 2, 3]), None, torch.Size([4, 1]))
         """
         noise, gaussian = self.draw(batch, device)
-        age = torch.zeros(*batch, 1, dtype=torch.int64, device=device) if self.schedule == "every_n" else None
+        counted = self.schedule not in ("episode", "step")
+        age = torch.zeros(*batch, 1, dtype=torch.int64, device=device) if counted else None
         return noise, gaussian, age
 
     def advance(
@@ -175,7 +210,8 @@ class SDENoisePrimer(TensorDictPrimer):
         Args:
             noise: this step's ``ξ``, ``[*batch, A, S]``.
             gaussian: this step's ``ε`` or ``None``.
-            age: steps ``ξ`` has been used before this one (``"every_n"``), else ``None``.
+            age: steps ``ξ`` has been used before this one (``"every_n"``), or steps of the
+                rollout before this one (``"every_n_steps"``, ``"rollout"``), else ``None``.
 
         Returns:
             ``(ξ, ε, age)`` for the next step.
@@ -193,9 +229,70 @@ class SDENoisePrimer(TensorDictPrimer):
             return fresh, gaussian, age
         if self.schedule == "episode":
             return noise, gaussian, age
+        if self.counts_rollout:
+            age = self.count(age)
+            return torch.where(self.due(age).unsqueeze(-1), fresh, noise), gaussian, age
         age = age + 1
         redraw = age >= self.every_n
         return torch.where(redraw.unsqueeze(-1), fresh, noise), gaussian, torch.where(redraw, 0, age)
+
+    # ------------------------------------------------------------- SB3's counting over a rollout
+    def count(self, age: torch.Tensor) -> torch.Tensor:
+        """The rollout step count after one more step: ``age + 1``, modulo ``rollout_steps`` if set
+        (``"every_n_steps"`` and ``"rollout"``)."""
+        age = age + 1
+        return age if self.rollout_steps is None else age % self.rollout_steps
+
+    def due(self, age: torch.Tensor) -> torch.Tensor:
+        """Where a fresh ``ξ`` is due before the rollout's step ``age`` (``[*batch, 1]`` booleans):
+        at a rollout's start (``age = 0``) and, for ``"every_n_steps"``, at every multiple of
+        ``n``: SB3's ``n_steps % sde_sample_freq == 0``.
+
+        Examples:
+            >>> primer = SDENoisePrimer(1, 1, schedule="every_n_steps", every_n=3, rollout_steps=5)
+            >>> primer.due(torch.arange(5)).tolist()
+            [True, False, False, True, False]
+        """
+        due = age == 0
+        return due | (age % self.every_n == 0) if self.schedule == "every_n_steps" else due
+
+    def resample(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Redraws ``ξ`` for every batch element and restarts the rollout count, in place: SB3's
+        ``policy.reset_noise(n_envs)`` at the start of each ``collect_rollouts``.
+
+        For the SB3-style schedules in a hand-written loop (``schedule="rollout"`` without
+        ``rollout_steps`` is SB3's ``sde_sample_freq=-1``); with TorchRL's ``Collector`` give
+        ``rollout_steps`` instead. Draws nothing under deterministic exploration.
+
+        Args:
+            tensordict: the carried state the next rollout starts from (it holds ``ξ``).
+
+        Returns:
+            ``tensordict``, with a fresh ``ξ`` and, where the schedule counts, ``sde_age = 0``.
+
+        Examples:
+            >>> from torchrl.envs import GymEnv, TransformedEnv
+            >>> primer = SDENoisePrimer(1, 3, schedule="rollout")
+            >>> env = TransformedEnv(GymEnv("Pendulum-v1"), primer)
+            >>> td = env.rollout(3, break_when_any_done=False)
+            >>> bool((td["sde_noise"] == td["sde_noise"][0]).all())  # held: no redraw in a rollout
+            True
+            >>> carried = td[-1]["next"].clone()
+            >>> bool((primer.resample(carried)["sde_noise"] == td["sde_noise"][0]).all())
+            False
+        """
+        noise = tensordict.get(self.noise_key, None)
+        if noise is None:
+            raise KeyError(f"resample: no {self.noise_key!r} in the tensordict: pass the carried state "
+                           "(a reset or step output of the env with this primer)")
+        if deterministic_exploration():
+            return tensordict
+        fresh, _, age = self.start(noise.shape[:-2], noise.device)
+        tensordict.set(self.noise_key, fresh)
+        if age is not None:
+            tensordict.set(self.age_key, age)
+        self._hold(tensordict)
+        return tensordict
 
     # --------------------------------------------------------------------- the env transform
     def _reset_func(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -205,6 +302,9 @@ class SDENoisePrimer(TensorDictPrimer):
             return tensordict_reset
         reset = _get_reset(self.reset_key, tensordict)
         fresh, gaussian, age = self.start(noise.shape[:-2], noise.device)
+        carried = self._carried(tensordict, noise.shape)
+        if carried is not None:  # SB3's counting: an episode boundary changes neither ξ nor the count
+            fresh, age = carried
         tensordict_reset.set(self.noise_key, torch.where(expand_as_right(reset, fresh), fresh, noise))
         if gaussian is not None:
             old = tensordict_reset.get(self.gaussian_noise_key)
@@ -212,12 +312,14 @@ class SDENoisePrimer(TensorDictPrimer):
         if age is not None:
             tensordict_reset.set(self.age_key, torch.where(expand_as_right(reset, age), age,
                                                            tensordict_reset.get(self.age_key)))
+        self._hold(tensordict_reset)
         return tensordict_reset
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         next_tensordict = super()._step(tensordict, next_tensordict)  # carries the noise (and age) over
         done = next_tensordict.get(self.done_key, None)
-        if deterministic_exploration() or (done is not None and bool(done.all())):
+        all_done = done is not None and bool(done.all()) and not self.counts_rollout  # else the reset keeps ξ
+        if deterministic_exploration() or all_done:
             return next_tensordict
         noise, gaussian, age = self.advance(next_tensordict.get(self.noise_key),
                                             next_tensordict.get(self.gaussian_noise_key, None),
@@ -227,7 +329,24 @@ class SDENoisePrimer(TensorDictPrimer):
             next_tensordict.set(self.gaussian_noise_key, gaussian)
         if age is not None:
             next_tensordict.set(self.age_key, age)
+        self._hold(next_tensordict)
         return next_tensordict
+
+    def _hold(self, tensordict: TensorDictBase) -> None:
+        """Keeps the ``(ξ, count)`` just written (SB3-style schedules): TorchRL resets done envs
+        from their reset flags alone (``maybe_reset``), so the reset must find them here."""
+        if self.counts_rollout:
+            self._held = (tensordict.get(self.noise_key).clone(), tensordict.get(self.age_key).clone())
+
+    def _carried(self, tensordict: TensorDictBase | None, shape: torch.Size
+                 ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(ξ, count)`` that the SB3-style schedules keep through a reset of done envs during a
+        collection (a reset whose input holds the reset flags, as TorchRL's ``maybe_reset`` passes);
+        ``None`` for the other schedules and for an explicit reset (``env.reset()``: a new rollout)."""
+        held = getattr(self, "_held", None)
+        if not self.counts_rollout or tensordict is None or held is None or held[0].shape != shape:
+            return None
+        return held if self.reset_key in tensordict.keys(True) else None
 
 
 __all__ = ["SDENoisePrimer", "deterministic_exploration", "draw_noise"]

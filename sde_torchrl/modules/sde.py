@@ -7,7 +7,7 @@ positive; i.i.d. Gaussian noise with its own ``σ = expln(q)`` can be added on t
 SDE is built from three pieces, each with one job: :class:`SDEParams` (here) holds ``p`` (and
 ``q``) and writes ``σ̂`` beside the controller's mean; the env transform
 :class:`~sde_torchrl.modules.noise.SDENoisePrimer` draws ``ξ`` (the only place that does) and
-holds it for an episode (SDE), a step (REX) or ``n`` steps;
+holds it for an episode (SDE), a step (REX), ``n`` steps, or as SB3 counts (over a rollout);
 :class:`~sde_torchrl.modules.sde_actor.SDEActor` samples
 :class:`~sde_torchrl.modules.distribution.SDENormal` from those entries. The maths lives in
 :mod:`sde_torchrl.modules.distribution`.
@@ -24,7 +24,7 @@ from torch import nn
 from sde_torchrl.modules.distribution import gaussian_log_prob, sde_variance
 from sde_torchrl.modules.noise import ADD_PRIMER, SDENoisePrimer, deterministic_exploration
 from sde_torchrl.utils.checks import noise_schedule, one_of, positive_int
-from sde_torchrl.utils.options import SHARINGS
+from sde_torchrl.utils.options import SHARINGS, SIGMA_TRANSFORMS
 from sde_torchrl.utils.rng import RunStreams
 from sde_torchrl.utils.shapes import align
 
@@ -68,27 +68,51 @@ def sigma_param_shape(sharing: str, action_dim: int, feature_dim: int) -> tuple[
     """Shape of ``p`` (``σ̂ = expln(p)``) for a sharing mode (paper section 2.3, footnote 1).
 
     Args:
-        sharing: one ``σ̂`` per matrix element (``"element"``), per action (``"action"``) or one
-            for all (``"single"``).
+        sharing: one ``σ̂`` per matrix element (``"element"``), per action (``"action"``), one
+            for all (``"single"``), or one per feature shared over the actions (``"feature"``,
+            SB3's ``full_std=False``, whose ``log_std`` is ``[S, 1]``).
         action_dim: ``A``.
         feature_dim: ``S``.
 
     Returns:
-        ``(A, S)``, ``(A, 1)`` or ``(1, 1)``: broadcastable to the ``A × S`` matrix.
+        ``(A, S)``, ``(A, 1)``, ``(1, 1)`` or ``(1, S)``: broadcastable to the ``A × S`` matrix.
 
     Examples:
-        >>> sigma_param_shape("action", 2, 3)
-        (2, 1)
+        >>> sigma_param_shape("action", 2, 3), sigma_param_shape("feature", 2, 3)
+        ((2, 1), (1, 3))
     """
-    return {"element": (action_dim, feature_dim), "action": (action_dim, 1)}.get(sharing, (1, 1))
+    shapes = {"element": (action_dim, feature_dim), "action": (action_dim, 1), "feature": (1, feature_dim)}
+    return shapes.get(sharing, (1, 1))
+
+
+def sigma_from_param(p: torch.Tensor, transform: str = "expln") -> torch.Tensor:
+    """A standard deviation from its unconstrained parameter: ``expln(p)`` (eq. 23) or ``exp(p)``.
+
+    ``exp`` is SB3's ``use_expln=False`` (its default, ``σ = exp(log_std)``); the two agree for
+    ``p <= 0`` and differ above, where ``exp`` grows exponentially and ``expln`` logarithmically.
+
+    Args:
+        p: the parameter.
+        transform: ``"expln"`` or ``"exp"``.
+
+    Returns:
+        ``σ > 0``, the shape of ``p``.
+
+    Examples:
+        >>> p = torch.tensor([-1.0, 1.0])
+        >>> sigma_from_param(p, "expln"), sigma_from_param(p, "exp")
+        (tensor([0.3679, 1.6931]), tensor([0.3679, 2.7183]))
+    """
+    return expln(p) if transform == "expln" else torch.exp(p)
 
 
 class SDEParams(TensorDictModuleBase):
     """The parameters of state-dependent exploration, written beside the controller's mean.
 
-    Holds ``p`` with ``σ̂ = expln(p)`` (eqs. 23, 24), one per matrix element, per action or one
-    for all (``sharing``), and, for eq. (22)'s i.i.d. Gaussian part, ``q`` with
-    ``σ_gauss = expln(q)`` per action: parameters named ``sigma_param`` and ``gaussian_param``
+    Holds ``p`` with ``σ̂ = expln(p)`` (eqs. 23, 24; or ``exp(p)`` with ``sigma_transform="exp"``),
+    one per matrix element, per action, per feature or one for all (``sharing``), and, for eq.
+    (22)'s i.i.d. Gaussian part, ``q`` with ``σ_gauss = expln(q)`` (the same transform) per action:
+    parameters named ``sigma_param`` and ``gaussian_param``
     (buffers if not learned), stacked over ``runs`` along a leading dimension. Given the
     features ``x``, the action is Gaussian around the controller's mean with
     ``σ_j² = Σ_i (x_i σ̂_ji)² [+ σ_gauss_j²]`` (eq. 20): :meth:`scale` and :meth:`log_prob`, what
@@ -105,11 +129,21 @@ class SDEParams(TensorDictModuleBase):
         action_dim: ``A``, size of the action.
         feature_dim: ``S``, size of the exploration features ``x``.
         schedule: when the primer redraws ``ξ``: ``"episode"`` (SDE), ``"step"`` (REX) or
-            ``"every_n"`` (gSDE's sampling frequency); always at a reset.
-        every_n: redraw period for ``schedule="every_n"``.
+            ``"every_n"`` steps of an episode, always at a reset; or counted over a rollout
+            whatever the episode boundaries, as SB3's ``sde_sample_freq``: ``"every_n_steps"``
+            (``sde_sample_freq=n``) or ``"rollout"`` (``sde_sample_freq=-1``)
+            (:class:`~sde_torchrl.modules.noise.SDENoisePrimer`).
+        every_n: redraw period for ``"every_n"`` and ``"every_n_steps"``.
+        rollout_steps: steps per rollout for ``"every_n_steps"`` and ``"rollout"`` (TorchRL's
+            ``Collector``: ``frames_per_batch // num_envs``), or ``None`` (redraw with
+            ``primer.resample(tensordict)``).
         sharing: one ``σ̂`` per matrix element (``"element"``, ``A×S``), per action
-            (``"action"``, ``A``) or one for all (``"single"``) (paper section 2.3, footnote 1).
-        init_param: initial ``p``; the paper starts at -2 (``σ̂ ≈ 0.135``).
+            (``"action"``, ``A``), one for all (``"single"``) (paper section 2.3, footnote 1), or
+            one per feature shared over the actions (``"feature"``, ``S``: SB3's ``full_std=False``).
+        sigma_transform: ``σ̂ = expln(p)`` (``"expln"``, eq. 23, SB3's ``use_expln=True``) or
+            ``exp(p)`` (``"exp"``, SB3's default ``use_expln=False``).
+        init_param: initial ``p``; the paper starts at -2 (``σ̂ ≈ 0.135``); SB3's ``log_std_init``
+            (both transforms give ``exp(p)`` for ``p <= 0``).
         gaussian_init_param: initial ``q`` of eq. (22)'s i.i.d. Gaussian part, ``None`` for none.
         learn_sigma: ``p`` (and ``q``) as learnable parameters, or as fixed buffers.
         runs: independent runs stacked along a leading parameter dimension, or ``None`` for a
@@ -119,7 +153,8 @@ class SDEParams(TensorDictModuleBase):
             layer for gSDE-style features).
         noise_key: the carried ``ξ``.
         gaussian_noise_key: the carried ``ε`` of eq. (22) (with ``gaussian_init_param`` only).
-        age_key: steps the current ``ξ`` has been used (``"every_n"`` only).
+        age_key: steps the current ``ξ`` has been used (``"every_n"``) or steps into the rollout
+            (``"every_n_steps"``, ``"rollout"``).
         sigma_key: where ``σ̂`` is written.
         gaussian_scale_key: where ``σ_gauss`` is written (eq. 22 only).
 
@@ -153,7 +188,9 @@ class SDEParams(TensorDictModuleBase):
         *,
         schedule: str = "episode",
         every_n: int | None = None,
+        rollout_steps: int | None = None,
         sharing: str = "element",
+        sigma_transform: str = "expln",
         init_param: float = -2.0,
         gaussian_init_param: float | None = None,
         learn_sigma: bool = True,
@@ -169,8 +206,10 @@ class SDEParams(TensorDictModuleBase):
         super().__init__()
         self.action_dim = positive_int("action_dim", action_dim)
         self.feature_dim = positive_int("feature_dim", feature_dim)
-        self.schedule, self.every_n = noise_schedule(schedule, every_n)
+        self.schedule, self.every_n = noise_schedule(schedule, every_n, rollout_steps=rollout_steps)
+        self.rollout_steps = rollout_steps
         self.sharing = one_of("sharing", sharing, SHARINGS)
+        self.sigma_transform = one_of("sigma_transform", sigma_transform, SIGMA_TRANSFORMS)
         self.runs = None if runs is None else positive_int("runs", runs)
         self.run_dims = 0 if runs is None else 1
         self.streams: RunStreams | None = None
@@ -205,7 +244,8 @@ class SDEParams(TensorDictModuleBase):
         """
         return SDENoisePrimer(
             self.action_dim, self.feature_dim, schedule=self.schedule, every_n=self.every_n,
-            gaussian=self.has_gaussian, noise_key=self.noise_key, gaussian_noise_key=self.gaussian_noise_key,
+            rollout_steps=self.rollout_steps, gaussian=self.has_gaussian, noise_key=self.noise_key,
+            gaussian_noise_key=self.gaussian_noise_key,
             age_key=self.age_key, dtype=self.sigma_param.dtype, streams=self.streams,
         )
 
@@ -240,8 +280,9 @@ class SDEParams(TensorDictModuleBase):
 
     @property
     def sde_sigma(self) -> torch.Tensor:
-        """``σ̂ = expln(p)`` broadcast to the full ``[*runs, A, S]`` matrix (eq. 23)."""
-        sigma = expln(self.sigma_param)
+        """``σ̂ = expln(p)`` (eq. 23; ``exp(p)`` with ``sigma_transform="exp"``) broadcast to the
+        full ``[*runs, A, S]`` matrix."""
+        sigma = sigma_from_param(self.sigma_param, self.sigma_transform)
         return sigma.expand(*sigma.shape[:-2], self.action_dim, self.feature_dim)
 
     def exploration_scale(self) -> torch.Tensor:
@@ -250,9 +291,12 @@ class SDEParams(TensorDictModuleBase):
         return self.sde_sigma.detach().flatten(-2)
 
     def gaussian_scale(self, batch_dims: int) -> torch.Tensor | None:
-        """``σ_gauss = expln(q)`` (eqs. 22, 23) viewed to broadcast against ``[*batch, A]`` data
-        with ``batch_dims`` batch dimensions (runs first), or ``None`` for pure SDE."""
-        return align(expln(self.gaussian_param), self.run_dims, batch_dims) if self.has_gaussian else None
+        """``σ_gauss = expln(q)`` (eqs. 22, 23; ``exp(q)`` with ``sigma_transform="exp"``) viewed to
+        broadcast against ``[*batch, A]`` data with ``batch_dims`` batch dimensions (runs first), or
+        ``None`` for pure SDE."""
+        if not self.has_gaussian:
+            return None
+        return align(sigma_from_param(self.gaussian_param, self.sigma_transform), self.run_dims, batch_dims)
 
     def scale(self, features: torch.Tensor) -> torch.Tensor:
         """Per-action standard deviation of the action given the features (eqs. 20, 22).
@@ -298,4 +342,4 @@ class SDEParams(TensorDictModuleBase):
             )
 
 
-__all__ = ["SDEParams", "expln", "expln_inverse", "sigma_param_shape"]
+__all__ = ["SDEParams", "expln", "expln_inverse", "sigma_from_param", "sigma_param_shape"]

@@ -16,7 +16,7 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from sde_torchrl.utils.options import SCHEDULES
+from sde_torchrl.utils.options import PERIODIC_SCHEDULES, ROLLOUT_SCHEDULES, SCHEDULES
 
 
 class ArgumentError(ValueError):
@@ -201,14 +201,19 @@ def multiple_of(name: str, value: int, base_name: str, base: int) -> int:
     return value
 
 
-def noise_schedule(schedule: Any, every_n: Any, prefix: str = "") -> tuple[str, int | None]:
-    """Checks an SDE noise schedule: one of :data:`~sde_torchrl.utils.options.SCHEDULES`, and
-    ``every_n`` a positive integer with ``"every_n"``, ``None`` otherwise.
+def noise_schedule(
+    schedule: Any, every_n: Any, prefix: str = "", rollout_steps: Any = None
+) -> tuple[str, int | None]:
+    """Checks an SDE noise schedule: one of :data:`~sde_torchrl.utils.options.SCHEDULES`;
+    ``every_n`` a positive integer with ``"every_n"`` or ``"every_n_steps"``, ``None`` otherwise;
+    ``rollout_steps`` ``None`` or a positive integer, and ``None`` unless ``"every_n_steps"`` or
+    ``"rollout"``.
 
     Args:
         schedule: the schedule.
         every_n: the redraw period.
         prefix: the options' prefix in messages (``"explorer."`` for the config).
+        rollout_steps: the rollout length over which SB3-style schedules count.
 
     Returns:
         ``(schedule, every_n)``.
@@ -219,14 +224,25 @@ def noise_schedule(schedule: Any, every_n: Any, prefix: str = "") -> tuple[str, 
     Examples:
         >>> noise_schedule("every_n", 5)
         ('every_n', 5)
-        >>> noise_schedule("episode", 3, "explorer.")
+        >>> noise_schedule("episode", 3)
         Traceback (most recent call last):
         ...
-        sde_torchrl.utils.checks.ArgumentError: explorer.every_n=3: null unless explorer.schedule=every_n
+        sde_torchrl.utils.checks.ArgumentError: every_n=3: null unless schedule=every_n or every_n_steps
+        >>> noise_schedule("step", None, rollout_steps=8)
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: rollout_steps=8: null unless schedule=every_n_steps or rollout
     """
     one_of(f"{prefix}schedule", schedule, SCHEDULES)
-    if schedule == "every_n":
+    if schedule in PERIODIC_SCHEDULES:
         positive_int(f"{prefix}every_n", every_n)
     elif every_n is not None:
-        raise ArgumentError(f"{prefix}every_n", every_n, f"null unless {prefix}schedule=every_n")
+        raise ArgumentError(f"{prefix}every_n", every_n,
+                            f"null unless {prefix}schedule={' or '.join(PERIODIC_SCHEDULES)}")
+    if schedule in ROLLOUT_SCHEDULES:
+        if rollout_steps is not None:
+            positive_int(f"{prefix}rollout_steps", rollout_steps)
+    elif rollout_steps is not None:
+        raise ArgumentError(f"{prefix}rollout_steps", rollout_steps,
+                            f"null unless {prefix}schedule={' or '.join(ROLLOUT_SCHEDULES)}")
     return schedule, every_n

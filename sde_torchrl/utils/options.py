@@ -7,10 +7,21 @@ torch.
 
 from __future__ import annotations
 
-#: When the SDE noise matrix is redrawn: per episode (SDE), per step (REX), every ``n`` steps.
-SCHEDULES = ("episode", "step", "every_n")
-#: One ``σ̂`` per matrix element, per action, or one for all (paper section 2.3, footnote 1).
-SHARINGS = ("element", "action", "single")
+#: When the SDE noise matrix is redrawn: per episode (SDE), per step (REX), every ``n`` steps of an
+#: episode, or as Stable-Baselines3's ``sde_sample_freq`` counts: every ``n`` steps of a rollout
+#: whatever the episode boundaries (``every_n_steps``, ``sde_sample_freq=n``) or once per rollout
+#: (``rollout``, ``sde_sample_freq=-1``).
+SCHEDULES = ("episode", "step", "every_n", "every_n_steps", "rollout")
+#: The schedules with a redraw period ``every_n``.
+PERIODIC_SCHEDULES = ("every_n", "every_n_steps")
+#: The schedules that hold ``ξ`` across episode boundaries and count a rollout's steps (SB3's
+#: counting); they take an optional rollout length ``rollout_steps``.
+ROLLOUT_SCHEDULES = ("every_n_steps", "rollout")
+#: One ``σ̂`` per matrix element, per action, one for all (paper section 2.3, footnote 1), or one
+#: per feature shared over the actions (SB3's ``full_std=False``).
+SHARINGS = ("element", "action", "single", "feature")
+#: The map from SDE's parameter ``p`` to ``σ̂``: expln (eq. 23) or plain exp (SB3's ``use_expln=False``).
+SIGMA_TRANSFORMS = ("expln", "exp")
 #: Hidden-layer activations of the MLP controllers.
 ACTIVATIONS = ("sigmoid", "tanh", "relu")
 #: How a gymnasium env's observations are normalised.
