@@ -44,7 +44,7 @@ def test_nan_return_names_update_and_run_and_keeps_metrics(tmp_path):
     assert (error.update, error.what, error.runs) == (6, "return", [6])  # global run index
     message = str(error)
     assert "non-finite return at update 6 in run 6" in message
-    assert "largest parameter entry: module.0.module.weight" in message
+    assert "largest parameter entry: module.0.module.0.module.weight" in message
     rows = read_rows(tmp_path)
     assert [int(r["update"]) for r in rows] == [k for k in range(6) for _ in range(3)]  # kept
     assert not (tmp_path / "summary.json").exists()
