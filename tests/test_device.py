@@ -220,6 +220,8 @@ def test_pgpe_draws_on_meta():
 def test_exploration_state_on_meta():
     policy, _ = sde_policy()
     assert exploration_state(policy, 2).device == META
+    no_explorer = torch.nn.Linear(3, 2).to(META)  # its σ entries are NaN, made here
+    assert exploration_state(no_explorer, 2).device == META
 
 
 # ------------------------------------------------------------------------------ the command line
