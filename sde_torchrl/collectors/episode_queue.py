@@ -26,6 +26,8 @@ class EpisodeQueue:
         size: ``Q``, episodes per run in the queue.
         per_update: ``N``, new episodes per run and update (``Q`` must be a multiple of it).
         keys: the entries to keep.
+        device: where a restored queue (:meth:`load_state_dict`, read from a checkpoint on the
+            CPU) is put: the device of the episodes it holds. ``None``: left where it is read.
 
     Examples:
         >>> queue = EpisodeQueue(4, 2, ["x"])
@@ -34,9 +36,10 @@ class EpisodeQueue:
         torch.Size([1, 4, 3])
     """
 
-    def __init__(self, size: int, per_update: int, keys: Sequence[NestedKey]) -> None:
+    def __init__(self, size: int, per_update: int, keys: Sequence[NestedKey],
+                 device: torch.device | str | None = None) -> None:
         multiple_of("episode_queue", size, "episodes_per_update", per_update)
-        self.size, self.per_update, self.keys = size, per_update, list(keys)
+        self.size, self.per_update, self.keys, self.device = size, per_update, list(keys), device
         self.episodes: TensorDictBase | None = None
 
     def next_batch(self, collect: Callable[[], TensorDictBase]) -> TensorDictBase:
@@ -58,4 +61,9 @@ class EpisodeQueue:
 
     def load_state_dict(self, state: dict[str, Any] | None, batch_size: Sequence[int]) -> None:
         """Restores :meth:`state_dict`; ``batch_size`` is ``[runs, Q, T]``."""
-        self.episodes = None if state is None else TensorDict(state, batch_size=list(batch_size))
+        if state is None:
+            self.episodes = None
+            return
+        self.episodes = TensorDict(state, batch_size=list(batch_size))
+        if self.device is not None:
+            self.episodes = self.episodes.to(self.device)

@@ -212,7 +212,7 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
     noise, gaussian, age = primer.start(batch, x.device) if explore else (None, None, None)
     sigma = align(sde.sde_sigma, sde.run_dims, len(batch))
     gaussian_scale = sde.gaussian_scale(len(batch))
-    low, high = _bounds(policy)
+    low, high = _bounds(policy, x.device)
     observations, locs, samples, noises, gaussians, next_observations, rewards = [], [], [], [], [], [], []
     for t in range(steps):
         loc = actor.module(x)
@@ -357,10 +357,11 @@ def _flatten(transforms: list) -> list:
     return flat
 
 
-def _bounds(policy: SDEActor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The squashed policy's ``(low, high)``."""
+def _bounds(policy: SDEActor, device: torch.device | str | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The squashed policy's ``(low, high)``, on ``device`` if given (the data's)."""
     kwargs = policy.module[-1].distribution_kwargs
-    return kwargs.get("low", torch.tensor(-1.0)), kwargs.get("high", torch.tensor(1.0))
+    low, high = kwargs.get("low", torch.tensor(-1.0)), kwargs.get("high", torch.tensor(1.0))
+    return (low, high) if device is None else (low.to(device), high.to(device))
 
 
 def _squash(sample: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
@@ -374,16 +375,16 @@ def _episodes(
 ) -> TensorDict:
     """The episode TensorDict ``[*batch, T]`` that ``env.rollout`` writes, from its step tensors."""
     sde = policy.sde
-    batch = observation.shape[:-1]
-    done = torch.zeros(*batch, 1, dtype=torch.bool)
+    batch, device = observation.shape[:-1], observation.device
+    done = torch.zeros(*batch, 1, dtype=torch.bool, device=device)
     done[..., -1, :] = True
-    first = torch.zeros(*batch, 1, dtype=torch.bool)
+    first = torch.zeros(*batch, 1, dtype=torch.bool, device=device)
     first[..., 0, :] = True
     features = observation.to(loc.dtype)
     sigma = align(sde.sde_sigma, sde.run_dims, len(batch)).to(loc.dtype)
     gaussian_scale = sde.gaussian_scale(len(batch))
     if policy.squash:
-        low, high = _bounds(policy)
+        low, high = _bounds(policy, device)
         dist = TanhSDENormal(loc, sigma, features, gaussian_scale=gaussian_scale, low=low, high=high)
         action = _squash(sample, low, high)
     else:
@@ -395,7 +396,7 @@ def _episodes(
         policy.log_prob_key: dist.log_prob(action),  # eqs. 13, 20, once for all steps
         IS_INIT_KEY: first,
         "next": {OBSERVATION_KEY: next_observation, REWARD_KEY: reward, DONE_KEY: done, TRUNCATED_KEY: done.clone()},
-    }, batch_size=batch)
+    }, batch_size=batch)  # no device=: it would move a stray CPU entry instead of showing it
     if policy.squash:
         episodes.set(policy.sample_key, sample)
     if noise is not None:

@@ -24,6 +24,7 @@ from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.objectives.estimators import ENACEstimator
 from sde_torchrl.trainers.optim import make_optimizer
 from sde_torchrl.trainers.trainer import Trainer
+from sde_torchrl.utils.devices import training_device
 from sde_torchrl.utils.rng import RunStreams
 
 log = logging.getLogger(__name__)
@@ -33,8 +34,10 @@ LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator", "optim
 
 
 def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
-    """Instantiates ``conf.env`` with a ``[runs, episodes]`` batch and the run streams."""
-    env = instantiate(conf.env, episodes=episodes, runs=conf.runs, first_run=conf.first_run, stream=stream)
+    """Instantiates ``conf.env`` with a ``[runs, episodes]`` batch and the run streams, its
+    outputs on ``conf.device``."""
+    env = instantiate(conf.env, episodes=episodes, runs=conf.runs, first_run=conf.first_run, stream=stream,
+                      device=conf.device)
     env.set_seed(conf.seed)
     base = env.base_env if isinstance(env, TransformedEnv) else env
     if hasattr(base, "allow_nonfinite"):  # MinimizeEnv: the trainer's FiniteGuard names a diverged run
@@ -54,9 +57,11 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
         The trainer; call ``train(out_dir)``.
 
     Raises:
-        ArgumentError: for a config value that is not allowed (before anything is built).
+        ArgumentError: for a config value that is not allowed, or a ``device`` this machine does
+            not have (before anything is built).
     """
     conf = cfg if isinstance(cfg, TrainConf) else validate(cfg)
+    device = training_device(conf.device)  # device=cuda without CUDA: one line, exit 2, before any env
     torch.manual_seed(conf.seed)
     env = build_env(conf, conf.episodes_per_update, "env")
     eval_env = build_env(conf, conf.eval_episodes, "eval_env")
@@ -79,6 +84,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
                                feature_key=feature_key)
         # explorer.squash is tanh onto [-1, 1], whatever the action spec (ExplorerConf)
         policy = make_sde_actor(actor, explorer, squash=conf.explorer.squash, low=-1.0, high=1.0)
+    policy.to(device)  # the parameters drawn on the CPU (per-run streams), moved once
     explorer.streams = streams
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())

@@ -33,6 +33,7 @@ from sde_torchrl.utils.checks import (
     positive_int,
     show,
 )
+from sde_torchrl.utils.devices import check_device_name
 from sde_torchrl.utils.options import (
     ACTIVATIONS,
     EPISODE_RETURNS,
@@ -530,10 +531,15 @@ class TrainConf:
             sweep share the cores).
         max_memory_gb: refuse a job whose estimated memory (:mod:`sde_torchrl.jobs.resources`) exceeds
             this; ``null``: the memory the machine has available when the job starts.
+        device: where the job's tensors live, ``cpu`` (the default), ``cuda`` or ``cuda:N``
+            (:mod:`sde_torchrl.utils.devices`; refused before anything is built where that
+            device is absent).
 
     Examples:
         >>> TrainConf(runs=4, r_lim=-1.8).episodes_per_update
         10
+        >>> TrainConf().device
+        'cpu'
     """
 
     env: Any = None
@@ -558,8 +564,10 @@ class TrainConf:
     progress: Optional[bool] = None
     threads: int = 1
     max_memory_gb: Optional[float] = None
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
+        check_device_name(self.device)
         for name in ("runs", "threads"):
             positive_int(name, getattr(self, name))
         for name in ("seed", "checkpoint_period"):

@@ -58,6 +58,8 @@ class GymRunsEnv(EnvBase):
         gym_kwargs: passed to ``gymnasium.make`` through ``GymEnv``.
         reset_options: passed to every ``reset`` (``options=``), e.g. Pendulum's start range
             ``{"x_init": 0.3, "y_init": 0.3}``.
+        device: where the observations, rewards and flags are put (the gymnasium envs, and the
+            state kept between steps, stay on the CPU).
 
     Raises:
         ArgumentError: for an env whose action or observation space SDE cannot use (a discrete
@@ -72,23 +74,25 @@ class GymRunsEnv(EnvBase):
     def __init__(
         self, env_id: str, episodes: int = 10, runs: int = 1, *, first_run: int = 0,
         stream: str = "env", seed: int | None = None, gym_kwargs: dict[str, Any] | None = None,
-        reset_options: dict[str, Any] | None = None,
+        reset_options: dict[str, Any] | None = None, device: torch.device | str = "cpu",
     ) -> None:
         positive_int("episodes", episodes)
         positive_int("runs", runs)
         batch = torch.Size((runs, episodes))
-        super().__init__(batch_size=batch)
+        super().__init__(batch_size=batch, device=device)
         self.env_id, self.runs, self.first_run, self.stream = env_id, runs, first_run, stream
         self.reset_options = dict(reset_options) if reset_options else None
         self.envs = [GymEnv(env_id, **(gym_kwargs or {})) for _ in range(runs * episodes)]
         proto = self.envs[0]
         check_spaces(env_id, proto._env.action_space, proto._env.observation_space)
         self.max_episode_steps = getattr(proto._env.spec, "max_episode_steps", None)
-        self.observation_spec = proto.observation_spec.expand(batch).clone()
-        self.action_spec = proto.action_spec.expand(*batch, *proto.action_spec.shape).clone()
-        self.reward_spec = proto.reward_spec.expand(*batch, *proto.reward_spec.shape).clone()
+        self.observation_spec = proto.observation_spec.expand(batch).clone().to(self.device)
+        self.action_spec = proto.action_spec.expand(*batch, *proto.action_spec.shape).clone().to(self.device)
+        self.reward_spec = proto.reward_spec.expand(*batch, *proto.reward_spec.shape).clone().to(self.device)
+        # the gymnasium envs step on the CPU: their state is kept there, the outputs go to the device
         self._absorbed = torch.zeros(*batch, 1, dtype=torch.bool)
-        self._last_obs = self.observation_spec["observation"].zero()
+        self._last_obs = proto.observation_spec["observation"].expand(*batch, *proto.observation_spec[
+            "observation"].shape).zero()
         self._streams: RunStreams | None = None
         self.set_seed(0 if seed is None else seed)
 
@@ -104,16 +108,16 @@ class GymRunsEnv(EnvBase):
         seeds = self.episode_seeds().flatten()  # drawn for all: streams stay data-independent
         mask = torch.ones(len(self.envs), dtype=torch.bool)
         if tensordict is not None and "_reset" in tensordict.keys():
-            mask = tensordict.get("_reset").reshape(len(self.envs), -1).any(-1)
+            mask = tensordict.get("_reset").reshape(len(self.envs), -1).any(-1).cpu()
         obs = self._last_obs.reshape(len(self.envs), -1).clone()
         for i in mask.nonzero().flatten().tolist():
             obs[i] = self.envs[i]._reset(seed=int(seeds[i]), options=self.reset_options)["observation"]
         self._absorbed.view(-1)[mask] = False
         self._last_obs = obs.reshape(self._last_obs.shape)
-        return TensorDict({"observation": self._last_obs.clone()}, batch_size=self.batch_size)
+        return TensorDict({"observation": self._last_obs.clone()}, batch_size=self.batch_size, device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        actions = tensordict.get("action").reshape(len(self.envs), -1)
+        actions = tensordict.get("action").reshape(len(self.envs), -1).cpu()
         obs = self._last_obs.reshape(len(self.envs), -1).clone()
         reward = torch.zeros(len(self.envs), 1)
         absorbed = self._absorbed.view(-1)
@@ -129,7 +133,7 @@ class GymRunsEnv(EnvBase):
             "observation": self._last_obs.clone(),
             "reward": reward.reshape(*self.batch_size, 1),
             "done": done, "terminated": done.clone(), "truncated": done.clone(),
-        }, batch_size=self.batch_size)
+        }, batch_size=self.batch_size, device=self.device)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         for env in self.envs:
@@ -216,7 +220,7 @@ def make_gym_env(
     id: str, episode_length: int = 200, *, episodes: int = 10, runs: int = 1, first_run: int = 0,
     stream: str = "env", normalize_obs: str | None = None, norm_init_steps: int = 1000,
     constant_feature: bool = False, gym_kwargs: dict[str, Any] | None = None,
-    reset_options: dict[str, Any] | None = None, seed: int | None = None,
+    reset_options: dict[str, Any] | None = None, seed: int | None = None, device: torch.device | str = "cpu",
 ) -> TransformedEnv:
     """A gymnasium env for episodic training: batch ``[runs, episodes]``, ``episode_length`` steps.
 
@@ -233,6 +237,7 @@ def make_gym_env(
         gym_kwargs: passed to ``gymnasium.make``.
         reset_options: passed to every reset (``options=``), e.g. a start-state range.
         seed: job seed (``None``: 0).
+        device: where the observations, rewards and flags are put (gymnasium steps on the CPU).
 
     Returns:
         ``GymRunsEnv`` with ``[ObservationNorm,] [ConstantFeature,] StepCounter, InitTracker``.
@@ -248,7 +253,7 @@ def make_gym_env(
     """
     positive_int("episode_length", episode_length)
     base = GymRunsEnv(id, episodes, runs, first_run=first_run, stream=stream, seed=seed,
-                      gym_kwargs=dict(gym_kwargs or {}), reset_options=reset_options)
+                      gym_kwargs=dict(gym_kwargs or {}), reset_options=reset_options, device=device)
     check_time_limit(id, episode_length, base.max_episode_steps)
     transforms: list[Transform] = []
     if normalize_obs is not None:
@@ -256,6 +261,6 @@ def make_gym_env(
     if constant_feature:
         transforms.append(ConstantFeature())
     transforms += [StepCounter(episode_length), InitTracker()]
-    env = TransformedEnv(base, Compose(*transforms))
+    env = TransformedEnv(base, Compose(*transforms).to(base.device))  # ObservationNorm's loc and scale
     env.episode_length = episode_length
     return env

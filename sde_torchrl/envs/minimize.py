@@ -49,6 +49,8 @@ class MinimizeEnv(EnvBase):
             non-finite) instead of raising :class:`~sde_torchrl.utils.checks.NonFiniteInputError`.
             The trainer sets it: its :class:`~sde_torchrl.trainers.guard.FiniteGuard` checks the
             returns and names the update.
+        device: where the states, actions and rewards live (the random draws are made on the
+            CPU by the runs' streams and moved, so a seed gives the same noise on every device).
 
     Raises:
         ArgumentError: a parameter is not allowed (``x0``, ``step_size`` and ``noise_std`` must
@@ -65,7 +67,7 @@ class MinimizeEnv(EnvBase):
         self, episodes: int = 10, *, dim: int = 1, x0: float | Sequence[float] = 5.0,
         x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5, reward_state: str = "noisy",
         runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
-        allow_nonfinite: bool = False,
+        allow_nonfinite: bool = False, device: torch.device | str = "cpu",
     ) -> None:
         positive_int("episodes", episodes)
         positive_int("dim", dim)
@@ -78,16 +80,16 @@ class MinimizeEnv(EnvBase):
         one_of("reward_state", reward_state, REWARD_STATES)
         self.reward_state = reward_state
         batch = (episodes,) if runs is None else (runs, episodes)
-        super().__init__(batch_size=torch.Size(batch))
+        super().__init__(batch_size=torch.Size(batch), device=device)
         self.dim, self.runs, self.first_run, self.stream = dim, runs, first_run, stream
         self.allow_nonfinite = allow_nonfinite
-        self.x0 = torch.as_tensor(x0, dtype=torch.float32).expand(dim).clone()
+        self.x0 = torch.as_tensor(x0, dtype=torch.float32).expand(dim).clone().to(self.device)
         self.x0_spread, self.step_size, self.noise_std = float(x0_spread), float(step_size), float(noise_std)
         self.observation_spec = Composite(
-            observation=Unbounded(shape=(*batch, dim)), shape=batch
+            observation=Unbounded(shape=(*batch, dim), device=self.device), shape=batch, device=self.device
         )
-        self.action_spec = Unbounded(shape=(*batch, dim))
-        self.reward_spec = Unbounded(shape=(*batch, 1))
+        self.action_spec = Unbounded(shape=(*batch, dim), device=self.device)
+        self.reward_spec = Unbounded(shape=(*batch, 1), device=self.device)
         self._streams: RunStreams | None = None
         self.set_seed(0 if seed is None else seed)
 
@@ -96,10 +98,11 @@ class MinimizeEnv(EnvBase):
         self._streams = RunStreams(seed, self.runs or 1, self.stream, self.first_run)
 
     def _draw(self, kind: str, shape: tuple[int, ...]) -> torch.Tensor:
-        """Draws ``shape`` (the full batch shape first) from the env's own streams."""
+        """Draws ``shape`` (the full batch shape first) from the env's own streams (on the CPU),
+        on the env's device."""
         if self.runs is None:  # one stream, viewed as a single run
-            return getattr(self._streams, kind)((1, *shape))[0]
-        return getattr(self._streams, kind)(shape)
+            return getattr(self._streams, kind)((1, *shape))[0].to(self.device)
+        return getattr(self._streams, kind)(shape).to(self.device)
 
     def initial_state(self) -> torch.Tensor:
         """Start states ``x₀`` (plus jitter) for the whole batch, ``[*batch, d]``."""
@@ -136,14 +139,14 @@ class MinimizeEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
         # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
         # mask, the running episodes' entries; drawing for all keeps the streams data-independent.
-        return TensorDict({"observation": self.initial_state()}, batch_size=self.batch_size)
+        return TensorDict({"observation": self.initial_state()}, batch_size=self.batch_size, device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         x_next, reward = self.transition(tensordict["observation"], tensordict["action"])
-        done = torch.zeros(*self.batch_size, 1, dtype=torch.bool)
+        done = torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)
         return TensorDict(
             {"observation": x_next, "reward": reward, "done": done, "terminated": done.clone()},
-            batch_size=self.batch_size,
+            batch_size=self.batch_size, device=self.device,
         )
 
 def make_minimize_env(episode_length: int = 15, **kwargs) -> TransformedEnv:

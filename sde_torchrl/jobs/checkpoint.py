@@ -55,6 +55,10 @@ FORMAT = 4
 READABLE = (3, 4)
 #: Config keys that do not change the numbers a job produces: they may differ on resume.
 NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress", "max_memory_gb")
+#: Config keys added after checkpoints were written, with their defaults: at its default such a
+#: key is left out of the result config, so that those checkpoints still resume. Off its default
+#: it counts (``device=cuda`` rounds otherwise than the CPU: not the same job).
+LATER_KEYS = {"device": "cpu"}
 
 
 class CheckpointMismatchError(ValueError):
@@ -89,7 +93,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if path.stat().st_size == 0:
         raise DamagedFileError(path, "it is empty", remedy)
     try:
-        state = torch.load(path, weights_only=True)
+        state = torch.load(path, map_location="cpu", weights_only=True)  # restore_job puts each piece where it lives
     except FileNotFoundError:
         raise
     except Exception as error:  # noqa: BLE001 - whatever the damage, the file cannot be used
@@ -147,10 +151,19 @@ def _feed(digest: Any, value: Any) -> None:
 
 
 def result_config(config: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The part of a resolved config that determines a job's results."""
+    """The part of a resolved config that determines a job's results (:data:`LATER_KEYS` at
+    their defaults left out).
+
+    Examples:
+        >>> result_config({"seed": 1, "progress": True, "device": "cpu"})
+        {'seed': 1}
+        >>> result_config({"seed": 1, "device": "cuda"})
+        {'seed': 1, 'device': 'cuda'}
+    """
     if config is None:
         return None
-    return {k: v for k, v in config.items() if k not in NON_RESULT_KEYS}
+    return {k: v for k, v in config.items()
+            if k not in NON_RESULT_KEYS and not (k in LATER_KEYS and v == LATER_KEYS[k])}
 
 
 def config_differences(saved: Any, current: Any, prefix: str = "") -> list[str]:

@@ -346,10 +346,12 @@ class TanhSDENormal(SDENormal):
         validate_args: bool | None = False,
     ) -> None:
         super().__init__(loc, sigma_hat, features, noise, gaussian_scale, gaussian_noise, validate_args=validate_args)
-        low = torch.as_tensor(low, dtype=loc.dtype, device=loc.device)
-        high = torch.as_tensor(high, dtype=loc.dtype, device=loc.device)
-        if not torch.compiler.is_compiling() and bool((high <= low).any()):
+        low, high = torch.as_tensor(low, dtype=loc.dtype), torch.as_tensor(high, dtype=loc.dtype)
+        # checked where the bounds were given (the policy's CPU bounds: no device sync), then moved
+        checkable = not torch.compiler.is_compiling() and "meta" not in (low.device.type, high.device.type)
+        if checkable and bool((high <= low).any()):
             raise ValueError(f"TanhSDENormal needs high > low everywhere, got low={low}, high={high}")
+        low, high = low.to(loc.device), high.to(loc.device)
         self.low, self.high = low, high
         self._mid, self._half = (high + low) / 2, (high - low) / 2
         self._max_abs_tanh = 1.0 - torch.finfo(loc.dtype).eps

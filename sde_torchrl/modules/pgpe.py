@@ -189,6 +189,7 @@ class ParameterExplorer(TensorDictModuleBase):
             fresh = torch.stack([half, -half], dim=-2).reshape(*batch, self.num_parameters)
         else:
             fresh = draw_normal((*batch, self.num_parameters), self.streams)
+        fresh = fresh.to(self.sigma.device)  # drawn on the CPU (the streams'), used on the parameters' device
         if previous is None:
             return fresh
         return torch.where(is_init.reshape(*batch, 1), fresh, previous)

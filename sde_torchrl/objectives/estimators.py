@@ -234,9 +234,11 @@ def enac_gradient(
 
     Solved with an SVD-based least-squares driver in float64, which returns the minimum-norm
     solution when the system is rank deficient (fewer episodes than parameters, or constant
-    scores) instead of failing. A run whose scores or returns hold NaN or infinity is not handed
-    to the solver (LAPACK fails on them): its ``w``, ``J`` and condition number are NaN and its
-    rank 0.
+    scores) instead of failing. That driver (``gelsd``) exists only on the CPU (CUDA's ``gels``
+    needs full rank), so the small system ``[*runs, N, K + 1]`` is solved there and the results
+    are returned on the scores' device. A run whose scores or returns hold NaN or infinity is
+    not handed to the solver (LAPACK fails on them): its ``w``, ``J`` and condition number are
+    NaN and its rank 0.
 
     Args:
         scores: ``ψ``, shaped ``[*runs, N, K]``.
@@ -247,8 +249,9 @@ def enac_gradient(
         ``J``, the rank of ``[ψ, 1]`` and its condition number (``inf`` with fewer episodes than
         unknowns), ``[*runs]``.
     """
-    design = torch.cat([scores, torch.ones_like(scores[..., :1])], dim=-1).double()
-    target = returns.double().unsqueeze(-1)
+    device = scores.device
+    design = torch.cat([scores, torch.ones_like(scores[..., :1])], dim=-1).double().cpu()  # gelsd: CPU only
+    target = returns.double().unsqueeze(-1).cpu()
     finite = torch.isfinite(design).all((-2, -1)) & torch.isfinite(target).all((-2, -1))  # [*runs]
     all_finite = bool(finite.all())
     if not all_finite:  # LAPACK fails on NaN/inf (an MKL "INTERNAL ASSERT"): solve zeros instead
@@ -266,7 +269,8 @@ def enac_gradient(
         coefficients = torch.where(finite[..., None], coefficients, torch.nan)
         condition = torch.where(finite, condition, torch.nan)
         rank = torch.where(finite, rank, 0)
-    return coefficients[..., :-1], coefficients[..., -1], rank, condition.to(scores.dtype)
+    coefficients = coefficients.to(device)
+    return coefficients[..., :-1], coefficients[..., -1], rank.to(device), condition.to(device, scores.dtype)
 
 
 class EpisodicEstimator(GradientEstimator):

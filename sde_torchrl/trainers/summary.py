@@ -87,7 +87,8 @@ def exploration_state(policy: nn.Module, runs: int) -> torch.Tensor:
     explorer = next((m for m in policy.modules() if hasattr(m, "exploration_scale")), None)
     own = {id(p) for p in explorer.parameters()} if explorer is not None else set()
     weights = [p.detach().reshape(runs, -1).abs() for p in policy.parameters() if id(p) not in own]
-    nan = torch.full((runs,), float("nan"))
+    device = next(policy.parameters()).device
+    nan = torch.full((runs,), float("nan"), device=device)
     scale = explorer.exploration_scale().reshape(runs, -1) if explorer is not None else None
     return torch.stack([
         scale.min(-1).values if scale is not None else nan,
@@ -108,7 +109,7 @@ def summarize(
         policy: the trained policy (its parameters carry a leading ``[runs]`` dimension).
         episodes_after: episodes each run has collected by the end of a (0-based) update.
     """
-    returns = torch.stack(state.returns)  # [updates, runs]
+    returns = torch.stack(state.returns).cpu()  # [updates, runs]
     runs = returns.shape[1]
     above = returns > settings.r_lim if settings.r_lim is not None else torch.zeros_like(returns, dtype=torch.bool)
     first = [int(above[:, r].nonzero()[0]) if bool(above[:, r].any()) else None for r in range(runs)]
@@ -120,10 +121,10 @@ def summarize(
         "updates_done": updates_done,
         "initial_return": returns[0].tolist(),
         "final_return": returns[-1].tolist(),
-        "final_eval_return": state.evals[updates_done - 1].tolist(),
+        "final_eval_return": state.evals[updates_done - 1].cpu().tolist(),
         "episodes_to_threshold": [None if i is None else episodes_after(i) for i in first],
         "final_parameters": {  # named as in checkpoint.pt's policy state dict
-            name: p.detach().reshape(runs, -1).tolist() for name, p in policy.named_parameters()
+            name: p.detach().reshape(runs, -1).cpu().tolist() for name, p in policy.named_parameters()
         },
         "env_steps": episodes_after(updates_done - 1) * settings.episode_length * runs,
         "wall_s": state.wall_s,

@@ -72,8 +72,9 @@ class Trainer:
         self.estimator, self.optimizer, self.settings, self.logger = estimator, optimizer, settings, logger
         self.runs = env.batch_size[0]
         self.guard = FiniteGuard(policy, estimator, self.runs, settings.first_run)
-        self.queue = EpisodeQueue(settings.episode_queue, settings.episodes_per_update, estimator.in_keys) \
-            if settings.episode_queue else None
+        device = next(iter(estimator.learnable_parameters().values())).device
+        self.queue = EpisodeQueue(settings.episode_queue, settings.episodes_per_update, estimator.in_keys,
+                                  device=device) if settings.episode_queue else None
 
     def _rollout(self, env: EnvBase) -> TensorDictBase:
         """Whole episodes on ``env`` by the fastest path that gives ``env.rollout``'s episodes
@@ -86,14 +87,15 @@ class Trainer:
 
     def evaluate(self) -> torch.Tensor:
         """Mean return of deterministic episodes (no exploration noise) per run, ``[runs]``, in
-        the estimator's return definition."""
+        the estimator's return definition, on the CPU."""
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             episodes = self._rollout(self.eval_env)
-        return self.estimator.returns(episodes).mean(-1)
+        return self.estimator.returns(episodes).mean(-1).cpu()
 
     def update(self, episodes: TensorDictBase, update: int) -> dict[str, torch.Tensor]:
         """One estimator pass and one optimiser step (eq. 1 with ``SGD``) at update ``update``'s
-        learning rate, guarded against non-finite values.
+        learning rate, guarded against non-finite values; the statistics it returns (per-run
+        mean return, gradient norm, exploration state) are on the CPU, whatever the device.
 
         Raises:
             NonFiniteError: for a non-finite episode return, score, gradient or (after the
@@ -108,8 +110,9 @@ class Trainer:
             self.lr_schedule.apply(update)
         self.optimizer.step()
         self.guard.check_parameters(update)
-        return {"return_mean": out["return_mean"], "grad_norm": out["gradient_norm"],
-                "exploration": exploration_state(self.policy, self.runs)}
+        stats = {"return_mean": out["return_mean"], "grad_norm": out["gradient_norm"],
+                 "exploration": exploration_state(self.policy, self.runs)}
+        return {name: value.detach().cpu() for name, value in stats.items()}  # bookkeeping stays on the CPU
 
     def episodes_after(self, update: int) -> int:
         """Episodes each run has collected by the end of update ``update`` (0-based)."""

@@ -166,8 +166,8 @@ class BatchedBallCatchEnv(EnvBase):
         """
         reward = self._advance(u)
         batch = tuple(self.batch_size)
-        return (torch.tensor([e.ball for e in self.episodes], dtype=torch.float32).reshape(*batch, 3),
-                torch.tensor(reward, dtype=torch.float32).reshape(*batch, 1))
+        return (torch.tensor([e.ball for e in self.episodes], dtype=torch.float32).reshape(*batch, 3).to(self.device),
+                torch.tensor(reward, dtype=torch.float32).reshape(*batch, 1).to(self.device))
 
     # ---------------------------------------------- whole episodes of linear controllers (fast path)
     def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
@@ -193,7 +193,7 @@ class BatchedBallCatchEnv(EnvBase):
         Returns:
             ``(observations [*batch, steps + 1, 3], samples [*batch, steps, 4], rewards
             [*batch, steps, 1])``: the ball positions from the reset on, the pre-squash ``u``
-            and the rewards, float32.
+            and the rewards, float32, on the env's device.
 
         Raises:
             ValueError: for matrices of the wrong shape or with non-finite entries, or
@@ -226,8 +226,8 @@ class BatchedBallCatchEnv(EnvBase):
             maps = flat[i].tolist()  # rows of 12 floats, one world at a time: numpy lists them fastest
             episodes.append(linear_episode(episode, maps if per_step else maps * steps, squash))
         observations, samples, rewards = (torch.tensor([e[k] for e in episodes], dtype=torch.float64) for k in range(3))
-        return (observations.float().reshape(*batch, steps + 1, 3), samples.float().reshape(*batch, steps, 4),
-                rewards.float().reshape(*batch, steps, 1))
+        return tuple(t.float().reshape(*batch, *shape).to(self.device)  # computed on the CPU, on the env's device
+                     for t, shape in ((observations, (steps + 1, 3)), (samples, (steps, 4)), (rewards, (steps, 1))))
 
     # ------------------------------------------------------------------ helpers
     def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
@@ -300,6 +300,7 @@ def make_parallel_ballcatch(
 def make_ballcatch_env(
     episodes: int = 1, *, runs: int | None = None, first_run: int = 0, stream: str = "env",
     episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None, model: str = DEFAULT_MODEL,
+    device: torch.device | str = "cpu",
 ) -> TransformedEnv:
     """The batched ball-catching env as the trainer builds envs: ``[runs, episodes]`` worlds
     with ``is_init`` (episodes end by themselves after ``episode_length`` steps).
@@ -313,12 +314,13 @@ def make_ballcatch_env(
         jitter: half-width of the uniform horizontal release offset.
         seed: seed of the release jitter.
         model: the arm, ``"pybrain"`` (default) or ``"cup"`` (:data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`).
+        device: where the observations and rewards are put (the physics runs on the CPU).
 
     Returns:
         ``TransformedEnv(BatchedBallCatchEnv(...), InitTracker())``.
     """
     base = BatchedBallCatchEnv(
         num_worlds=episodes, config=BallCatchConfig(jitter=jitter, model=model), max_steps=episode_length,
-        seed=seed, runs=runs, first_run=first_run, stream=stream,
+        seed=seed, device=device, runs=runs, first_run=first_run, stream=stream,
     )
     return TransformedEnv(base, InitTracker())
