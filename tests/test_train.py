@@ -380,8 +380,8 @@ def test_group_choices_combine_with_experiment(jobs):
         assert summary["settings"]["eval_period"] == EVAL_PERIOD
         assert summary["runs"] == 1 and summary["settings"]["updates"] == 4
     # The choices took effect, not just their labels.
-    assert "module.1.gaussian_param" in by_explorer["sde_gauss"]["final_parameters"]
-    assert "module.1.gaussian_param" not in by_explorer["rex"]["final_parameters"]
+    assert "module.0.module.1.gaussian_param" in by_explorer["sde_gauss"]["final_parameters"]
+    assert "module.0.module.1.gaussian_param" not in by_explorer["rex"]["final_parameters"]
     for job_dir in (d for d in result.out_dir.iterdir() if d.name.isdigit()):
         cfg = OmegaConf.load(job_dir / ".hydra" / "config.yaml")
         assert cfg.estimator._target_ == "sde_torchrl.objectives.estimators.ENACEstimator"
