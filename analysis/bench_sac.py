@@ -1,0 +1,560 @@
+"""SAC with the SDE policy on TorchRL, against Stable-Baselines3 SAC + gSDE (and both with a plain Gaussian).
+
+Four methods, the same hyperparameters (rl-baselines3-zoo's tuned SAC settings, ``hyperparams/sac.yml``,
+:data:`ZOO`), one env stepped in one process:
+
+* ``sde``: TorchRL ``Collector`` + ``ReplayBuffer`` (``LazyTensorStorage``, uniform sampling with
+  replacement) + ``SACLoss``, with the SDE policy (:func:`sde_torchrl.make_sde_actor`, tanh-squashed):
+  features ``x`` from the actor's last hidden layer, *not* detached (SB3's SAC builds its gSDE
+  distribution with ``learn_features=True``), the mean clipped to ``[-2, 2]`` before the squash
+  (SB3's ``clip_mean=2.0``), one ``σ̂`` per matrix element (``full_std=True``), ``p`` initialised to
+  ``log_std_init``; the collection noise ``ξ`` is redrawn every ``train_freq`` steps and at every
+  reset (``schedule="every_n"``);
+* ``plain``: the same loop with a tanh-squashed state-dependent Gaussian (TorchRL ``TanhNormal``,
+  mean and log-std heads on the last hidden layer, log-std clamped to ``[-20, 2]``: SB3's SAC actor
+  without gSDE);
+* ``sb3``: Stable-Baselines3 ``SAC(use_sde=True)``;
+* ``sb3_gauss``: the same with ``use_sde=False``.
+
+**Which noise the actor loss uses.** The replay buffer holds the ``ξ`` each transition was
+collected with, but the SAC losses (the actor loss, and the next-state action of the critic's
+target) use a *fresh* standard-normal matrix, one per gradient step shared by the whole
+minibatch, as SB3 does (``actor.reset_noise()`` at each gradient step, whose single
+``exploration_mat`` serves every row; ``sac/sac.py``, ``common/distributions.py``). Reason: the
+reparameterised SAC gradient needs ``a = μ(s) + (σ̂ ⊙ ξ) x(s)`` with ``ξ ~ N(0, I)`` independent of
+``s``; a stored ``ξ`` is not: it is the noise that steered the episode into ``s`` (held for
+``train_freq`` steps), so ``ξ | s`` is not standard normal and the stored noise would bias the
+actor's gradient and its entropy estimate; it also freezes samples drawn under an older ``σ̂``
+direction. :func:`fresh_loss_noise` does it; ``--loss-noise stored`` keeps the buffer's ``ξ``
+(for comparison only).
+
+The update follows SB3's order per gradient step: critic loss and step, actor loss (with the
+updated critics) and step, entropy-coefficient step (``ent_coef: auto`` only; the critic and actor
+use the coefficient from before that step), Polyak update of the target critics. TorchRL's
+critic loss ``Σ_k (Q_k - y)²`` is halved to SB3's ``½ Σ_k MSE`` (Adam would not see the factor).
+
+Each run writes ``<out>/<env>_<method>_seed<k>.json``: the deterministic return of 10 evaluation
+episodes at the end, the training episodes' returns against env steps, and env steps per
+wall-clock second of the whole training (collection and updates, evaluation excluded).
+``report`` turns a folder of runs into a table per env and a plot.
+
+Usage::
+
+    python analysis/bench_sac.py run --env mountaincar --method sde --seed 0 --out docs/sac/runs
+    python analysis/bench_sac.py report docs/sac/runs --out docs/sac
+
+Examples:
+    >>> sorted(METHODS), sorted(ENVS)
+    (['plain', 'sb3', 'sb3_gauss', 'sde'], ['halfcheetah', 'mountaincar'])
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sde_torchrl.utils.intervals import bootstrap_interval
+
+METHODS = ("sde", "plain", "sb3", "sb3_gauss")
+LOSS_NOISE = ("fresh", "stored")
+EVAL_EPISODES = 10
+#: rl-baselines3-zoo hyperparams/sac.yml (tuned entries); ``train_freq`` is also our SDE resampling
+#: period: SB3's SAC (``sde_sample_freq=-1``) redraws the noise at the start of every collection.
+ZOO = {
+    "mountaincar": {
+        "env_id": "MountainCarContinuous-v0", "n_timesteps": 50_000, "learning_rate": 3e-4, "buffer_size": 50_000,
+        "batch_size": 512, "ent_coef": 0.1, "train_freq": 32, "gradient_steps": 32, "gamma": 0.9999, "tau": 0.01,
+        "learning_starts": 0, "use_sde": True, "log_std_init": -3.67, "net_arch": [64, 64],
+    },
+    "halfcheetah": {
+        "env_id": "HalfCheetahBulletEnv-v0", "n_timesteps": 1_000_000, "learning_rate": 7.3e-4,
+        "buffer_size": 300_000, "batch_size": 256, "ent_coef": "auto", "train_freq": 8, "gradient_steps": 8,
+        "gamma": 0.98, "tau": 0.02, "learning_starts": 10_000, "use_sde": True, "log_std_init": -3.0,
+        "net_arch": [400, 300],
+    },
+}
+ENVS = tuple(ZOO)
+CLIP_MEAN = 2.0  # SB3 SAC Actor's default with gSDE
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3 SAC Actor's clamp without gSDE
+#: What the losses read of a transition (the SDE policy's noise only with gSDE).
+BUFFER_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
+               ("next", "terminated"), "sde_noise", ("next", "sde_noise"))
+
+
+def _gym_make(env_id: str):
+    import gymnasium as gym
+
+    if "Bullet" in env_id:
+        import pybullet_envs_gymnasium  # noqa: F401  (registers the Bullet envs)
+    return gym.make(env_id)
+
+
+def _env_dims(env_id: str) -> tuple[int, int, int]:
+    env = _gym_make(env_id)
+    dims = env.observation_space.shape[0], env.action_space.shape[0], int(env.spec.max_episode_steps)
+    env.close()
+    return dims
+
+
+# ----------------------------------------------------------------------------------- TorchRL side
+class GaussianHeads(torch.nn.Module):
+    """SB3's SAC actor without gSDE: a ReLU MLP, then linear mean and log-std heads (log-std clamped).
+
+    Args:
+        obs_dim: observation size.
+        action_dim: action size.
+        hidden: hidden layer sizes.
+    """
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden: list[int]) -> None:
+        super().__init__()
+        from torchrl.modules import MLP
+
+        self.latent = MLP(in_features=obs_dim, out_features=hidden[-1], num_cells=hidden[:-1],
+                          activation_class=torch.nn.ReLU, activate_last_layer=True)
+        self.mu, self.log_std = torch.nn.Linear(hidden[-1], action_dim), torch.nn.Linear(hidden[-1], action_dim)
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        latent = self.latent(observation)
+        return self.mu(latent), self.log_std(latent).clamp(LOG_STD_MIN, LOG_STD_MAX).exp()
+
+
+def make_torchrl_policy(method: str, obs_dim: int, action_spec, zoo: dict):
+    """The actor (``sde`` or ``plain``), the critic and the :class:`~sde_torchrl.SDEParams` (``None`` for plain).
+
+    Both actors and the critic are ReLU MLPs of ``zoo["net_arch"]`` with ``torch.nn.Linear``'s initial
+    distribution, as SB3's SAC; the critic reads ``[observation, action]`` (TorchRL ``SACLoss``
+    makes the two Q-networks from it).
+
+    Args:
+        method: ``"sde"`` or ``"plain"``.
+        obs_dim: observation size.
+        action_spec: the env's (bounded) action spec.
+        zoo: the env's settings (:data:`ZOO`).
+    """
+    from tensordict.nn import TensorDictModule, TensorDictSequential
+    from torch import nn
+    from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+
+    from sde_torchrl import LatentMLPActor, SDEParams, action_bounds, make_sde_actor
+
+    action_dim, hidden = action_spec.shape[-1], zoo["net_arch"]
+    critic = ValueOperator(MLP(in_features=obs_dim + action_dim, out_features=1, num_cells=hidden,
+                               activation_class=nn.ReLU), in_keys=["observation", "action"])
+    if method == "plain":
+        low, high = action_bounds(action_spec)
+        heads = TensorDictModule(GaussianHeads(obs_dim, action_dim, hidden), in_keys=["observation"],
+                                 out_keys=["loc", "scale"])
+        policy = ProbabilisticActor(heads, in_keys=["loc", "scale"], distribution_class=TanhNormal,
+                                    distribution_kwargs={"low": low, "high": high}, return_log_prob=True)
+        return policy, critic, None
+    latent = LatentMLPActor(obs_dim, action_dim, hidden, activation="relu", learn_features=True,
+                            feature_key="sde_features")
+    clip = TensorDictModule(nn.Hardtanh(-CLIP_MEAN, CLIP_MEAN), in_keys=["loc"], out_keys=["loc"])
+    sde = SDEParams(action_dim, latent.feature_dim, schedule="every_n", every_n=zoo["train_freq"],
+                    init_param=zoo["log_std_init"], feature_key="sde_features")
+    return make_sde_actor(TensorDictSequential(latent, clip), sde, squash=True, action_spec=action_spec), critic, sde
+
+
+def fresh_loss_noise(batch, sde) -> None:
+    """Overwrite the stored ``ξ`` of a sampled minibatch with one fresh standard-normal matrix.
+
+    One ``[A, S]`` draw, shared by every row and by the next-state actions of the critic's
+    target, as SB3's ``actor.reset_noise()`` before each gradient step (its ``exploration_mat``).
+
+    Args:
+        batch: the sampled transitions (``[B]``), modified in place.
+        sde: the policy's :class:`~sde_torchrl.SDEParams`.
+    """
+    noise = torch.randn(sde.action_dim, sde.feature_dim).expand(*batch.shape, sde.action_dim, sde.feature_dim)
+    batch.set(sde.noise_key, noise)
+    batch.set(("next", sde.noise_key), noise)
+
+
+def make_loss(policy, critic, action_spec, zoo: dict):
+    """TorchRL's ``SACLoss`` with SB3's settings: two Q-nets, L2, fixed or learned entropy coefficient."""
+    from torchrl.objectives import SACLoss
+
+    auto = zoo["ent_coef"] == "auto"
+    loss = SACLoss(policy, critic, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0 if auto else zoo["ent_coef"],
+                   fixed_alpha=not auto, action_spec=action_spec, target_entropy="auto")
+    loss.make_value_estimator(gamma=zoo["gamma"])
+    return loss
+
+
+def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh"):
+    """One SAC gradient step on a sampled minibatch, in SB3's order (see the module docstring).
+
+    Args:
+        loss: the ``SACLoss``.
+        sde: the :class:`~sde_torchrl.SDEParams` (``None`` for the plain Gaussian).
+        zoo: the env's settings.
+        loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the buffer's ``ξ``).
+
+    Returns:
+        ``update(batch)``.
+    """
+    from torchrl.objectives import SoftUpdate
+
+    lr = zoo["learning_rate"]
+    actor_optim = torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=lr)
+    critic_optim = torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=lr)
+    alpha_optim = None if zoo["ent_coef"] != "auto" else torch.optim.Adam([loss.log_alpha], lr=lr)
+    target = SoftUpdate(loss, tau=zoo["tau"])
+
+    def update(batch) -> None:
+        if sde is not None and loss_noise == "fresh":
+            fresh_loss_noise(batch, sde)
+        critic_loss, _ = loss.qvalue_v2_loss(batch)
+        critic_optim.zero_grad()
+        (0.5 * critic_loss).backward()  # SB3: 0.5 * Σ_k MSE(Q_k, y); TorchRL: Σ_k (Q_k - y)²
+        critic_optim.step()
+        actor_loss, meta = loss.actor_loss(batch)
+        actor_optim.zero_grad()
+        actor_loss.backward()
+        actor_optim.step()
+        if alpha_optim is not None:
+            alpha_optim.zero_grad()
+            loss.alpha_loss(meta["log_prob"]).mean().backward()
+            alpha_optim.step()
+        target.step()
+
+    return update
+
+
+def make_torchrl_env(env_id: str, seed: int, primer=None):
+    """The env wrapped by TorchRL, training-episode returns summed (``episode_reward``)."""
+    from torchrl.envs import Compose, GymEnv, RewardSum, TransformedEnv
+
+    if "Bullet" in env_id:
+        import pybullet_envs_gymnasium  # noqa: F401
+    env = TransformedEnv(GymEnv(env_id), Compose(RewardSum(in_keys=["reward"], out_keys=["episode_reward"]),
+                                                 *([primer] if primer is not None else [])))
+    env.set_seed(seed)
+    return env
+
+
+def evaluate_torchrl(policy, env_id: str, seed: int, episodes: int = EVAL_EPISODES) -> list[float]:
+    """Deterministic returns of ``episodes`` episodes (``tanh`` of the mean), one after the other."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    env, max_steps, returns = make_torchrl_env(env_id, seed), _env_dims(env_id)[2], []
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(episodes):
+            td = env.rollout(max_steps, policy, break_when_any_done=True)
+            returns.append(float(td["next", "reward"].sum()))
+    env.close()
+    return returns
+
+
+def train_torchrl(method: str, env_key: str, seed: int, steps: int, eval_episodes: int = EVAL_EPISODES,
+                  loss_noise: str = "fresh", overrides: dict | None = None) -> dict:
+    """Train ``sde`` or ``plain`` on TorchRL; returns the run's record (see the module docstring).
+
+    ``overrides`` replaces :data:`ZOO` entries (the tests' tiny runs).
+    """
+    from torchrl.collectors import Collector
+    from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
+
+    zoo = {**ZOO[env_key], **(overrides or {})}
+    torch.manual_seed(seed)
+    obs_dim, _, _ = _env_dims(zoo["env_id"])
+    probe = make_torchrl_env(zoo["env_id"], seed)
+    action_spec = probe.action_spec
+    probe.close()
+    policy, critic, sde = make_torchrl_policy(method, obs_dim, action_spec, zoo)
+    env = make_torchrl_env(zoo["env_id"], seed, sde.make_tensordict_primer() if sde else None)
+    loss = make_loss(policy, critic, action_spec, zoo)
+    update = make_update(loss, sde, zoo, loss_noise)
+    buffer = ReplayBuffer(storage=LazyTensorStorage(min(zoo["buffer_size"], steps)), sampler=RandomSampler(),
+                          batch_size=zoo["batch_size"])
+    collector = Collector(env, policy, frames_per_batch=zoo["train_freq"], total_frames=steps,
+                          init_random_frames=zoo["learning_starts"], auto_register_policy_transforms=True)
+    curve, done_frames, updates, start, cpu_start = [], 0, 0, time.perf_counter(), time.process_time()
+    for batch in collector:
+        done_frames += batch.numel()
+        finished = batch["next", "done"].reshape(-1)
+        curve += [[done_frames, float(r)] for r in batch["next", "episode_reward"].reshape(-1)[finished]]
+        buffer.extend(batch.reshape(-1).select(*BUFFER_KEYS, strict=False))
+        if done_frames > zoo["learning_starts"]:  # SB3: train once num_timesteps > learning_starts
+            for _ in range(zoo["gradient_steps"]):
+                update(buffer.sample())
+                updates += 1
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    collector.shutdown()
+    result = {"wall_s": wall, "cpu_s": cpu, "env_steps": done_frames, "gradient_steps": updates, "curve": curve,
+              "eval_returns": evaluate_torchrl(policy, zoo["env_id"], 10_000 + seed, eval_episodes)}
+    if sde is not None:  # σ̂ = expln(p) here, exp(p) in SB3: the same while p <= 0
+        result["sde_param_max"] = float(sde.sigma_param.detach().max())
+    return result
+
+
+# ---------------------------------------------------------------------------------------- SB3 side
+def train_sb3(env_key: str, seed: int, steps: int, use_sde: bool = True, eval_episodes: int = EVAL_EPISODES,
+              overrides: dict | None = None) -> dict:
+    """Train Stable-Baselines3 SAC with the zoo's settings, ``use_sde`` on or off.
+
+    ``overrides`` replaces :data:`ZOO` entries, as in :func:`train_torchrl`.
+    """
+    try:
+        from stable_baselines3 import SAC
+        from stable_baselines3.common.callbacks import BaseCallback
+        from stable_baselines3.common.env_util import make_vec_env
+        from stable_baselines3.common.evaluation import evaluate_policy
+    except ImportError as err:
+        raise SystemExit(f"bench_sac: method sb3 needs Stable-Baselines3: pip install -e '.[bench]' ({err})") from err
+
+    zoo = {**ZOO[env_key], **(overrides or {})}
+    curve: list[list[float]] = []
+
+    class EpisodeReturns(BaseCallback):
+        def _on_step(self) -> bool:
+            curve.extend([self.num_timesteps, float(i["episode"]["r"])] for i in self.locals["infos"] if "episode" in i)
+            return True
+
+    def make():
+        return _gym_make(zoo["env_id"])
+
+    env = make_vec_env(make, n_envs=1, seed=seed)
+    model = SAC(
+        "MlpPolicy", env, learning_rate=zoo["learning_rate"], buffer_size=zoo["buffer_size"],
+        batch_size=zoo["batch_size"], ent_coef=zoo["ent_coef"], train_freq=zoo["train_freq"],
+        gradient_steps=zoo["gradient_steps"], gamma=zoo["gamma"], tau=zoo["tau"],
+        learning_starts=zoo["learning_starts"], use_sde=use_sde, seed=seed, device="cpu",
+        policy_kwargs={"log_std_init": zoo["log_std_init"], "net_arch": zoo["net_arch"]},
+    )
+    start, cpu_start = time.perf_counter(), time.process_time()
+    model.learn(total_timesteps=steps, callback=EpisodeReturns())
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    result = {"wall_s": wall, "cpu_s": cpu, "env_steps": int(model.num_timesteps),
+              "gradient_steps": int(model._n_updates), "curve": curve, "eval_returns": []}
+    if eval_episodes:
+        eval_env = make_vec_env(make, n_envs=1, seed=10_000 + seed)
+        returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True,
+                                     return_episode_rewards=True)
+        result["eval_returns"] = [float(r) for r in returns]
+    return result
+
+
+# ------------------------------------------------------------------------------------------ command
+def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise: str = "fresh",
+        eval_episodes: int = EVAL_EPISODES) -> Path:
+    """Train one method with one seed and write ``<out>/<env>_<method>_seed<k>.json``.
+
+    Args:
+        method: one of :data:`METHODS`.
+        env_key: one of :data:`ENVS`.
+        seed: the seed of the run (evaluation: ``10000 + seed``).
+        steps: env steps of training.
+        out: the folder of runs.
+        loss_noise: ``"fresh"`` or ``"stored"`` (``sde`` only, see :func:`make_update`).
+        eval_episodes: deterministic evaluation episodes at the end.
+
+    Returns:
+        The path of the written run.
+    """
+    torch.set_num_threads(1)  # one core per run
+    if method.startswith("sb3"):
+        result = train_sb3(env_key, seed, steps, use_sde=method == "sb3", eval_episodes=eval_episodes)
+    else:
+        result = train_torchrl(method, env_key, seed, steps, loss_noise=loss_noise, eval_episodes=eval_episodes)
+    import stable_baselines3
+    import torchrl
+
+    result.update(method=method, env=env_key, env_id=ZOO[env_key]["env_id"], seed=seed,
+                  loss_noise=loss_noise if method == "sde" else None, settings=ZOO[env_key],
+                  env_steps_per_s=result["env_steps"] / result["wall_s"],
+                  env_steps_per_cpu_s=result["env_steps"] / result["cpu_s"],
+                  final_return_mean=float(np.mean(result["eval_returns"])),
+                  versions={"torch": torch.__version__, "torchrl": torchrl.__version__,
+                            "stable_baselines3": stable_baselines3.__version__,
+                            "python": platform.python_version()})
+    out.mkdir(parents=True, exist_ok=True)
+    suffix = "_stored_noise" if method == "sde" and loss_noise == "stored" else ""
+    path = out / f"{env_key}_{method}{suffix}_seed{seed}.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result))
+    os.replace(tmp, path)
+    return path
+
+
+NAMES = {"sde": "TorchRL SAC, SDE (ours)", "plain": "TorchRL SAC, Gaussian", "sb3": "SB3 SAC, gSDE",
+         "sb3_gauss": "SB3 SAC, Gaussian"}
+
+
+def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
+    """Runs by env, then by method (``sde`` runs with the stored loss noise are left out)."""
+    runs: dict[str, dict[str, list[dict]]] = {}
+    for path in sorted(folder.glob("*_seed*.json")):
+        data = json.loads(path.read_text())
+        if data.get("loss_noise") == "stored":
+            continue
+        runs.setdefault(data["env"], {m: [] for m in METHODS})[data["method"]].append(data)
+    if not runs:
+        raise SystemExit(f"bench_sac: no <env>_<method>_seed<k>.json runs in {folder}: run `bench_sac.py run` first")
+    return runs
+
+
+def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
+    """Mean training return of the episodes that ended in each ``bin_steps`` window (NaN if none)."""
+    points = np.asarray(run["curve"], dtype=float).reshape(-1, 2)
+    edges = np.arange(0, total + bin_steps, bin_steps)
+    which = np.clip(np.digitize(points[:, 0], edges[1:-1], right=True), 0, len(edges) - 2)
+    return np.array([points[which == b, 1].mean() if (which == b).any() else np.nan for b in range(len(edges) - 1)])
+
+
+def _ratio_of_means(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    return ours.mean(-1) / theirs.mean(-1)
+
+
+def _difference_of_means(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
+    return ours.mean(-1) - theirs.mean(-1)
+
+
+def _interval(name: str, interval, unit: str = "×", target: str = "") -> str:
+    return f"{name} {interval.estimate:.2f}{unit} [{interval.low:.2f}, {interval.high:.2f}]{target}"
+
+
+def _env_table(env_runs: dict[str, list[dict]], stats: dict) -> list[str]:
+    """The table of one env's methods, then each TorchRL method against its SB3 counterpart."""
+    lines = ["| method | seeds | env steps | final deterministic return (mean ± sd over seeds) | per seed "
+             "| env steps / s (wall) | env steps / CPU s | wall s / run |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for method in METHODS:
+        if not env_runs[method]:
+            continue
+        finals = np.array([r["final_return_mean"] for r in env_runs[method]])
+        speed = np.array([r["env_steps_per_s"] for r in env_runs[method]])
+        cpu_speed = [r.get("env_steps_per_cpu_s") for r in env_runs[method]]
+        wall = np.array([r["wall_s"] for r in env_runs[method]])
+        stats[method] = {"final": finals.tolist(), "speed": speed.tolist(), "steps": env_runs[method][0]["env_steps"],
+                         "seeds": [r["seed"] for r in env_runs[method]]}
+        cpu_text = "n/a"
+        if None not in cpu_speed:
+            stats[method]["cpu_speed"] = cpu_speed
+            cpu_text = f"{np.mean(cpu_speed):.0f}"
+        spread = finals.std(ddof=1) if len(finals) > 1 else 0.0
+        per_seed = ", ".join(f"{f:.1f}" for f in finals)
+        lines.append(f"| {NAMES[method]} | {len(finals)} | {stats[method]['steps']:,} | {finals.mean():.1f} ± "
+                     f"{spread:.1f} | {per_seed} | {speed.mean():.0f} | {cpu_text} | {wall.mean():.0f} |")
+    for ours, theirs, label in (("sde", "sb3", "SDE / SB3 gSDE"), ("plain", "sb3_gauss", "Gaussian / SB3 Gaussian")):
+        if ours not in stats or theirs not in stats:
+            continue
+        if len(stats[ours]["final"]) < 2 or len(stats[theirs]["final"]) < 2:
+            continue  # no interval from one seed
+        pair, sde_pair = stats.setdefault(f"{ours}_over_{theirs}", {}), ours == "sde"
+        parts = []
+        if np.mean(stats[ours]["final"]) > 0 and np.mean(stats[theirs]["final"]) > 0:
+            ret = bootstrap_interval((stats[ours]["final"], stats[theirs]["final"]), _ratio_of_means)
+            pair["final"] = ret._asdict()
+            parts.append(_interval("final return", ret, target=" (target ≥ 0.90)" if sde_pair else ""))
+        else:  # a ratio of returns that are not both positive means nothing: the difference instead
+            diff = bootstrap_interval((stats[ours]["final"], stats[theirs]["final"]), _difference_of_means)
+            pair["final_difference"] = diff._asdict()
+            parts.append(_interval("final return difference (ours − SB3)", diff, unit=""))
+        spd = bootstrap_interval((stats[ours]["speed"], stats[theirs]["speed"]), _ratio_of_means)
+        pair["speed"] = spd._asdict()
+        parts.append(_interval("env steps per second", spd, target=" (target ≥ 0.8)" if sde_pair else ""))
+        if "cpu_speed" in stats[ours] and "cpu_speed" in stats[theirs]:
+            cpu = bootstrap_interval((stats[ours]["cpu_speed"], stats[theirs]["cpu_speed"]), _ratio_of_means)
+            pair["cpu_speed"] = cpu._asdict()
+            parts.append(_interval("env steps per CPU second", cpu))
+        lines += ["", f"{label}: {', '.join(parts)}; [95 % bootstrap intervals over seeds]."]
+    return lines
+
+
+def report(folder: Path, out: Path) -> str:
+    """Write ``bench_sac.md``, ``bench_sac.json`` and ``bench_sac.png`` from a folder of runs; return the page."""
+    runs = load_runs(folder)
+    lines, stats = [], {}
+    for env_key in [e for e in ENVS if e in runs]:
+        env_runs = runs[env_key]
+        lines += [f"### {ZOO[env_key]['env_id']}", ""]
+        stats[env_key] = {}
+        lines += _env_table(env_runs, stats[env_key])
+        lines.append("")
+    page = "\n".join(lines)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_sac.md").write_text(page)
+    (out / "bench_sac.json").write_text(json.dumps(stats, indent=1))
+    _plot(runs, out / "bench_sac.png")
+    return page
+
+
+def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    envs = [e for e in ENVS if e in runs]
+    fig, axes = plt.subplots(1, len(envs), figsize=(6.4 * len(envs), 4), squeeze=False)
+    for ax, env_key in zip(axes[0], envs, strict=True):
+        total = max(r["env_steps"] for method_runs in runs[env_key].values() for r in method_runs)
+        bin_steps = max(1000, total // 25 // 1000 * 1000)
+        for method, method_runs in runs[env_key].items():
+            if not method_runs:
+                continue
+            curves = np.stack([binned_curve(r, bin_steps, total) for r in method_runs])
+            x = (np.arange(curves.shape[1]) + 1) * bin_steps
+            with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
+            line, = ax.plot(x, mean, label=f"{NAMES[method]} ({len(method_runs)} seeds)",
+                            linestyle="-" if method in ("sde", "plain") else "--")
+            if len(method_runs) > 1:
+                ax.fill_between(x, low, high, alpha=0.15, color=line.get_color())
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("training episode return")
+        ax.set_title(f"SAC on {ZOO[env_key]['env_id']} (rl-zoo settings); band: min-max over seeds", fontsize=9)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: ``run`` one training, ``report`` a folder of runs."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    run_p = sub.add_parser("run", help="train one method with one seed on one env")
+    run_p.add_argument("--method", choices=METHODS, required=True)
+    run_p.add_argument("--env", choices=ENVS, default="mountaincar")
+    run_p.add_argument("--seed", type=int, default=0)
+    run_p.add_argument("--steps", type=int, default=None, help="env steps (default: the zoo's n_timesteps)")
+    run_p.add_argument("--out", type=Path, default=Path("docs/sac/runs"))
+    run_p.add_argument("--eval-episodes", type=int, default=EVAL_EPISODES, help="deterministic episodes at the end")
+    run_p.add_argument("--loss-noise", choices=LOSS_NOISE, default="fresh",
+                       help="SDE noise of the SAC losses: a fresh matrix per gradient step (SB3) or the stored ξ")
+    rep_p = sub.add_parser("report", help="tables and plot from a folder of runs")
+    rep_p.add_argument("folder", type=Path)
+    rep_p.add_argument("--out", type=Path, default=Path("docs/sac"))
+    args = parser.parse_args(argv)
+    if args.command == "run":
+        steps = ZOO[args.env]["n_timesteps"] if args.steps is None else args.steps
+        if steps <= 0:
+            parser.error(f"--steps must be positive, got {steps}")
+        if args.eval_episodes <= 0:
+            parser.error(f"--eval-episodes must be positive, got {args.eval_episodes}")
+        if args.loss_noise != "fresh" and args.method != "sde":
+            parser.error("--loss-noise applies to the TorchRL SDE method (sde) only")
+        path = run(args.method, args.env, args.seed, steps, args.out, args.loss_noise, args.eval_episodes)
+        data = json.loads(path.read_text())
+        print(f"{args.env} {args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
+              f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")
+    else:
+        sys.stdout.write(report(args.folder, args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

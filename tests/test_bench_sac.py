@@ -1,0 +1,141 @@
+"""analysis/bench_sac.py: tiny runs of both sides, the SAC losses' SDE noise, the report."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from _helpers import load_script
+from tensordict import TensorDict
+
+bench = load_script("bench_sac")
+
+
+def _action_spec():
+    from torchrl.data import Bounded
+
+    return Bounded(-1.0, 1.0, shape=(1,))
+
+
+def _sde_setup(loss_noise: str, seed: int = 0):
+    torch.manual_seed(seed)
+    zoo = bench.ZOO["mountaincar"]
+    policy, critic, sde = bench.make_torchrl_policy("sde", 2, _action_spec(), zoo)
+    loss = bench.make_loss(policy, critic, _action_spec(), zoo)
+    return loss, sde, bench.make_update(loss, sde, zoo, loss_noise)
+
+
+def _transitions(n: int, stored_noise: torch.Tensor) -> TensorDict:
+    torch.manual_seed(1)
+    return TensorDict({
+        "observation": torch.randn(n, 2), "action": torch.rand(n, 1) * 2 - 1, "sde_noise": stored_noise.clone(),
+        "next": {"observation": torch.randn(n, 2), "reward": torch.randn(n, 1), "sde_noise": stored_noise.clone(),
+                 "done": torch.zeros(n, 1, dtype=torch.bool), "terminated": torch.zeros(n, 1, dtype=torch.bool)},
+    }, [n])
+
+
+def _parameters(loss) -> TensorDict:
+    return TensorDict.from_module(loss).detach().clone()
+
+
+def test_the_sac_losses_draw_fresh_noise_not_the_stored_one():
+    """Stored ξ set to NaN: the update must not read it (it would turn every parameter it reaches into NaN)."""
+    n = 64
+    loss, _, update = _sde_setup("fresh")
+    before = _parameters(loss)
+    update(_transitions(n, torch.full((n, 1, 64), float("nan"))))
+    after = _parameters(loss)
+    assert all(torch.isfinite(v).all() for v in after.values(True, True))
+    assert max((after - before).abs().max().values(True, True)) > 1e-5  # the step did move the parameters
+    # the control: the same update with the stored noise does read it
+    loss, _, update = _sde_setup("stored")
+    update(_transitions(n, torch.full((n, 1, 64), float("nan"))))
+    assert any(torch.isnan(v).any() for v in _parameters(loss)["actor_network_params"].values(True, True))
+
+
+def test_fresh_noise_is_one_matrix_per_gradient_step_shared_by_the_batch_and_the_next_states():
+    """SB3's ``actor.reset_noise()`` before each gradient step: one exploration matrix for every row."""
+    _, sde, _ = _sde_setup("fresh")
+    first, second = _transitions(8, torch.zeros(8, 1, 64)), _transitions(8, torch.zeros(8, 1, 64))
+    bench.fresh_loss_noise(first, sde)
+    bench.fresh_loss_noise(second, sde)
+    noise = first["sde_noise"]
+    assert noise.shape == (8, 1, 64) and torch.equal(noise, noise[:1].expand_as(noise))
+    assert torch.equal(first["next", "sde_noise"], noise)
+    assert noise.std() > 0.5 and not torch.equal(second["sde_noise"], noise)
+
+
+def test_the_sde_actor_is_sb3s_sac_gsde_actor():
+    """Mean clipped to ±2 before the squash, features not detached, σ̂ per element, p = log_std_init."""
+    _, sde, _ = _sde_setup("fresh")
+    assert sde.sigma_param.shape == (1, 64) and torch.allclose(sde.sigma_param, torch.tensor(-3.67))
+    assert sde.schedule == "every_n" and sde.every_n == bench.ZOO["mountaincar"]["train_freq"]
+    policy = bench.make_torchrl_policy("sde", 2, _action_spec(), bench.ZOO["mountaincar"])[0]
+    td = policy(TensorDict({"observation": torch.full((4, 2), 1e4), "sde_noise": torch.zeros(4, 1, 64)}, [4]))
+    assert td["loc"].abs().max() <= bench.CLIP_MEAN
+    assert td["sde_features"].requires_grad  # gSDE's learn_features=True in SB3's SAC
+
+
+@pytest.mark.parametrize("method", ["sde", "sb3"])
+def test_a_tiny_run_writes_its_result(tmp_path, method):
+    path = bench.run(method, "mountaincar", 3, 64, tmp_path, eval_episodes=1)
+    assert path.name == f"mountaincar_{method}_seed3.json"
+    data = json.loads(path.read_text())
+    assert data["env_steps"] == 64 and data["gradient_steps"] == 64  # 32 after each of 2 collections
+    assert len(data["eval_returns"]) == 1 and np.isfinite(data["eval_returns"]).all()
+    assert data["final_return_mean"] == pytest.approx(np.mean(data["eval_returns"]))
+    assert data["env_steps_per_s"] == pytest.approx(64 / data["wall_s"])
+    assert data["settings"]["log_std_init"] == -3.67 and data["env_id"] == "MountainCarContinuous-v0"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "--method", "sb3", "--loss-noise", "stored"], "--loss-noise applies to"),
+    (["run", "--method", "sde", "--steps", "0"], "--steps must be positive"),
+    (["run", "--method", "sde", "--eval-episodes", "0"], "--eval-episodes must be positive"),
+    (["run", "--method", "sde", "--env", "pendulum"], "invalid choice"),
+])
+def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def _fake_run(folder, env, method, seed, final, speed, loss_noise=None):
+    curve = [[1000 * (k + 1), final * k / 14] for k in range(15)]
+    name = f"{env}_{method}{'_stored_noise' if loss_noise == 'stored' else ''}_seed{seed}.json"
+    (folder / name).write_text(json.dumps(
+        {"method": method, "env": env, "seed": seed, "env_steps": 15_000, "curve": curve, "final_return_mean": final,
+         "env_steps_per_s": speed, "env_steps_per_cpu_s": 1.5 * speed, "wall_s": 15_000 / speed,
+         "eval_returns": [final], "loss_noise": loss_noise}))
+
+
+def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
+    for seed, (sde, sb3) in enumerate([(80, 90), (90, 100), (100, 110)]):
+        _fake_run(tmp_path, "mountaincar", "sde", seed, sde, 40)
+        _fake_run(tmp_path, "mountaincar", "sb3", seed, sb3, 80)
+        _fake_run(tmp_path, "mountaincar", "plain", seed, -1.0, 45)
+        _fake_run(tmp_path, "mountaincar", "sb3_gauss", seed, -2.0, 90)
+    _fake_run(tmp_path, "mountaincar", "sde", 0, -1e6, 40, loss_noise="stored")  # an ablation, not in the table
+    _fake_run(tmp_path, "halfcheetah", "sde", 0, 500, 20)
+    _fake_run(tmp_path, "halfcheetah", "sb3", 0, 600, 30)
+    page = bench.report(tmp_path, tmp_path / "out")
+    assert "| TorchRL SAC, SDE (ours) | 3 | 15,000 | 90.0 ± 10.0 | 80.0, 90.0, 100.0 | 40 | 60 | 375 |" in page
+    assert "SDE / SB3 gSDE: final return 0.90×" in page and "env steps per second 0.50× [0.50, 0.50]" in page
+    assert "env steps per CPU second 0.50× [0.50, 0.50]" in page
+    # returns that are not both positive: the difference, not a ratio
+    assert "Gaussian / SB3 Gaussian: final return difference (ours − SB3) 1.00 [1.00, 1.00]" in page
+    assert page.index("### MountainCarContinuous-v0") < page.index("### HalfCheetahBulletEnv-v0")
+    assert "| SB3 SAC, gSDE | 1 | 15,000 | 600.0 ± 0.0 | 600.0 | 30 | 45 | 500 |" in page  # one seed: no interval
+    stats = json.loads((tmp_path / "out" / "bench_sac.json").read_text())
+    ratio = stats["mountaincar"]["sde_over_sb3"]["final"]
+    assert ratio["estimate"] == pytest.approx(90 / 100) and ratio["low"] < ratio["estimate"] < ratio["high"]
+    assert stats["mountaincar"]["plain_over_sb3_gauss"]["final_difference"]["estimate"] == pytest.approx(1.0)
+    assert "sde_over_sb3" not in stats["halfcheetah"]
+    assert (tmp_path / "out" / "bench_sac.png").stat().st_size > 0
+
+
+def test_report_without_runs_says_what_to_run(tmp_path):
+    with pytest.raises(SystemExit, match="bench_sac.py run"):
+        bench.report(tmp_path, tmp_path / "out")
