@@ -139,3 +139,43 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
 def test_report_without_runs_says_what_to_run(tmp_path):
     with pytest.raises(SystemExit, match="bench_sac.py run"):
         bench.report(tmp_path, tmp_path / "out")
+
+
+def test_the_actor_loss_equals_sb3s_with_the_same_weights_and_noise_matrix():
+    """Our SDE actor loss (SACLoss) and SB3's SAC + gSDE actor loss, same weights, same exploration matrix."""
+    from stable_baselines3 import SAC
+
+    zoo = bench.ZOO["mountaincar"]
+    model = SAC("MlpPolicy", "MountainCarContinuous-v0", use_sde=True, ent_coef=zoo["ent_coef"], seed=0, device="cpu",
+                policy_kwargs={"log_std_init": zoo["log_std_init"], "net_arch": zoo["net_arch"]})
+    actor, critic = model.actor, model.critic
+    loss, sde, _ = _sde_setup("fresh")
+    torch.manual_seed(2)
+    with torch.no_grad():  # train the log-std away from its constant start, then copy SB3's weights into ours
+        actor.log_std.add_(0.3 * torch.randn_like(actor.log_std))
+        ours = loss.actor_network_params.flatten_keys()
+        for index, layer in (("0", actor.latent_pi[0]), ("1", actor.latent_pi[2]), ("2", actor.mu[0])):
+            for name in ("weight", "bias"):
+                ours[f"module.0.module.0.module.0.net.layers.{index}.{name}"].copy_(getattr(layer, name))
+        ours["module.0.module.1.sigma_param"].copy_(actor.log_std.T)
+        q = loss.qvalue_network_params.flatten_keys()
+        for k, qf in enumerate(critic.q_networks):
+            for index in ("0", "2", "4"):
+                q[f"module.{index}.weight"][k].copy_(qf[int(index)].weight)
+                q[f"module.{index}.bias"][k].copy_(qf[int(index)].bias)
+    n, eps = 32, torch.randn(64, 1)  # SB3's exploration_mat is [S, A] = σ̂ᵀ ⊙ ε; ours ξ = εᵀ, [A, S]
+    obs = torch.randn(n, 2)
+    actor.action_dist.exploration_mat = actor.action_dist.get_std(actor.log_std) * eps
+    actions, log_prob = actor.action_log_prob(obs)
+    q_pi = torch.cat(critic(obs, actions), dim=1).min(dim=1, keepdim=True)[0]
+    sb3_loss = (zoo["ent_coef"] * log_prob.reshape(-1, 1) - q_pi).mean()
+    sb3_loss.backward()
+    batch = _transitions(n, eps.T.expand(n, 1, 64))
+    batch["observation"] = obs
+    our_loss, _ = loss.actor_loss(batch)
+    our_loss.backward()
+    torch.testing.assert_close(our_loss, sb3_loss, rtol=1e-4, atol=1e-4)
+    grads = {k: p.grad for k, p in loss.actor_network_params.flatten_keys().items()}
+    torch.testing.assert_close(grads["module.0.module.1.sigma_param"], actor.log_std.grad.T, rtol=1e-3, atol=1e-5)
+    torch.testing.assert_close(grads["module.0.module.0.module.0.net.layers.0.weight"], actor.latent_pi[0].weight.grad,
+                               rtol=1e-3, atol=1e-5)  # through the features too: learn_features=True
