@@ -347,7 +347,7 @@ def train_sb3(env_key: str, seed: int, steps: int, use_sde: bool = True, eval_ep
 
 # ------------------------------------------------------------------------------------------ command
 def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise: str = "fresh",
-        eval_episodes: int = EVAL_EPISODES) -> Path:
+        eval_episodes: int = EVAL_EPISODES, overrides: dict | None = None) -> Path:
     """Train one method with one seed and write ``<out>/<env>_<method>_seed<k>.json``.
 
     Args:
@@ -358,20 +358,24 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
         out: the folder of runs.
         loss_noise: ``"fresh"`` or ``"stored"`` (``sde`` only, see :func:`make_update`).
         eval_episodes: deterministic evaluation episodes at the end.
+        overrides: :data:`ZOO` entries replaced on both sides (a short budget's ``learning_starts``).
 
     Returns:
         The path of the written run.
     """
     torch.set_num_threads(1)  # one core per run
     if method.startswith("sb3"):
-        result = train_sb3(env_key, seed, steps, use_sde=method == "sb3", eval_episodes=eval_episodes)
+        result = train_sb3(env_key, seed, steps, use_sde=method == "sb3", eval_episodes=eval_episodes,
+                           overrides=overrides)
     else:
-        result = train_torchrl(method, env_key, seed, steps, loss_noise=loss_noise, eval_episodes=eval_episodes)
+        result = train_torchrl(method, env_key, seed, steps, loss_noise=loss_noise, eval_episodes=eval_episodes,
+                               overrides=overrides)
     import stable_baselines3
     import torchrl
 
     result.update(method=method, env=env_key, env_id=ZOO[env_key]["env_id"], seed=seed,
-                  loss_noise=loss_noise if method == "sde" else None, settings=ZOO[env_key],
+                  loss_noise=loss_noise if method == "sde" else None,
+                  settings={**ZOO[env_key], **(overrides or {})}, overrides=overrides or {},
                   env_steps_per_s=result["env_steps"] / result["wall_s"],
                   env_steps_per_cpu_s=result["env_steps"] / result["cpu_s"],
                   final_return_mean=float(np.mean(result["eval_returns"])),
@@ -478,7 +482,13 @@ def report(folder: Path, out: Path) -> str:
     lines, stats = [], {}
     for env_key in [e for e in ENVS if e in runs]:
         env_runs = runs[env_key]
-        lines += [f"### {ZOO[env_key]['env_id']}", ""]
+        any_run = next(r for method_runs in env_runs.values() for r in method_runs)
+        settings = ", ".join(f"{k}={v}" for k, v in any_run["settings"].items() if k not in ("env_id", "n_timesteps"))
+        lines += [f"### {ZOO[env_key]['env_id']}", "",
+                  f"Zoo settings (both sides): {settings}; zoo budget {ZOO[env_key]['n_timesteps']:,} env steps, "
+                  f"run here: {sorted({r['env_steps'] for m in env_runs.values() for r in m})} env steps; "
+                  f"{sorted({len(r['eval_returns']) for m in env_runs.values() for r in m})} deterministic evaluation "
+                  "episodes at the end of each run.", ""]
         stats[env_key] = {}
         lines += _env_table(env_runs, stats[env_key])
         lines.append("")
@@ -532,6 +542,8 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--seed", type=int, default=0)
     run_p.add_argument("--steps", type=int, default=None, help="env steps (default: the zoo's n_timesteps)")
     run_p.add_argument("--out", type=Path, default=Path("docs/sac/runs"))
+    run_p.add_argument("--learning-starts", type=int, default=None,
+                       help="replace the zoo's learning_starts on both sides (short budgets)")
     run_p.add_argument("--eval-episodes", type=int, default=EVAL_EPISODES, help="deterministic episodes at the end")
     run_p.add_argument("--loss-noise", choices=LOSS_NOISE, default="fresh",
                        help="SDE noise of the SAC losses: a fresh matrix per gradient step (SB3) or the stored ξ")
@@ -547,7 +559,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--eval-episodes must be positive, got {args.eval_episodes}")
         if args.loss_noise != "fresh" and args.method != "sde":
             parser.error("--loss-noise applies to the TorchRL SDE method (sde) only")
-        path = run(args.method, args.env, args.seed, steps, args.out, args.loss_noise, args.eval_episodes)
+        if args.learning_starts is not None and not 0 <= args.learning_starts < steps:
+            parser.error(f"--learning-starts must be in [0, steps), got {args.learning_starts}")
+        overrides = {} if args.learning_starts is None else {"learning_starts": args.learning_starts}
+        path = run(args.method, args.env, args.seed, steps, args.out, args.loss_noise, args.eval_episodes, overrides)
         data = json.loads(path.read_text())
         print(f"{args.env} {args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")

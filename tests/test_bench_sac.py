@@ -106,7 +106,8 @@ def _fake_run(folder, env, method, seed, final, speed, loss_noise=None):
     curve = [[1000 * (k + 1), final * k / 14] for k in range(15)]
     name = f"{env}_{method}{'_stored_noise' if loss_noise == 'stored' else ''}_seed{seed}.json"
     (folder / name).write_text(json.dumps(
-        {"method": method, "env": env, "seed": seed, "env_steps": 15_000, "curve": curve, "final_return_mean": final,
+        {"method": method, "env": env, "seed": seed, "settings": bench.ZOO[env], "env_steps": 15_000, "curve": curve,
+         "final_return_mean": final,
          "env_steps_per_s": speed, "env_steps_per_cpu_s": 1.5 * speed, "wall_s": 15_000 / speed,
          "eval_returns": [final], "loss_noise": loss_noise}))
 
@@ -126,6 +127,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
     assert "env steps per CPU second 0.50× [0.50, 0.50]" in page
     # returns that are not both positive: the difference, not a ratio
     assert "Gaussian / SB3 Gaussian: final return difference (ours − SB3) 1.00 [1.00, 1.00]" in page
+    assert "Zoo settings (both sides): learning_rate=0.0003, buffer_size=50000, batch_size=512, ent_coef=0.1" in page
     assert page.index("### MountainCarContinuous-v0") < page.index("### HalfCheetahBulletEnv-v0")
     assert "| SB3 SAC, gSDE | 1 | 15,000 | 600.0 ± 0.0 | 600.0 | 30 | 45 | 500 |" in page  # one seed: no interval
     stats = json.loads((tmp_path / "out" / "bench_sac.json").read_text())
