@@ -391,6 +391,98 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
     return path
 
 
+#: (file, function) whose cumulative time splits a TorchRL gradient step (``update-speed --profile``).
+PROFILE_PARTS = {
+    "critic loss forward (SACLoss.qvalue_v2_loss)": ("objectives/sac.py", "qvalue_v2_loss"),
+    "actor loss forward (SACLoss.actor_loss)": ("objectives/sac.py", "actor_loss"),
+    "backward passes": ("~", "run_backward"),
+    "Adam steps": ("optim/adam.py", "step"),
+    "target update (SoftUpdate.step)": ("objectives/utils.py", "step"),
+    "replay buffer sample": ("replay_buffers/base.py", "sample"),
+    "fresh loss noise": ("bench_sac.py", "fresh_loss_noise"),
+}
+
+
+def _random_transitions(n: int, obs_dim: int, action_dim: int, feature_dim: int):
+    from tensordict import TensorDict
+
+    noise = torch.randn(n, action_dim, feature_dim)
+    return TensorDict({
+        "observation": torch.randn(n, obs_dim), "action": torch.rand(n, action_dim) * 2 - 1, "sde_noise": noise,
+        "next": {"observation": torch.randn(n, obs_dim), "reward": torch.randn(n, 1), "sde_noise": noise,
+                 "done": torch.zeros(n, 1, dtype=torch.bool), "terminated": torch.zeros(n, 1, dtype=torch.bool)},
+    }, [n])
+
+
+def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False) -> str:
+    """Milliseconds per gradient step of each method, timed in one process, the methods interleaved.
+
+    SB3: ``model.train(updates, batch_size)`` on a buffer filled by 1,000 collected steps; TorchRL:
+    ``updates`` calls of :func:`make_update`'s step on minibatches sampled from a ``ReplayBuffer`` of
+    1,000 random transitions. Each round times every method once; the median over ``rounds`` is
+    reported (wall and CPU), so that a neighbour's load hits all methods alike. With ``profile``,
+    the TorchRL SDE step's time is split by function (cProfile, cumulative).
+    """
+    from stable_baselines3 import SAC
+    from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
+
+    torch.set_num_threads(1)
+    zoo = ZOO[env_key]
+    obs_dim, action_dim, _ = _env_dims(zoo["env_id"])
+    action_spec = make_torchrl_env(zoo["env_id"], 0).action_spec
+    steps = {}
+    for method in METHODS:
+        if method.startswith("sb3"):
+            model = SAC("MlpPolicy", _gym_make(zoo["env_id"]), learning_rate=zoo["learning_rate"],
+                        batch_size=zoo["batch_size"], ent_coef=zoo["ent_coef"], gamma=zoo["gamma"], tau=zoo["tau"],
+                        learning_starts=1000, use_sde=method == "sb3", seed=0, device="cpu",
+                        policy_kwargs={"log_std_init": zoo["log_std_init"], "net_arch": zoo["net_arch"]})
+            model.learn(1000)  # collection only (learning_starts): fills the buffer, sets up the logger
+            steps[method] = lambda model=model: model.train(updates, zoo["batch_size"])
+            continue
+        policy, critic, sde = make_torchrl_policy(method, obs_dim, action_spec, zoo)
+        update = make_update(make_loss(policy, critic, action_spec, zoo), sde, zoo)
+        buffer = ReplayBuffer(storage=LazyTensorStorage(1000), sampler=RandomSampler(), batch_size=zoo["batch_size"])
+        buffer.extend(_random_transitions(1000, obs_dim, action_dim, sde.feature_dim if sde else 1))
+
+        def torchrl_steps(update=update, buffer=buffer):
+            for _ in range(updates):
+                update(buffer.sample())
+
+        steps[method] = torchrl_steps
+    wall, cpu = {m: [] for m in METHODS}, {m: [] for m in METHODS}
+    for _ in range(rounds + 1):  # the first round warms up
+        for method, step in steps.items():
+            start, cpu_start = time.perf_counter(), time.process_time()
+            step()
+            wall[method].append(1e3 * (time.perf_counter() - start) / updates)
+            cpu[method].append(1e3 * (time.process_time() - cpu_start) / updates)
+    lines = [f"{zoo['env_id']}: batch {zoo['batch_size']}, net {zoo['net_arch']}, {updates} gradient steps x "
+             f"{rounds} rounds (median; first round not timed)", "",
+             "| method | ms / gradient step (wall) | ms / gradient step (CPU) | CPU time / SB3 counterpart's |",
+             "| --- | --- | --- | --- |"]
+    counterpart = {"sde": "sb3", "plain": "sb3_gauss", "sb3": "sb3", "sb3_gauss": "sb3_gauss"}
+    med = {m: (float(np.median(wall[m][1:])), float(np.median(cpu[m][1:]))) for m in METHODS}
+    for method in METHODS:
+        lines.append(f"| {NAMES[method]} | {med[method][0]:.1f} | {med[method][1]:.1f} | "
+                     f"{med[method][1] / med[counterpart[method]][1]:.2f} |")
+    if profile:
+        import cProfile
+        import pstats
+
+        profiler = cProfile.Profile()
+        profiler.runcall(steps["sde"])
+        stats = pstats.Stats(profiler).stats
+        total = max(entry[3] for entry in stats.values())
+        lines += ["", f"{NAMES['sde']}: share of a gradient step (cProfile, cumulative, {updates} steps)", "",
+                  "| part | share |", "| --- | --- |"]
+        for label, (where, name) in PROFILE_PARTS.items():
+            cumulative = sum(entry[3] for (path, _, func), entry in stats.items()
+                             if where in path and (func == name or f"'{name}'" in func))
+            lines.append(f"| {label} | {cumulative / total:.0%} |")
+    return "\n".join(lines) + "\n"
+
+
 NAMES = {"sde": "TorchRL SAC, SDE (ours)", "plain": "TorchRL SAC, Gaussian", "sb3": "SB3 SAC, gSDE",
          "sb3_gauss": "SB3 SAC, Gaussian"}
 
@@ -547,6 +639,11 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--eval-episodes", type=int, default=EVAL_EPISODES, help="deterministic episodes at the end")
     run_p.add_argument("--loss-noise", choices=LOSS_NOISE, default="fresh",
                        help="SDE noise of the SAC losses: a fresh matrix per gradient step (SB3) or the stored ξ")
+    speed_p = sub.add_parser("update-speed", help="ms per gradient step of each method, interleaved in one process")
+    speed_p.add_argument("--env", choices=ENVS, default="mountaincar")
+    speed_p.add_argument("--updates", type=int, default=100, help="gradient steps per timing")
+    speed_p.add_argument("--rounds", type=int, default=3, help="timed rounds (after one warm-up round)")
+    speed_p.add_argument("--profile", action="store_true", help="split the TorchRL SDE step by function")
     rep_p = sub.add_parser("report", help="tables and plot from a folder of runs")
     rep_p.add_argument("folder", type=Path)
     rep_p.add_argument("--out", type=Path, default=Path("docs/sac"))
@@ -566,6 +663,10 @@ def main(argv: list[str] | None = None) -> int:
         data = json.loads(path.read_text())
         print(f"{args.env} {args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")
+    elif args.command == "update-speed":
+        if args.updates <= 0 or args.rounds <= 0:
+            parser.error(f"--updates and --rounds must be positive, got {args.updates} and {args.rounds}")
+        sys.stdout.write(update_speed(args.env, args.updates, args.rounds, args.profile))
     else:
         sys.stdout.write(report(args.folder, args.out))
     return 0
