@@ -95,6 +95,8 @@ def test_a_tiny_run_writes_its_result(tmp_path, method):
     (["run", "--method", "sde", "--steps", "0"], "--steps must be positive"),
     (["run", "--method", "sde", "--eval-episodes", "0"], "--eval-episodes must be positive"),
     (["run", "--method", "sde", "--env", "pendulum"], "invalid choice"),
+    (["run", "--method", "sde", "--steps", "100", "--learning-starts", "100"], "--learning-starts must be in"),
+    (["update-speed", "--updates", "0"], "--updates and --rounds must be positive"),
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
