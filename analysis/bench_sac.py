@@ -244,16 +244,21 @@ def make_torchrl_env(env_id: str, seed: int, primer=None):
 
 
 def evaluate_torchrl(policy, env_id: str, seed: int, episodes: int = EVAL_EPISODES) -> list[float]:
-    """Deterministic returns of ``episodes`` episodes (``tanh`` of the mean), one after the other."""
+    """Deterministic returns (``tanh`` of the mean) of ``episodes`` envs stepped side by side, first episode each."""
+    import gymnasium as gym
+    from torchrl.envs import GymWrapper
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    env, max_steps, returns = make_torchrl_env(env_id, seed), _env_dims(env_id)[2], []
+    vec = gym.vector.SyncVectorEnv([lambda: _gym_make(env_id)] * episodes,
+                                   autoreset_mode=gym.vector.AutoresetMode.DISABLED)
+    env = GymWrapper(vec)
+    env.set_seed(seed)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(episodes):
-            td = env.rollout(max_steps, policy, break_when_any_done=True)
-            returns.append(float(td["next", "reward"].sum()))
+        td = env.rollout(_env_dims(env_id)[2], policy, auto_cast_to_device=False, break_when_any_done=False)
     env.close()
-    return returns
+    reward, done = td["next", "reward"].reshape(episodes, -1), td["next", "done"].reshape(episodes, -1)
+    first_episode = (done.long().cumsum(-1) - done.long()) == 0  # up to and including the first done
+    return (reward * first_episode).sum(-1).tolist()
 
 
 def train_torchrl(method: str, env_key: str, seed: int, steps: int, eval_episodes: int = EVAL_EPISODES,

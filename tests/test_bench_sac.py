@@ -183,3 +183,15 @@ def test_the_actor_loss_equals_sb3s_with_the_same_weights_and_noise_matrix():
     torch.testing.assert_close(grads["module.0.module.1.sigma_param"], actor.log_std.grad.T, rtol=1e-3, atol=1e-5)
     torch.testing.assert_close(grads["module.0.module.0.module.0.net.layers.0.weight"], actor.latent_pi[0].weight.grad,
                                rtol=1e-3, atol=1e-5)  # through the features too: learn_features=True
+
+
+def test_evaluation_counts_each_envs_first_episode_only():
+    """Bang-bang on the velocity's sign reaches the goal in about 100 steps; the envs then reset and go on."""
+    from tensordict.nn import TensorDictModule
+
+    def bang_bang(observation):
+        return torch.where(observation[..., 1:] >= 0, 1.0, -1.0)
+
+    policy = TensorDictModule(bang_bang, in_keys=["observation"], out_keys=["action"])
+    returns = bench.evaluate_torchrl(policy, "MountainCarContinuous-v0", seed=0, episodes=3)
+    assert len(returns) == 3 and all(85 < r < 100 for r in returns)  # +100 at the goal, -0.1 per full-thrust step
