@@ -67,6 +67,8 @@ from sde_torchrl.utils.intervals import bootstrap_interval
 METHODS = ("sde", "plain", "sb3", "sb3_gauss")
 LOSS_NOISE = ("fresh", "stored")
 EVAL_EPISODES = 10
+#: The late training return averages the training episodes that ended in this last fraction of the run.
+LATE_FRACTION = 0.25
 #: rl-baselines3-zoo hyperparams/sac.yml (tuned entries); ``train_freq`` is also our SDE resampling
 #: period: SB3's SAC (``sde_sample_freq=-1``) redraws the noise at the start of every collection.
 ZOO = {
@@ -537,43 +539,65 @@ def _interval(name: str, interval, unit: str = "×", target: str = "") -> str:
     return f"{name} {interval.estimate:.2f}{unit} [{interval.low:.2f}, {interval.high:.2f}]{target}"
 
 
+def late_training_return(run: dict, fraction: float = LATE_FRACTION) -> float:
+    """Mean return of the training episodes (exploring policy) that ended in the run's last ``fraction`` of steps."""
+    points = np.asarray(run["curve"], dtype=float).reshape(-1, 2)
+    late = points[points[:, 0] > (1 - fraction) * run["env_steps"], 1]
+    return float(late.mean()) if len(late) else float("nan")
+
+
+def _mean_sd(values: np.ndarray) -> str:
+    spread = values.std(ddof=1) if len(values) > 1 else 0.0
+    return f"{values.mean():.1f} ± {spread:.1f} | {', '.join(f'{v:.1f}' for v in values)}"
+
+
+def _compare(ours: list[float], theirs: list[float], key: str, name: str, target: str) -> tuple[str, str, dict]:
+    """Ratio of means with its interval when both means are positive, else the difference of means.
+
+    Returns:
+        The JSON key (``key`` or ``key_difference``), the sentence's part and the interval.
+    """
+    if np.mean(ours) > 0 and np.mean(theirs) > 0:
+        ratio = bootstrap_interval((ours, theirs), _ratio_of_means)
+        return key, _interval(name, ratio, target=target), ratio._asdict()
+    diff = bootstrap_interval((ours, theirs), _difference_of_means)
+    return f"{key}_difference", _interval(f"{name} difference (ours − SB3)", diff, unit=""), diff._asdict()
+
+
 def _env_table(env_runs: dict[str, list[dict]], stats: dict) -> list[str]:
     """The table of one env's methods, then each TorchRL method against its SB3 counterpart."""
     lines = ["| method | seeds | env steps | final deterministic return (mean ± sd over seeds) | per seed "
+             f"| training return, last {LATE_FRACTION:.0%} of steps (mean ± sd) | per seed "
              "| env steps / s (wall) | env steps / CPU s | wall s / run |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for method in METHODS:
         if not env_runs[method]:
             continue
         finals = np.array([r["final_return_mean"] for r in env_runs[method]])
+        late = np.array([late_training_return(r) for r in env_runs[method]])
         speed = np.array([r["env_steps_per_s"] for r in env_runs[method]])
         cpu_speed = [r.get("env_steps_per_cpu_s") for r in env_runs[method]]
         wall = np.array([r["wall_s"] for r in env_runs[method]])
-        stats[method] = {"final": finals.tolist(), "speed": speed.tolist(), "steps": env_runs[method][0]["env_steps"],
-                         "seeds": [r["seed"] for r in env_runs[method]]}
+        stats[method] = {"final": finals.tolist(), "late": late[np.isfinite(late)].tolist(), "speed": speed.tolist(),
+                         "steps": env_runs[method][0]["env_steps"], "seeds": [r["seed"] for r in env_runs[method]]}
         cpu_text = "n/a"
         if None not in cpu_speed:
             stats[method]["cpu_speed"] = cpu_speed
             cpu_text = f"{np.mean(cpu_speed):.0f}"
-        spread = finals.std(ddof=1) if len(finals) > 1 else 0.0
-        per_seed = ", ".join(f"{f:.1f}" for f in finals)
-        lines.append(f"| {NAMES[method]} | {len(finals)} | {stats[method]['steps']:,} | {finals.mean():.1f} ± "
-                     f"{spread:.1f} | {per_seed} | {speed.mean():.0f} | {cpu_text} | {wall.mean():.0f} |")
+        lines.append(f"| {NAMES[method]} | {len(finals)} | {stats[method]['steps']:,} | {_mean_sd(finals)} | "
+                     f"{_mean_sd(late)} | {speed.mean():.0f} | {cpu_text} | {wall.mean():.0f} |")
     for ours, theirs, label in (("sde", "sb3", "SDE / SB3 gSDE"), ("plain", "sb3_gauss", "Gaussian / SB3 Gaussian")):
         if ours not in stats or theirs not in stats:
             continue
         if len(stats[ours]["final"]) < 2 or len(stats[theirs]["final"]) < 2:
             continue  # no interval from one seed
-        pair, sde_pair = stats.setdefault(f"{ours}_over_{theirs}", {}), ours == "sde"
-        parts = []
-        if np.mean(stats[ours]["final"]) > 0 and np.mean(stats[theirs]["final"]) > 0:
-            ret = bootstrap_interval((stats[ours]["final"], stats[theirs]["final"]), _ratio_of_means)
-            pair["final"] = ret._asdict()
-            parts.append(_interval("final return", ret, target=" (target ≥ 0.90)" if sde_pair else ""))
-        else:  # a ratio of returns that are not both positive means nothing: the difference instead
-            diff = bootstrap_interval((stats[ours]["final"], stats[theirs]["final"]), _difference_of_means)
-            pair["final_difference"] = diff._asdict()
-            parts.append(_interval("final return difference (ours − SB3)", diff, unit=""))
+        pair, sde_pair, parts = stats.setdefault(f"{ours}_over_{theirs}", {}), ours == "sde", []
+        for quantity, name in (("final", "final return"), ("late", "late training return")):
+            if len(stats[ours][quantity]) > 1 and len(stats[theirs][quantity]) > 1:
+                target = " (target ≥ 0.90)" if sde_pair and quantity == "final" else ""
+                key, text, interval = _compare(stats[ours][quantity], stats[theirs][quantity], quantity, name, target)
+                pair[key] = interval
+                parts.append(text)
         spd = bootstrap_interval((stats[ours]["speed"], stats[theirs]["speed"]), _ratio_of_means)
         pair["speed"] = spd._asdict()
         parts.append(_interval("env steps per second", spd, target=" (target ≥ 0.8)" if sde_pair else ""))

@@ -124,14 +124,18 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
     _fake_run(tmp_path, "halfcheetah", "sde", 0, 500, 20)
     _fake_run(tmp_path, "halfcheetah", "sb3", 0, 600, 30)
     page = bench.report(tmp_path, tmp_path / "out")
-    assert "| TorchRL SAC, SDE (ours) | 3 | 15,000 | 90.0 ± 10.0 | 80.0, 90.0, 100.0 | 40 | 60 | 375 |" in page
+    # the fake curves end at the final return: the last quarter's episodes (> 11,250 steps) average 11/14 .. 14/14 of it
+    late = [np.mean([final * k / 14 for k in (11, 12, 13, 14)]) for final in (80, 90, 100)]
+    assert (f"| TorchRL SAC, SDE (ours) | 3 | 15,000 | 90.0 ± 10.0 | 80.0, 90.0, 100.0 | {np.mean(late):.1f} ± "
+            f"{np.std(late, ddof=1):.1f} | {', '.join(f'{v:.1f}' for v in late)} | 40 | 60 | 375 |") in page
     assert "SDE / SB3 gSDE: final return 0.90×" in page and "env steps per second 0.50× [0.50, 0.50]" in page
+    assert "late training return 0.90×" in page
     assert "env steps per CPU second 0.50× [0.50, 0.50]" in page
     # returns that are not both positive: the difference, not a ratio
     assert "Gaussian / SB3 Gaussian: final return difference (ours − SB3) 1.00 [1.00, 1.00]" in page
     assert "Zoo settings (both sides): learning_rate=0.0003, buffer_size=50000, batch_size=512, ent_coef=0.1" in page
     assert page.index("### MountainCarContinuous-v0") < page.index("### HalfCheetahBulletEnv-v0")
-    assert "| SB3 SAC, gSDE | 1 | 15,000 | 600.0 ± 0.0 | 600.0 | 30 | 45 | 500 |" in page  # one seed: no interval
+    assert "| SB3 SAC, gSDE | 1 | 15,000 | 600.0 ± 0.0 | 600.0 | 535.7 ± 0.0 | 535.7 | 30 | 45 | 500 |" in page
     stats = json.loads((tmp_path / "out" / "bench_sac.json").read_text())
     ratio = stats["mountaincar"]["sde_over_sb3"]["final"]
     assert ratio["estimate"] == pytest.approx(90 / 100) and ratio["low"] < ratio["estimate"] < ratio["high"]
