@@ -619,7 +619,8 @@ def report(folder: Path, out: Path) -> str:
         shown = {k: v for k, v in any_run["settings"].items() if k not in ("env_id", "n_timesteps", "use_sde")}
         settings = ", ".join(f"{k}={v}" for k, v in shown.items())
         lines += [f"### {ZOO[env_key]['env_id']}", "",
-                  f"Zoo settings (both sides; use_sde as the method says): {settings}; zoo budget {ZOO[env_key]['n_timesteps']:,} env steps, "
+                  f"Zoo settings (both sides; use_sde as the method says): {settings}; "
+                  f"zoo budget {ZOO[env_key]['n_timesteps']:,} env steps, "
                   f"run here: {sorted({r['env_steps'] for m in env_runs.values() for r in m})} env steps; "
                   f"{sorted({len(r['eval_returns']) for m in env_runs.values() for r in m})} deterministic evaluation "
                   "episodes at the end of each run.", ""]
