@@ -654,10 +654,11 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
             with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-            line, = ax.plot(x, mean, label=f"{NAMES[method]} ({len(method_runs)} seeds)",
-                            linestyle="-" if method in ("sde", "plain") else "--")
+            color = "C0" if method in ("sde", "sb3") else "C1"  # a pair in one colour: ours solid, SB3 dashed
+            ax.plot(x, mean, label=f"{NAMES[method]} ({len(method_runs)} seeds)", color=color,
+                    linestyle="-" if method in ("sde", "plain") else "--")
             if len(method_runs) > 1:
-                ax.fill_between(x, low, high, alpha=0.15, color=line.get_color())
+                ax.fill_between(x, low, high, alpha=0.12, color=color)
         ax.set_xlabel("env steps")
         ax.set_ylabel("training episode return")
         ax.set_title(f"SAC on {ZOO[env_key]['env_id']} (rl-zoo settings); band: min-max over seeds", fontsize=9)
