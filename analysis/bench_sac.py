@@ -503,17 +503,18 @@ neighbours' load; CPU time less so). Curves: `bench_sac.png`."""
 
 
 NAMES = {"sde": "TorchRL SAC, SDE (ours)", "plain": "TorchRL SAC, Gaussian", "sb3": "SB3 SAC, gSDE",
-         "sb3_gauss": "SB3 SAC, Gaussian"}
+         "sb3_gauss": "SB3 SAC, Gaussian", "sde_stored": "ablation: TorchRL SAC, SDE, stored ξ in the losses"}
+#: The report's rows: the methods, then the ablation.
+ROWS = (*METHODS, "sde_stored")
 
 
 def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
-    """Runs by env, then by method (``sde`` runs with the stored loss noise are left out)."""
+    """Runs by env, then by row (``sde`` runs with the stored loss noise: the ``sde_stored`` ablation row)."""
     runs: dict[str, dict[str, list[dict]]] = {}
     for path in sorted(folder.glob("*_seed*.json")):
         data = json.loads(path.read_text())
-        if data.get("loss_noise") == "stored":
-            continue
-        runs.setdefault(data["env"], {m: [] for m in METHODS})[data["method"]].append(data)
+        row = "sde_stored" if data.get("loss_noise") == "stored" else data["method"]
+        runs.setdefault(data["env"], {m: [] for m in ROWS})[row].append(data)
     if not runs:
         raise SystemExit(f"bench_sac: no <env>_<method>_seed<k>.json runs in {folder}: run `bench_sac.py run` first")
     return runs
@@ -570,7 +571,7 @@ def _env_table(env_runs: dict[str, list[dict]], stats: dict) -> list[str]:
              f"| training return, last {LATE_FRACTION:.0%} of steps (mean ± sd) | per seed "
              "| env steps / s (wall) | env steps / CPU s | wall s / run |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for method in METHODS:
+    for method in ROWS:
         if not env_runs[method]:
             continue
         finals = np.array([r["final_return_mean"] for r in env_runs[method]])
@@ -654,9 +655,9 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
             with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-            color = "C0" if method in ("sde", "sb3") else "C1"  # a pair in one colour: ours solid, SB3 dashed
+            color = {"sde": "C0", "sb3": "C0", "plain": "C1", "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
             ax.plot(x, mean, label=f"{NAMES[method]} ({len(method_runs)} seeds)", color=color,
-                    linestyle="-" if method in ("sde", "plain") else "--")
+                    linestyle="--" if method.startswith("sb3") else ":" if method == "sde_stored" else "-")
             if len(method_runs) > 1:
                 ax.fill_between(x, low, high, alpha=0.12, color=color)
         ax.set_xlabel("env steps")

@@ -120,7 +120,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
         _fake_run(tmp_path, "mountaincar", "sb3", seed, sb3, 80)
         _fake_run(tmp_path, "mountaincar", "plain", seed, -1.0, 45)
         _fake_run(tmp_path, "mountaincar", "sb3_gauss", seed, -2.0, 90)
-    _fake_run(tmp_path, "mountaincar", "sde", 0, -1e6, 40, loss_noise="stored")  # an ablation, not in the table
+    _fake_run(tmp_path, "mountaincar", "sde", 0, -1e6, 40, loss_noise="stored")  # the ablation: a row of its own
     _fake_run(tmp_path, "halfcheetah", "sde", 0, 500, 20)
     _fake_run(tmp_path, "halfcheetah", "sb3", 0, 600, 30)
     page = bench.report(tmp_path, tmp_path / "out")
@@ -130,6 +130,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
             f"{np.std(late, ddof=1):.1f} | {', '.join(f'{v:.1f}' for v in late)} | 40 | 60 | 375 |") in page
     assert "SDE / SB3 gSDE: final return 0.90×" in page and "env steps per second 0.50× [0.50, 0.50]" in page
     assert "late training return 0.90×" in page
+    assert "| ablation: TorchRL SAC, SDE, stored ξ in the losses | 1 | 15,000 | -1000000.0 ± 0.0 |" in page
     assert "env steps per CPU second 0.50× [0.50, 0.50]" in page
     # returns that are not both positive: the difference, not a ratio
     assert "Gaussian / SB3 Gaussian: final return difference (ours − SB3) 1.00 [1.00, 1.00]" in page
