@@ -24,24 +24,34 @@ minibatch, as SB3 does (``actor.reset_noise()`` at each gradient step, whose sin
 reparameterised SAC gradient needs ``a = μ(s) + (σ̂ ⊙ ξ) x(s)`` with ``ξ ~ N(0, I)`` independent of
 ``s``; a stored ``ξ`` is not: it is the noise that steered the episode into ``s`` (held for
 ``train_freq`` steps), so ``ξ | s`` is not standard normal and the stored noise would bias the
-actor's gradient and its entropy estimate; it also freezes samples drawn under an older ``σ̂``
-direction. :func:`fresh_loss_noise` does it; ``--loss-noise stored`` keeps the buffer's ``ξ``
-(for comparison only).
+actor's gradient and its entropy estimate (and each transition would be scored with one and the
+same ``ξ`` at every replay). :func:`fresh_loss_noise` does it; ``--loss-noise stored`` keeps the
+buffer's ``ξ`` (the ablation row).
 
 The update follows SB3's order per gradient step: critic loss and step, actor loss (with the
 updated critics) and step, entropy-coefficient step (``ent_coef: auto`` only; the critic and actor
 use the coefficient from before that step), Polyak update of the target critics. TorchRL's
 critic loss ``Σ_k (Q_k - y)²`` is halved to SB3's ``½ Σ_k MSE`` (Adam would not see the factor).
+With ``learning_starts > 0`` both sides act uniformly at random until then (SB3's default
+``use_sde_at_warmup=False``; TorchRL's ``init_random_frames``).
+
+Differences left (the library has no option for them yet, issue 25 item 2): ``σ̂ = expln(p)``
+here, ``exp(p)`` in SB3 (equal while ``p <= 0``: each run records its largest ``p``); SB3 counts
+its ``train_freq`` resampling period over the run, our ``every_n`` restarts at each reset; SB3
+adds 1e-6 to the action variance and to ``1 - tanh²`` and scores ``atanh`` of the squashed action,
+ours scores the exact pre-squash sample.
 
 Each run writes ``<out>/<env>_<method>_seed<k>.json``: the deterministic return of 10 evaluation
 episodes at the end, the training episodes' returns against env steps, and env steps per
-wall-clock second of the whole training (collection and updates, evaluation excluded).
-``report`` turns a folder of runs into a table per env and a plot.
+second of the whole training (collection and updates, evaluation excluded), wall clock and CPU
+time. ``report`` turns a folder of runs into a table per env and a plot; ``update-speed`` times
+single gradient steps of the four methods and profiles ours.
 
 Usage::
 
-    python analysis/bench_sac.py run --env mountaincar --method sde --seed 0 --out docs/sac/runs
+    python analysis/bench_sac.py run --env mountaincar --method sde --seed 0 --steps 8000 --out docs/sac/runs
     python analysis/bench_sac.py report docs/sac/runs --out docs/sac
+    python analysis/bench_sac.py update-speed --env mountaincar --profile --out docs/sac/update_speed_mountaincar.md
 
 Examples:
     >>> sorted(METHODS), sorted(ENVS)
