@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from _helpers import load_script
+from _helpers import REPO, load_script
 from tensordict import TensorDict
 
 bench = load_script("bench_sac")
@@ -201,3 +201,10 @@ def test_evaluation_counts_each_envs_first_episode_only():
     policy = TensorDictModule(bang_bang, in_keys=["observation"], out_keys=["action"])
     returns = bench.evaluate_torchrl(policy, "MountainCarContinuous-v0", seed=0, episodes=3)
     assert len(returns) == 3 and all(85 < r < 100 for r in returns)  # +100 at the goal, -0.1 per full-thrust step
+
+
+def test_the_committed_page_is_what_report_writes_from_the_committed_runs(tmp_path):
+    """docs/sac/bench_sac.md and .json: regenerated from docs/sac/runs, they must come out identical."""
+    assert bench.main(["report", str(REPO / "docs" / "sac" / "runs"), "--out", str(tmp_path)]) == 0
+    for name in ("bench_sac.md", "bench_sac.json"):
+        assert (tmp_path / name).read_text() == (REPO / "docs" / "sac" / name).read_text(), name
