@@ -626,11 +626,16 @@ def report(folder: Path, out: Path) -> str:
     lines, stats = [HEADER, ""], {}
     for env_key in [e for e in ENVS if e in runs]:
         env_runs = runs[env_key]
-        any_run = next(r for method_runs in env_runs.values() for r in method_runs)
-        shown = {k: v for k, v in any_run["settings"].items() if k not in ("env_id", "n_timesteps", "use_sde")}
+        for r in (r for method_runs in env_runs.values() for r in method_runs):
+            if r["settings"] != {**ZOO[env_key], **r.get("overrides", {})}:
+                raise SystemExit(f"bench_sac: a {env_key} {r['method']} run (seed {r['seed']}) has other settings than "
+                                 "ZOO and its overrides: rerun it or report it apart")
+        shown = {k: v for k, v in ZOO[env_key].items() if k not in ("env_id", "n_timesteps", "use_sde")}
         settings = ", ".join(f"{k}={v}" for k, v in shown.items())
+        replaced = sorted({f"{k}={v}" for m in env_runs.values() for r in m for k, v in r.get("overrides", {}).items()})
         lines += [f"### {ZOO[env_key]['env_id']}", "",
                   f"Zoo settings (both sides; use_sde as the method says): {settings}; "
+                  f"{'replaced on both sides for the short budget: ' + ', '.join(replaced) + '; ' if replaced else ''}"
                   f"zoo budget {ZOO[env_key]['n_timesteps']:,} env steps, "
                   f"run here: {sorted({r['env_steps'] for m in env_runs.values() for r in m})} env steps; "
                   f"{sorted({len(r['eval_returns']) for m in env_runs.values() for r in m})} deterministic evaluation "
