@@ -671,13 +671,15 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
             color = {"sde": "C0", "sb3": "C0", "plain": "C1", "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
-            ax.plot(x, mean, label=f"{NAMES[method]} ({len(method_runs)} seeds)", color=color,
+            seeds = f"{len(method_runs)} seed{'s' if len(method_runs) > 1 else ''}"
+            ax.plot(x, mean, label=f"{NAMES[method]} ({seeds})", color=color,
                     linestyle="--" if method.startswith("sb3") else ":" if method == "sde_stored" else "-")
             if len(method_runs) > 1:
                 ax.fill_between(x, low, high, alpha=0.12, color=color)
         ax.set_xlabel("env steps")
         ax.set_ylabel("training episode return")
-        ax.set_title(f"SAC on {ZOO[env_key]['env_id']} (rl-zoo settings); band: min-max over seeds", fontsize=9)
+        ax.set_title(f"SAC on {ZOO[env_key]['env_id']}, {total:,} env steps (rl-zoo settings); "
+                     "band: min-max over seeds", fontsize=9)
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
