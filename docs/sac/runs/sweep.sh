@@ -23,4 +23,7 @@ run --env mountaincar --method sde --seed 3 --steps 8000
 run --env mountaincar --method sb3 --seed 4 --steps 8000
 run --env mountaincar --method sde --seed 4 --steps 8000
 run --env mountaincar --method sde --seed 0 --steps 8000 --loss-noise stored   # the ablation row
+run --env halfcheetah --method sb3 --seed 1 --steps 4000 --learning-starts 1000
+run --env halfcheetah --method sde --seed 1 --steps 4000 --learning-starts 1000
+run --env mountaincar --method sde --seed 1 --steps 8000 --loss-noise stored
 python analysis/bench_sac.py report "$OUT" --out "$(dirname "$OUT")"
