@@ -678,8 +678,7 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
                 ax.fill_between(x, low, high, alpha=0.12, color=color)
         ax.set_xlabel("env steps")
         ax.set_ylabel("training episode return")
-        ax.set_title(f"SAC on {ZOO[env_key]['env_id']}, {total:,} env steps (rl-zoo settings); "
-                     "band: min-max over seeds", fontsize=9)
+        ax.set_title(f"SAC, {ZOO[env_key]['env_id']}, {total:,} env steps; band: min-max over seeds", fontsize=9)
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
