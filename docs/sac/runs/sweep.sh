@@ -1,0 +1,29 @@
+#!/bin/bash
+# The runs in docs/sac/runs, one at a time on one core (torch.set_num_threads(1)), in this order.
+# Budgets (the machine's CPU budget, not the zoo's): MountainCarContinuous 8,000 env steps (zoo: 50,000),
+# HalfCheetahBullet 4,000 env steps with learning_starts 1,000 on both sides (zoo: 1,000,000 and 10,000).
+# Usage, from the repository root: bash docs/sac/runs/sweep.sh [OUT]   (OUT defaults to docs/sac/runs)
+set -euo pipefail
+OUT=${1:-docs/sac/runs}
+run() { python analysis/bench_sac.py run "$@" --out "$OUT"; }
+run --env mountaincar --method sde --seed 0 --steps 8000
+run --env mountaincar --method sb3 --seed 0 --steps 8000
+run --env mountaincar --method sb3 --seed 1 --steps 8000
+run --env mountaincar --method sde --seed 1 --steps 8000
+run --env mountaincar --method sb3_gauss --seed 0 --steps 8000
+run --env mountaincar --method plain --seed 0 --steps 8000
+run --env halfcheetah --method sb3 --seed 0 --steps 4000 --learning-starts 1000
+run --env halfcheetah --method sde --seed 0 --steps 4000 --learning-starts 1000
+run --env mountaincar --method sb3 --seed 2 --steps 8000
+run --env mountaincar --method sde --seed 2 --steps 8000
+run --env mountaincar --method sb3_gauss --seed 1 --steps 8000
+run --env mountaincar --method plain --seed 1 --steps 8000
+run --env mountaincar --method sb3 --seed 3 --steps 8000
+run --env mountaincar --method sde --seed 3 --steps 8000
+run --env mountaincar --method sb3 --seed 4 --steps 8000
+run --env mountaincar --method sde --seed 4 --steps 8000
+run --env mountaincar --method sde --seed 0 --steps 8000 --loss-noise stored   # the ablation row
+run --env halfcheetah --method sb3 --seed 1 --steps 4000 --learning-starts 1000
+run --env halfcheetah --method sde --seed 1 --steps 4000 --learning-starts 1000
+run --env mountaincar --method sde --seed 1 --steps 8000 --loss-noise stored
+python analysis/bench_sac.py report "$OUT" --out "$(dirname "$OUT")"
