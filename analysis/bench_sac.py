@@ -633,7 +633,7 @@ def report(folder: Path, out: Path) -> str:
         shown = {k: v for k, v in ZOO[env_key].items() if k not in ("env_id", "n_timesteps", "use_sde")}
         settings = ", ".join(f"{k}={v}" for k, v in shown.items())
         replaced = sorted({f"{k}={v}" for m in env_runs.values() for r in m for k, v in r.get("overrides", {}).items()})
-        lines += [f"### {ZOO[env_key]['env_id']}", "",
+        lines += [f"## {ZOO[env_key]['env_id']}", "",
                   f"Zoo settings (both sides; use_sde as the method says): {settings}; "
                   f"{'replaced on both sides for the short budget: ' + ', '.join(replaced) + '; ' if replaced else ''}"
                   f"zoo budget {ZOO[env_key]['n_timesteps']:,} env steps, "

@@ -136,7 +136,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
     assert "Gaussian / SB3 Gaussian: final return difference (ours − SB3) 1.00 [1.00, 1.00]" in page
     assert ("Zoo settings (both sides; use_sde as the method says): learning_rate=0.0003, buffer_size=50000, "
             "batch_size=512, ent_coef=0.1") in page
-    assert page.index("### MountainCarContinuous-v0") < page.index("### HalfCheetahBulletEnv-v0")
+    assert page.index("## MountainCarContinuous-v0") < page.index("## HalfCheetahBulletEnv-v0")
     assert "| SB3 SAC, gSDE | 1 | 15,000 | 600.0 ± 0.0 | 600.0 | 535.7 ± 0.0 | 535.7 | 30 | 45 | 500 |" in page
     stats = json.loads((tmp_path / "out" / "bench_sac.json").read_text())
     ratio = stats["mountaincar"]["sde_over_sb3"]["final"]
