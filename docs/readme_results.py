@@ -2,8 +2,8 @@
 
 The README holds a short table of the headline results between the lines ``<!-- results:start -->``
 and ``<!-- results:end -->``. This script writes that table from ``docs/table1/table1.json``,
-``docs/ballcatch/{fig5,fig6,methods,selected/fig5}.json`` and ``docs/ppo/bench_ppo.json``, so that
-no figure in the README is typed by hand::
+``docs/ballcatch/{fig5,fig6,methods,selected/fig5}.json``, ``docs/ppo/bench_ppo.json`` and
+``docs/sac/bench_sac.json``, so that no figure in the README is typed by hand::
 
     python docs/readme_results.py           # rewrite the README's table
     python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
@@ -24,7 +24,8 @@ README = DOCS.parent / "README.md"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
 PAGES = {"docs/reproduce/table1.md": "Table 1", "docs/reproduce/fig5_6.md": "Fig. 5 and 6",
-         "docs/reproduce/methods.md": "methods", "docs/reproduce/ppo.md": "PPO"}
+         "docs/reproduce/methods.md": "methods", "docs/reproduce/ppo.md": "PPO",
+         "docs/reproduce/sac.md": "SAC"}
 
 
 def _load(path: str) -> dict:
@@ -48,6 +49,8 @@ def summary() -> str:
     selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
     ppo = _load("ppo/bench_ppo.json")
     ratio = ppo["sde_over_sb3"]
+    sac = _load("sac/bench_sac.json")["mountaincar"]
+    sac_ratio = sac["sde_over_sb3"]
 
     def mean_sd(values: list[float]) -> str:
         return f"{statistics.mean(values):.0f} ± {statistics.stdev(values):.0f}"
@@ -74,6 +77,12 @@ def summary() -> str:
          f"{mean_sd(ppo['sb3']['final'])} ({len(ppo['sb3']['final'])}): "
          f"{ratio['final']['estimate']:.2f}× [{ratio['final']['low']:.2f}, {ratio['final']['high']:.2f}]",
          "(not in the paper)", "docs/reproduce/ppo.md"),
+        (f"SAC on MountainCarContinuous, {sac['sde']['steps']:,} steps: late training return (seeds); env steps/s",
+         f"SDE {statistics.mean(sac['sde']['late']):.0f} ({len(sac['sde']['late'])}), SB3 gSDE "
+         f"{statistics.mean(sac['sb3']['late']):.0f} ({len(sac['sb3']['late'])}): "
+         f"{sac_ratio['late']['estimate']:.2f}× [{sac_ratio['late']['low']:.2f}, {sac_ratio['late']['high']:.2f}]; "
+         f"speed {sac_ratio['speed']['estimate']:.2f}× [{sac_ratio['speed']['low']:.2f}, "
+         f"{sac_ratio['speed']['high']:.2f}]", "(not in the paper)", "docs/reproduce/sac.md"),
     ]
     lines = ["| result | ours [95 % interval] | paper | page |", "| --- | --- | --- | --- |"]
     lines += [f"| {what} | {value} | {theirs} | [{PAGES[page]}]({page}) |" for what, value, theirs, page in rows]
