@@ -71,6 +71,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from figures import binned_curve
 
 from sde_torchrl.utils.intervals import bootstrap_interval
 
@@ -528,14 +529,6 @@ def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
     if not runs:
         raise SystemExit(f"bench_sac: no <env>_<method>_seed<k>.json runs in {folder}: run `bench_sac.py run` first")
     return runs
-
-
-def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
-    """Mean training return of the episodes that ended in each ``bin_steps`` window (NaN if none)."""
-    points = np.asarray(run["curve"], dtype=float).reshape(-1, 2)
-    edges = np.arange(0, total + bin_steps, bin_steps)
-    which = np.clip(np.digitize(points[:, 0], edges[1:-1], right=True), 0, len(edges) - 2)
-    return np.array([points[which == b, 1].mean() if (which == b).any() else np.nan for b in range(len(edges) - 1)])
 
 
 def _ratio_of_means(ours: np.ndarray, theirs: np.ndarray) -> np.ndarray:
