@@ -5,13 +5,14 @@ says what it is doing."""
 from __future__ import annotations
 
 import logging
+import re
 import time
 
 import pytest
-from _helpers import build, compose_config, own_stderr_lines, run_cli
+from _helpers import REPO, build, compose_config, own_stderr_lines, run_cli
 
 from sde_torchrl.config.schemas import describe_error, validate
-from sde_torchrl.jobs.resources import GB, estimate_memory
+from sde_torchrl.jobs.resources import GB, estimate_memory, launcher_request
 from sde_torchrl.trainers import trainer as trainer_module
 
 
@@ -40,7 +41,11 @@ def test_max_memory_gb_sets_the_limit():
     validate(compose_config(*ballcatch, "max_memory_gb=1.2"))
 
 
-@pytest.mark.parametrize("runs, measured_gb", [(5, 1.01), (20, 2.84), (50, 6.52)])
+#: Max RSS of ``+experiment=ballcatch runs=N`` measured on this machine (``/usr/bin/time -v``, 2-3 updates).
+MEASURED_GB = {5: 1.01, 20: 2.84, 50: 6.52}
+
+
+@pytest.mark.parametrize("runs, measured_gb", MEASURED_GB.items())
 def test_ballcatch_estimates_grow_with_the_worlds(runs, measured_gb):
     """Max RSS measured on this machine (``/usr/bin/time -v``, 2-3 updates): within 30 %."""
     conf = validate(compose_config("+experiment=ballcatch", f"runs={runs}", "max_memory_gb=1000"))
@@ -60,3 +65,17 @@ def test_a_slow_first_update_says_what_it_is_doing(monkeypatch, caplog, tmp_path
     notices = [r.getMessage() for r in caplog.records if "still running" in r.getMessage()]
     assert notices == ["update 1 of 2 still running after 0 s: collecting 4 episodes of 15 steps for each of 2 "
                        "runs, then estimating the gradient"]
+
+
+def test_the_guides_memory_figures_are_the_estimates_and_the_measurements():
+    """The figures ``docs/guide/guarantees.md`` quotes are the estimator's (and the measurements above)."""
+    text = " ".join((REPO / "docs" / "guide" / "guarantees.md").read_text().split())
+    runs = sorted(MEASURED_GB)
+    estimates = [estimate_memory(validate(compose_config("+experiment=ballcatch", f"runs={n}", "max_memory_gb=1000")))
+                 .total / GB for n in runs]
+    quoted = (f"{' / '.join(f'{e:.1f}' for e in estimates)} GB estimated for {' / '.join(map(str, runs))} runs, "
+              f"{' / '.join(f'{MEASURED_GB[n]:.2f}' for n in runs)} GB measured")
+    assert quoted in text
+    request = launcher_request(validate(compose_config("+experiment=ballcatch", "runs=50", "max_memory_gb=1000")))
+    shard = re.search(r"a 50-run ball-catching shard: (\d+) GB, (\d+) min", text)
+    assert shard and (int(shard[1]), int(shard[2])) == (request["mem_gb"], request["timeout_min"])
