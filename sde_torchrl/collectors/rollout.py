@@ -212,16 +212,15 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
     noise, gaussian, age = primer.start(batch, x.device) if explore else (None, None, None)
     sigma = align(sde.sde_sigma, sde.run_dims, len(batch))
     gaussian_scale = sde.gaussian_scale(len(batch))
-    low, high = _bounds(policy, x.device)
+    mid, half = _mid_half(*_bounds(policy, x.device))  # once, not per step
     observations, locs, samples, noises, gaussians, next_observations, rewards = [], [], [], [], [], [], []
     for t in range(steps):
         loc = actor.module(x)
-        if explore:
-            sample = sde_sample(loc, sigma.to(loc.dtype), noise, x.to(loc.dtype),
-                                None if gaussian_scale is None else gaussian_scale.to(loc.dtype), gaussian)
-        else:
-            sample = loc
-        x_next, reward = env.transition(x, _squash(sample, low, high) if policy.squash else sample)
+        if t == 0:  # the policy's dtype, known from its first output: cast σ̂ (and σ_gauss) once
+            sigma = sigma.to(loc.dtype)
+            gaussian_scale = None if gaussian_scale is None else gaussian_scale.to(loc.dtype)
+        sample = sde_sample(loc, sigma, noise, x.to(loc.dtype), gaussian_scale, gaussian) if explore else loc
+        x_next, reward = env.transition(x, mid + half * torch.tanh(sample) if policy.squash else sample)
         for column, value in ((observations, x), (locs, loc), (samples, sample), (noises, noise),
                               (gaussians, gaussian), (next_observations, x_next), (rewards, reward)):
             column.append(value)
@@ -364,9 +363,10 @@ def _bounds(policy: SDEActor, device: torch.device | str | None = None) -> tuple
     return (low, high) if device is None else (low.to(device), high.to(device))
 
 
-def _squash(sample: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
-    """``mid + half · tanh(u)``, as :class:`~sde_torchrl.modules.distribution.TanhSDENormal` squashes."""
-    return (high + low) / 2 + (high - low) / 2 * torch.tanh(sample)
+def _mid_half(low: torch.Tensor, high: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(mid, half)`` of the bounds: the squash is ``mid + half · tanh(u)``, as
+    :class:`~sde_torchrl.modules.distribution.TanhSDENormal` squashes."""
+    return (high + low) / 2, (high - low) / 2
 
 
 def _episodes(
@@ -386,7 +386,7 @@ def _episodes(
     if policy.squash:
         low, high = _bounds(policy, device)
         dist = TanhSDENormal(loc, sigma, features, gaussian_scale=gaussian_scale, low=low, high=high)
-        action = _squash(sample, low, high)
+        action = dist.squash(sample)
     else:
         dist, action = policy.module[-1].distribution_class(loc, sigma, features, gaussian_scale=gaussian_scale), sample
     episodes = TensorDict({
