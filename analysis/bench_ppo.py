@@ -17,12 +17,15 @@ Three methods, the same hyperparameters (rl-baselines3-zoo's tuned PPO + gSDE se
 Each run writes ``<out>/<method>_seed<k>.json``: the deterministic return of 10 evaluation
 episodes at the end (frozen observation statistics, raw rewards), the training episodes' raw
 returns against env steps, and env steps per wall-clock second of the whole training (collection
-and updates, evaluation excluded). ``report`` turns a folder of runs into a table and a plot.
+and updates, evaluation excluded). ``report`` turns a folder of runs into a table and a plot;
+``speed`` times single iterations per variant, ``phases`` splits them into collection (pybullet's
+share), GAE and the update's parts.
 
 Usage::
 
     python analysis/bench_ppo.py run --method sde --seed 0 --steps 500000 --out docs/ppo/runs
     python analysis/bench_ppo.py report docs/ppo/runs --out docs/ppo
+    python analysis/bench_ppo.py phases sb3 sde+compile sde --rollouts 4 --out docs/ppo/phases.md
 
 Examples:
     >>> sorted(METHODS)
@@ -38,6 +41,7 @@ import platform
 import sys
 import time
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -57,16 +61,40 @@ ZOO = {
     "clip_range": 0.4, "log_std_init": -2.0, "net_arch": [256, 256], "normalize": True,
 }
 CLIP, EPS = 10.0, 1e-8  # VecNormalize's clip_obs = clip_reward and epsilon
-#: What ClipPPOLoss reads of a minibatch (the SDE policy also checks that the noise is there).
-MINIBATCH_KEYS = ("observation", "action", "action_log_prob", "advantage", "value_target", "state_value",
-                  "sde_noise", "sde_age", "is_init")
+#: What ClipPPOLoss reads of a minibatch: not the SDE noise ξ, which the likelihood (eq. 20) does not
+#: read (an A × S matrix per sample that would be gathered 20 times per iteration for nothing).
+MINIBATCH_KEYS = ("observation", "action", "action_log_prob", "advantage", "value_target", "state_value", "is_init")
+
+
+#: Seconds per phase of training, accumulated while ``phases`` runs (``None``: not timed).
+TIMER: dict[str, float] | None = None
+
+
+@contextmanager
+def _timed(phase: str):
+    """Add the block's wall time to ``TIMER[phase]`` (a no-op unless ``phases`` is timing)."""
+    if TIMER is None:
+        yield
+        return
+    start = time.perf_counter()
+    yield
+    TIMER[phase] = TIMER.get(phase, 0.0) + time.perf_counter() - start
 
 
 def _gym_make():
     import gymnasium as gym
     import pybullet_envs_gymnasium  # noqa: F401  (registers the Bullet envs)
 
-    return gym.make(ENV_ID)
+    env = gym.make(ENV_ID)
+    if TIMER is None:
+        return env
+
+    class TimedStep(gym.Wrapper):  # the physics' share of collection: pybullet's own step
+        def step(self, action):
+            with _timed("collect: pybullet step"):
+                return self.env.step(action)
+
+    return TimedStep(env)
 
 
 # ----------------------------------------------------------------------------------- TorchRL side
@@ -207,14 +235,31 @@ def make_update(loss, optim: torch.optim.Optimizer, compile_update: bool = False
     scripts with their ``compile`` option; the first calls compile (tens of seconds).
     """
 
-    def update(minibatch):
-        optim.zero_grad()
+    def objective(minibatch):
         out = loss(minibatch)
-        (out["loss_objective"] + out["loss_critic"]).backward()
+        return out["loss_objective"] + out["loss_critic"]
+
+    def clip_and_step():
         torch.nn.utils.clip_grad_norm_(loss.parameters(), ZOO["max_grad_norm"])
         optim.step()
 
-    return torch.compile(update) if compile_update else update
+    def update(minibatch):
+        optim.zero_grad()
+        objective(minibatch).backward()
+        clip_and_step()
+
+    def timed_update(minibatch):  # the same, each part timed (``phases``, eager only)
+        optim.zero_grad()
+        with _timed("update: loss forward"):
+            value = objective(minibatch)
+        with _timed("update: backward"):
+            value.backward()
+        with _timed("update: clip + Adam step"):
+            clip_and_step()
+
+    if compile_update:
+        return torch.compile(update)
+    return update if TIMER is None else timed_update
 
 
 def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = False, evaluate: bool = True,
@@ -240,17 +285,27 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
                           auto_register_policy_transforms=True)
     step = make_update(loss, optim, compile_update)
     curve, iteration_ends, done_frames, start = [], [], 0, time.perf_counter()
-    for batch in collector:
+    batches = iter(collector)
+    while True:
+        with _timed("collect"):
+            batch = next(batches, None)
+        if batch is None:
+            break
         done_frames += batch.numel()
         finished = batch["next", "done"].squeeze(-1)
         curve += [[done_frames, float(r)] for r in batch["next", "episode_reward"].squeeze(-1)[finished]]
-        with torch.no_grad():
+        with torch.no_grad(), _timed("GAE"):
             gae(batch)
-        flat = batch.reshape(-1).select(*MINIBATCH_KEYS, strict=False).contiguous()  # gather only what the loss reads
-        for _ in range(ZOO["n_epochs"]):
-            for idx in torch.randperm(flat.numel()).split(ZOO["batch_size"]):
-                step(flat[idx])
+        with _timed("update"):
+            flat = batch.reshape(-1).select(*MINIBATCH_KEYS, strict=False).contiguous()  # only what the loss reads
+            for _ in range(ZOO["n_epochs"]):
+                for idx in torch.randperm(flat.numel()).split(ZOO["batch_size"]):
+                    with _timed("update: minibatch indexing"):
+                        minibatch = flat[idx]
+                    step(minibatch)
         iteration_ends.append(time.perf_counter() - start)
+        if TIMER is not None and len(iteration_ends) == 1:
+            TIMER.clear()  # the first iteration (warm-up, compilation) is not timed
     wall = time.perf_counter() - start
     collector.shutdown()
     return {"wall_s": wall, "env_steps": done_frames, "curve": curve, "iteration_ends_s": iteration_ends,
@@ -258,6 +313,38 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
 
 
 # ---------------------------------------------------------------------------------------- SB3 side
+_MARK = [0.0]
+
+
+def _phase_mark(phase: str | None) -> None:
+    """Add the time since the last mark to ``TIMER[phase]`` (SB3's phases, between its callbacks)."""
+    now = time.perf_counter()
+    if TIMER is not None and phase is not None:
+        TIMER[phase] = TIMER.get(phase, 0.0) + now - _MARK[0]
+    _MARK[0] = now
+
+
+def _time_sb3_update(model) -> None:
+    """Time the parts of SB3's PPO update as ``make_update``'s: the policy's forward, the clip +
+    Adam step (backward is what is left of the minibatch step)."""
+    policy, optimizer, clip = model.policy, model.policy.optimizer, torch.nn.utils.clip_grad_norm_
+    forward, adam_step = policy.evaluate_actions, optimizer.step
+
+    def timed_forward(*args, **kwargs):
+        with _timed("update: loss forward"):
+            return forward(*args, **kwargs)
+
+    def timed_clip(*args, **kwargs):
+        with _timed("update: clip + Adam step"):
+            return clip(*args, **kwargs)
+
+    def timed_step(*args, **kwargs):
+        with _timed("update: clip + Adam step"):
+            return adam_step(*args, **kwargs)
+
+    policy.evaluate_actions, optimizer.step, torch.nn.utils.clip_grad_norm_ = timed_forward, timed_step, timed_clip
+
+
 def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True) -> dict:
     try:
         from stable_baselines3 import PPO
@@ -275,6 +362,13 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
         def _on_rollout_start(self) -> None:  # the previous iteration's update has ended
             if self.num_timesteps:
                 iteration_ends.append(time.perf_counter() - start)
+                _phase_mark("update")
+                if TIMER is not None and len(iteration_ends) == 1:
+                    TIMER.clear()  # the first iteration is not timed
+            _phase_mark(None)
+
+        def _on_rollout_end(self) -> None:
+            _phase_mark("collect")
 
         def _on_step(self) -> bool:
             curve.extend([self.num_timesteps, float(i["episode"]["r"])] for i in self.locals["infos"] if "episode" in i)
@@ -289,8 +383,11 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
         policy_kwargs={"log_std_init": ZOO["log_std_init"], "ortho_init": False, "activation_fn": torch.nn.ReLU,
                        "net_arch": {"pi": ZOO["net_arch"], "vf": ZOO["net_arch"]}},
     )
+    if TIMER is not None:
+        _time_sb3_update(model)
     start = time.perf_counter()
     model.learn(total_timesteps=steps, callback=EpisodeReturns())
+    _phase_mark("update")  # the last iteration's update
     wall = time.perf_counter() - start
     iteration_ends.append(wall)
     if not evaluate:
@@ -356,6 +453,39 @@ def speed(variants: list[str], rollouts: int) -> str:
         with multiprocessing.get_context("spawn").Pool(1) as pool:
             seconds = pool.apply(_iteration_seconds, (variant, rollouts))
         lines.append(f"| {variant} | {seconds:.2f} | {frames / seconds:.0f} | {rollouts - 1} |")
+    return "\n".join(lines) + "\n"
+
+
+def _iteration_phases(variant: str, rollouts: int) -> dict[str, float]:
+    """Seconds per iteration of each phase of ``variant``'s training, the first iteration left out."""
+    global TIMER
+    TIMER = {}
+    seconds = _iteration_seconds(variant, rollouts)
+    phases = {phase: total / (rollouts - 1) for phase, total in TIMER.items()}
+    TIMER = None
+    return {"iteration": seconds, **phases}
+
+
+def phases(variants: list[str], rollouts: int) -> str:
+    """Where one iteration's time goes: collection (and pybullet's share of it), GAE and the update
+    (and its parts), in seconds per iteration, each variant in a fresh process on one thread.
+
+    SB3 computes GAE inside its collection; its "loss forward" is the policy's
+    ``evaluate_actions`` (actor and critic), ours ``ClipPPOLoss``'s whole forward; a compiled
+    update is timed whole. The timers themselves cost a few microseconds per call.
+    """
+    import multiprocessing
+
+    table = {}
+    for variant in variants:
+        with multiprocessing.get_context("spawn").Pool(1) as pool:
+            table[variant] = pool.apply(_iteration_phases, (variant, rollouts))
+    rows = ["iteration", "collect", "collect: pybullet step", "GAE", "update", "update: minibatch indexing",
+            "update: loss forward", "update: backward", "update: clip + Adam step"]
+    lines = [f"| seconds per iteration | {' | '.join(variants)} |", f"| --- |{' --- |' * len(variants)}"]
+    for row in rows:
+        cells = [f"{table[v][row]:.2f}" if row in table[v] else "-" for v in variants]
+        lines.append(f"| {row} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -441,6 +571,10 @@ def main(argv: list[str] | None = None) -> int:
     speed_p = sub.add_parser("speed", help="env steps per second of single iterations, one variant after another")
     speed_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
     speed_p.add_argument("--rollouts", type=int, default=4, help="iterations per variant (the first is not timed)")
+    phases_p = sub.add_parser("phases", help="where one iteration's time goes, per variant")
+    phases_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
+    phases_p.add_argument("--rollouts", type=int, default=3, help="iterations per variant (the first is not timed)")
+    phases_p.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
     rep_p = sub.add_parser("report", help="table and plot from a folder of runs")
     rep_p.add_argument("folder", type=Path)
     rep_p.add_argument("--out", type=Path, default=Path("docs/ppo"))
@@ -458,6 +592,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.rollouts < 2:
             parser.error(f"--rollouts must be at least 2 (the first is not timed), got {args.rollouts}")
         sys.stdout.write(speed(args.variants, args.rollouts))
+    elif args.command == "phases":
+        if args.rollouts < 2:
+            parser.error(f"--rollouts must be at least 2 (the first is not timed), got {args.rollouts}")
+        table = phases(args.variants, args.rollouts)
+        sys.stdout.write(table)
+        if args.out is not None:
+            command = " ".join(["python analysis/bench_ppo.py", *(argv if argv is not None else sys.argv[1:])])
+            args.out.write_text(f"# Where one PPO iteration's time goes\n\nWritten by `{command}` on "
+                                f"{time.strftime('%Y-%m-%d')} ({os.cpu_count()} cores; iterations 2-{args.rollouts}, "
+                                f"mean).\n\n{table}")
     else:
         sys.stdout.write(report(args.folder, args.out))
     return 0

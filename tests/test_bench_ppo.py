@@ -163,3 +163,21 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
 def test_report_without_runs_says_what_to_run(tmp_path):
     with pytest.raises(SystemExit, match="bench_ppo.py run"):
         bench.report(tmp_path, tmp_path / "out")
+
+
+@pytest.mark.parametrize("variant", ["sde", "sb3"])
+def test_phases_split_an_iteration_into_parts_that_fit_inside_it(monkeypatch, variant):
+    """``bench_ppo.py phases`` on a tiny iteration (2 envs × 16 steps, one epoch): every phase is
+    timed once per iteration, the parts of collection and update fit inside them, and collection
+    plus GAE plus update make up the iteration."""
+    pytest.importorskip("stable_baselines3")
+    for key, value in {"n_envs": 2, "n_steps": 16, "n_epochs": 1, "batch_size": 8}.items():
+        monkeypatch.setitem(bench.ZOO, key, value)
+    phases = bench._iteration_phases(variant, 3)
+    assert bench.TIMER is None
+    parts = ["update: loss forward", "update: clip + Adam step"] + (["update: backward"] if variant == "sde" else [])
+    assert {"iteration", "collect", "collect: pybullet step", "update", *parts} <= set(phases)
+    assert 0 < phases["collect: pybullet step"] < phases["collect"]
+    assert 0 < sum(phases[p] for p in parts) < phases["update"]
+    whole = phases["collect"] + phases.get("GAE", 0.0) + phases["update"]
+    assert whole == pytest.approx(phases["iteration"], rel=0.2)

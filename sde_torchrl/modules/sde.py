@@ -22,7 +22,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from sde_torchrl.modules.distribution import gaussian_log_prob, sde_variance
-from sde_torchrl.modules.noise import ADD_PRIMER, SDENoisePrimer, deterministic_exploration
+from sde_torchrl.modules.noise import SDENoisePrimer
 from sde_torchrl.utils.checks import noise_schedule, one_of, positive_int
 from sde_torchrl.utils.options import SHARINGS, SIGMA_TRANSFORMS
 from sde_torchrl.utils.rng import RunStreams
@@ -254,8 +254,6 @@ class SDEParams(TensorDictModuleBase):
                         f"(out_keys=[{self.loc_key!r}]), or pass loc_key= to SDEParams")
         features = self._get(tensordict, self.feature_key, "pass feature_key= to SDEParams")
         self._check_shapes(loc, features)
-        if self.noise_key not in tensordict.keys(True) and not deterministic_exploration():
-            raise KeyError(f"SDE noise {self.noise_key!r} missing from the input: {ADD_PRIMER}")
         batch, batch_dims = loc.shape[:-1], loc.dim() - 1
         sigma = align(self.sde_sigma, self.run_dims, batch_dims).to(loc.dtype)
         tensordict.set(self.sigma_key, sigma.expand(*batch, self.action_dim, self.feature_dim))

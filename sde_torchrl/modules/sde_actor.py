@@ -21,7 +21,7 @@ from torchrl.data import Bounded, Composite, TensorSpec
 from torchrl.modules import ProbabilisticActor
 
 from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal
-from sde_torchrl.modules.noise import deterministic_exploration
+from sde_torchrl.modules.noise import ADD_PRIMER, deterministic_exploration
 from sde_torchrl.modules.sde import SDEParams
 
 
@@ -34,7 +34,12 @@ class SDEActor(ProbabilisticActor):
     (``dist.log_prob(a)``, what PPO's ratio compares) and, when squashed, ``u`` under
     ``sample_key``: what the episodic estimators score. Under deterministic exploration the
     action is the distribution's ``deterministic_sample`` and ``u = loc``. ``get_dist`` and
-    everything else TorchRL's losses use are ``ProbabilisticActor``'s.
+    everything else TorchRL's losses use are ``ProbabilisticActor``'s; the likelihood (eq. 20)
+    does not depend on ``ξ``, so a loss that only scores stored actions (PPO, A2C) may leave the
+    noise out of its minibatches, while sampling (this forward, SAC's ``rsample``) needs it.
+
+    Raises:
+        KeyError: sampling with no noise in the input (the env has no noise primer).
 
     Args:
         module: ``TensorDictSequential(actor, sde)``, the actor writing ``sde.loc_key``.
@@ -101,6 +106,8 @@ class SDEActor(ProbabilisticActor):
         dist = self.build_dist_from_params(tensordict)
         if deterministic_exploration():
             sample, action = dist.loc, dist.deterministic_sample
+        elif dist.noise is None:  # sampling needs the carried ξ; a loss's get_dist does not
+            raise KeyError(f"SDE noise {self.sde.noise_key!r} missing from the input: {ADD_PRIMER}")
         else:
             sample = SDENormal.rsample(dist)
             action = dist.squash(sample) if self.squash else sample
