@@ -52,7 +52,9 @@ from sde_torchrl.utils.intervals import bootstrap_interval
 
 ENV_ID = "HalfCheetahBulletEnv-v0"
 METHODS = ("plain", "sde", "sb3", "sb3_gauss")
-SPEED_VARIANTS = ("plain", "plain+compile", "sde", "sde+compile", "sb3", "sb3_gauss")
+#: ``+compile``: the update compiled; ``+compile+policy``: the collector's policy forward as well.
+SPEED_VARIANTS = ("plain", "plain+compile", "plain+compile+policy", "sde", "sde+compile", "sde+compile+policy", "sb3",
+                  "sb3_gauss")
 EVAL_EPISODES = 10
 # rl-baselines3-zoo hyperparams/ppo.yml, "HalfCheetahBulletEnv-v0" (tuned, PPO + gSDE)
 ZOO = {
@@ -263,7 +265,10 @@ def make_update(loss, optim: torch.optim.Optimizer, compile_update: bool = False
 
 
 def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = False, evaluate: bool = True,
-                  clip_actions: bool = True) -> dict:
+                  clip_actions: bool = True, compile_policy: bool = False) -> dict:
+    """One TorchRL PPO training; ``compile_policy`` also compiles the collector's policy forward
+    (TorchRL's ``Collector(compile_policy=True)``): the SDE policy's forward with the carried noise
+    draws nothing, so compiling it changes no random stream."""
     from torchrl.collectors import Collector
     from torchrl.objectives import ClipPPOLoss
     from torchrl.objectives.value import GAE
@@ -282,7 +287,7 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
     optim = torch.optim.Adam(loss.parameters(), lr=ZOO["learning_rate"], eps=1e-5)  # SB3's Adam eps
     frames = ZOO["n_envs"] * ZOO["n_steps"]
     collector = Collector(env, policy, frames_per_batch=frames, total_frames=steps,
-                          auto_register_policy_transforms=True)
+                          auto_register_policy_transforms=True, compile_policy=compile_policy)
     step = make_update(loss, optim, compile_update)
     curve, iteration_ends, done_frames, start = [], [], 0, time.perf_counter()
     batches = iter(collector)
@@ -429,11 +434,12 @@ def _iteration_seconds(variant: str, rollouts: int) -> float:
     """Median wall time of one training iteration of ``variant``, the first iteration left out."""
     torch.set_num_threads(1)
     frames = ZOO["n_envs"] * ZOO["n_steps"]
-    method, _, option = variant.partition("+")
+    method, *options = variant.split("+")
     if method.startswith("sb3"):
         result = train_sb3(0, rollouts * frames, use_sde=method == "sb3", evaluate=False)
     else:
-        result = train_torchrl(method, 0, rollouts * frames, compile_update=option == "compile", evaluate=False)
+        result = train_torchrl(method, 0, rollouts * frames, compile_update="compile" in options, evaluate=False,
+                               compile_policy="policy" in options)
     return float(np.median(np.diff(result["iteration_ends_s"])))
 
 

@@ -181,3 +181,20 @@ def test_phases_split_an_iteration_into_parts_that_fit_inside_it(monkeypatch, va
     assert 0 < sum(phases[p] for p in parts) < phases["update"]
     whole = phases["collect"] + phases.get("GAE", 0.0) + phases["update"]
     assert whole == pytest.approx(phases["iteration"], rel=0.2)
+
+
+def test_the_compiled_collection_policy_acts_as_the_eager_one():
+    """``+policy`` (``Collector(compile_policy=True)``) changes how the SDE policy's forward runs,
+    not the action it takes with the carried noise, nor any random stream (it draws nothing)."""
+    from tensordict import TensorDict
+
+    torch.manual_seed(0)
+    policy, _, sde = bench.make_torchrl_policy("sde", 5, 2)
+    td = TensorDict({"observation": torch.randn(4, 5), sde.noise_key: torch.randn(4, 2, sde.feature_dim)}, [4])
+    with torch.no_grad():
+        eager = policy(td.clone())
+        state = torch.get_rng_state()
+        compiled = torch.compile(policy)(td.clone())
+        assert torch.equal(torch.get_rng_state(), state)
+    for key in ("action", "action_log_prob"):
+        torch.testing.assert_close(compiled[key], eager[key], rtol=1e-5, atol=1e-6)
