@@ -577,6 +577,7 @@ def main(argv: list[str] | None = None) -> int:
     speed_p = sub.add_parser("speed", help="env steps per second of single iterations, one variant after another")
     speed_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
     speed_p.add_argument("--rollouts", type=int, default=4, help="iterations per variant (the first is not timed)")
+    speed_p.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
     phases_p = sub.add_parser("phases", help="where one iteration's time goes, per variant")
     phases_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
     phases_p.add_argument("--rollouts", type=int, default=3, help="iterations per variant (the first is not timed)")
@@ -594,20 +595,16 @@ def main(argv: list[str] | None = None) -> int:
         data = json.loads(path.read_text())
         print(f"{args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")
-    elif args.command == "speed":
+    elif args.command in ("speed", "phases"):
         if args.rollouts < 2:
             parser.error(f"--rollouts must be at least 2 (the first is not timed), got {args.rollouts}")
-        sys.stdout.write(speed(args.variants, args.rollouts))
-    elif args.command == "phases":
-        if args.rollouts < 2:
-            parser.error(f"--rollouts must be at least 2 (the first is not timed), got {args.rollouts}")
-        table = phases(args.variants, args.rollouts)
+        table = (speed if args.command == "speed" else phases)(args.variants, args.rollouts)
         sys.stdout.write(table)
         if args.out is not None:
             command = " ".join(["python analysis/bench_ppo.py", *(argv if argv is not None else sys.argv[1:])])
-            args.out.write_text(f"# Where one PPO iteration's time goes\n\nWritten by `{command}` on "
-                                f"{time.strftime('%Y-%m-%d')} ({os.cpu_count()} cores; iterations 2-{args.rollouts}, "
-                                f"mean).\n\n{table}")
+            title = "Speed of one PPO iteration" if args.command == "speed" else "Where one PPO iteration's time goes"
+            args.out.write_text(f"# {title}\n\nWritten by `{command}` on {time.strftime('%Y-%m-%d')} "
+                                f"({os.cpu_count()} cores; iterations 2-{args.rollouts}).\n\n{table}")
     else:
         sys.stdout.write(report(args.folder, args.out))
     return 0

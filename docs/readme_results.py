@@ -2,7 +2,7 @@
 
 The README holds a short table of the headline results between the lines ``<!-- results:start -->``
 and ``<!-- results:end -->``. This script writes that table from ``docs/table1/table1.json``,
-``docs/ballcatch/{fig5,fig6,methods,selected/fig5}.json``, ``docs/ppo/bench_ppo.json`` and
+``docs/ballcatch/{fig5,fig6,methods,fig5_selected/fig5,selected/fig5}.json``, ``docs/ppo/bench_ppo.json`` and
 ``docs/sac/bench_sac.json``, so that no figure in the README is typed by hand::
 
     python docs/readme_results.py           # rewrite the README's table
@@ -47,6 +47,7 @@ def summary() -> str:
     fig5, fig6 = _load("ballcatch/fig5.json")["explorers"], _load("ballcatch/fig6.json")["explorers"]
     methods = _load("ballcatch/methods.json")["explorers"]
     selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
+    fig5_selected = _load("ballcatch/fig5_selected/fig5.json")["explorers"]
     ppo = _load("ppo/bench_ppo.json")
     ratio = ppo["sde_over_sb3"]
     sac = _load("sac/bench_sac.json")["mountaincar"]
@@ -65,6 +66,11 @@ def summary() -> str:
         (f"Fig. 6 (ENAC): runs reaching a catch, {fig6['sde']['runs']} runs each",
          f"SDE {_percent(fig6['sde'])}, REX {_percent(fig6['rex'])}",
          f"SDE {fig6['sde']['paper'][CATCH]} %, REX {fig6['rex']['paper'][CATCH]} %", "docs/reproduce/fig5_6.md"),
+        (f"Fig. 5 at each explorer's selected learner (REINFORCE), {fig5_selected['sde']['runs']} runs each: "
+         "ending with a catch; reaching one",
+         f"SDE {_percent(fig5_selected['sde'], 'final')}, REX {_percent(fig5_selected['rex'], 'final')}; "
+         f"SDE {_percent(fig5_selected['sde'])}, REX {_percent(fig5_selected['rex'])}",
+         f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach one", "docs/reproduce/fig5_6.md"),
         (f"`+experiment=ballcatch` (selected learner), {selected['runs']} runs: ending with a catch",
          f"{selected['final'][CATCH]} of {selected['runs']} ({_percent(selected, 'final')}); "
          f"{selected['best'][CATCH]} reach one", f"{selected['paper'][CATCH]} % reach one",
