@@ -446,19 +446,38 @@ def _iteration_seconds(variant: str, rollouts: int) -> float:
 def speed(variants: list[str], rollouts: int) -> str:
     """Env steps per second of one training iteration (collect ``n_envs × n_steps``, then update).
 
-    Each variant (``sde``, ``sde+compile``, ``plain``, ``plain+compile``, ``sb3``, ``sb3_gauss``)
-    trains ``rollouts`` iterations on one thread in a fresh process of its own (in one process,
-    whatever runs later runs slower), one variant after the other; the first iteration (warm-up,
-    compilation) is left out and the median of the others is reported.
+    Each variant (``sde``, ``sde+compile``, ``sde+compile+policy``, the same for ``plain``, ``sb3``,
+    ``sb3_gauss``) trains ``rollouts`` iterations on one thread in a fresh process of its own (in
+    one process, whatever runs later runs slower), one variant after the other, in the order
+    given (a variant may come twice); the first iteration (warm-up, compilation) is left out and
+    the median of the others is reported. With ``sb3`` among them, each variant's speed is also
+    given as a ratio to SB3 gSDE's (the median of its entries, if it came more than once).
     """
     import multiprocessing
 
-    frames = ZOO["n_envs"] * ZOO["n_steps"]
-    lines = ["| variant | median s / iteration | env steps / s | iterations timed |", "| --- | --- | --- | --- |"]
+    seconds = []
     for variant in variants:
         with multiprocessing.get_context("spawn").Pool(1) as pool:
-            seconds = pool.apply(_iteration_seconds, (variant, rollouts))
-        lines.append(f"| {variant} | {seconds:.2f} | {frames / seconds:.0f} | {rollouts - 1} |")
+            seconds.append(pool.apply(_iteration_seconds, (variant, rollouts)))
+    return speed_table(variants, seconds, rollouts - 1)
+
+
+def speed_table(variants: list[str], seconds: list[float], timed: int) -> str:
+    """The ``speed`` table: seconds per iteration, env steps per second and, with ``sb3`` among
+    the variants, the ratio to SB3 gSDE's speed (its median over its entries).
+
+    Examples:
+        >>> print(speed_table(["sb3", "sde", "sb3"], [4.0, 5.0, 6.0], 5).splitlines()[3])
+        | sde | 5.00 | 1638 | 1.00 | 5 |
+    """
+    frames = ZOO["n_envs"] * ZOO["n_steps"]
+    reference = [s for v, s in zip(variants, seconds, strict=True) if v == "sb3"]
+    sb3 = float(np.median(reference)) if reference else None
+    lines = ["| variant | median s / iteration | env steps / s | × SB3 gSDE's env steps / s | iterations timed |",
+             "| --- | --- | --- | --- | --- |"]
+    for variant, s in zip(variants, seconds, strict=True):
+        ratio = f"{sb3 / s:.2f}" if sb3 else "-"
+        lines.append(f"| {variant} | {s:.2f} | {frames / s:.0f} | {ratio} | {timed} |")
     return "\n".join(lines) + "\n"
 
 
