@@ -102,18 +102,30 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     return runs
 
 
-def load_initial(directories: list[Path], estimator: str) -> dict[str, dict[int, float]]:
-    """``explorer → global run index → deterministic return of Θ0`` from the ``initial.json``
-    files of ``analysis/ballcatch_initial.py`` under ``directories`` (mean reward per step)."""
-    initial: dict[str, dict[int, float]] = {}
+def load_per_run(directories: list[Path], estimator: str, filename: str, key: str) -> dict[str, dict[int, float]]:
+    """``explorer → global run index → value`` from the files ``filename`` under ``directories``
+    that list one value per run under ``key`` (mean reward per step): ``initial.json``
+    (``initial_eval_return``, ``analysis/ballcatch_initial.py``), ``final_policy.json``
+    (``final_policy_return``, ``analysis/ballcatch_final.py``)."""
+    values: dict[str, dict[int, float]] = {}
     for directory in directories:
-        for path in sorted(directory.rglob("initial.json")):
+        for path in sorted(directory.rglob(filename)):
             found = json.loads(path.read_text())
             label = method_label(found["explorer"], found["estimator"], estimator)
             if label is not None:
-                for offset, value in enumerate(found["initial_eval_return"]):
-                    initial.setdefault(label, {})[found["first_run"] + offset] = value
-    return initial
+                for offset, value in enumerate(found[key]):
+                    values.setdefault(label, {})[found["first_run"] + offset] = value
+    return values
+
+
+def final_policy_episodes(directories: list[Path]) -> tuple[int, int] | None:
+    """The episodes and seed of the ``final_policy.json`` files under ``directories`` as
+    ``(episodes, seed)``, or ``None`` if there are none; files that disagree are refused."""
+    found = {(f["episodes"], f["seed"]) for directory in directories
+             for f in map(json.loads, map(Path.read_text, sorted(directory.rglob("final_policy.json"))))}
+    if len(found) > 1:
+        raise ValueError(f"final_policy.json files of different evaluations {sorted(found)}: use one")
+    return found.pop() if found else None
 
 
 def improvement(by_run: dict[int, dict], initial: dict[int, float]) -> dict | None:
@@ -129,13 +141,17 @@ def improvement(by_run: dict[int, dict], initial: dict[int, float]) -> dict | No
             "change": list(change)}
 
 
-def reached(runs: dict[int, dict]) -> dict[str, dict[str, list[bool]]]:
-    """Per run (in index order), whether its best and its final evaluated policy reached each level."""
-    ordered = [runs[index] for index in sorted(runs)]
-    best = [max(r for _, r in run["evals"]) for run in ordered]
-    final = [run["final"] for run in ordered]
-    return {kind: {f"{level}": [value >= level for value in values] for level in LEVELS}
-            for kind, values in (("best", best), ("final", final))}
+def reached(runs: dict[int, dict], final_policy: dict[int, float] | None = None) -> dict[str, dict[str, list[bool]]]:
+    """Per run (in index order), whether its best and its final evaluated policy reached each
+    level; with ``final_policy`` (run index → the final policy's return on more episodes), also
+    whether that did (``"final_policy"``)."""
+    ordered = sorted(runs)
+    values = {"best": [max(r for _, r in runs[index]["evals"]) for index in ordered],
+              "final": [runs[index]["final"] for index in ordered]}
+    if final_policy is not None:
+        values["final_policy"] = [final_policy[index] for index in ordered]
+    return {kind: {f"{level}": [value >= level for value in found] for level in LEVELS}
+            for kind, found in values.items()}
 
 
 def collapsed(by_run: dict[int, dict]) -> dict | None:
@@ -154,18 +170,30 @@ def collapsed(by_run: dict[int, dict]) -> dict | None:
 
 
 def report(runs: dict[str, dict[int, dict]], estimator: str,
-           initial: dict[str, dict[int, float]] | None = None) -> dict:
+           initial: dict[str, dict[int, float]] | None = None,
+           final_policy: dict[str, dict[int, float]] | None = None) -> dict:
     """The figure's numbers: per explorer, run count, catch counts (best and final) with their
     95 % Wilson intervals as fractions of the runs, and the paper's counts (out of 100); with
     both explorers, the SDE − REX difference of each fraction with its 95 % bootstrap interval
-    over runs (``significant``: the interval excludes 0)."""
+    over runs (``significant``: the interval excludes 0). With ``final_policy`` (explorer → run
+    index → the final policy's return on more episodes), the same for ``"final_policy"``.
+
+    Raises:
+        ValueError: ``final_policy`` has some of an explorer's runs but not all.
+    """
     from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
 
-    flags = {explorer: reached(by_run) for explorer, by_run in runs.items()}
+    final_policy = final_policy or {}
+    for explorer, values in final_policy.items():
+        missing = sorted(runs.get(explorer, {}).keys() - values.keys())
+        if missing:
+            raise ValueError(f"{explorer}: {len(missing)} runs (first {missing[0]}) have no final_policy.json "
+                             "entry: run analysis/ballcatch_final.py on every shard")
+    flags = {explorer: reached(by_run, final_policy.get(explorer)) for explorer, by_run in runs.items()}
     explorers = {}
     for explorer, by_run in sorted(runs.items()):
         n, stats = len(by_run), {"runs": len(by_run)}
-        for kind in ("best", "final"):
+        for kind in flags[explorer]:
             stats[kind] = {level: sum(hits) for level, hits in flags[explorer][kind].items()}
             stats[f"{kind}_interval"] = {level: bounds(binomial_interval(k, n)) for level, k in stats[kind].items()}
         stats["paper"] = {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}
@@ -175,8 +203,8 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
     result = {"estimator": estimator, "explorers": explorers}
 
     def difference(method: str, baseline: str) -> dict:
-        out = {}
-        for kind in ("best", "final"):
+        out, shared = {}, [kind for kind in flags[method] if kind in flags[baseline]]
+        for kind in shared:
             out[kind] = {}
             for level in flags[method][kind]:
                 ours, theirs = flags[method][kind][level], flags[baseline][kind][level]
@@ -196,35 +224,50 @@ def _percent(fraction: float) -> str:
     return f"{100 * fraction:.0f}"
 
 
+def _fraction_cell(stats: dict, kind: str, level: str) -> str:
+    """``percent % [low, high]``: the runs of one explorer whose ``kind`` evaluation reached ``level``."""
+    low, high = stats[f"{kind}_interval"][level]
+    return f"{_percent(stats[kind][level] / stats['runs'])} % [{_percent(low)}, {_percent(high)}]"
+
+
+def _difference_cell(difference: dict) -> str:
+    """``+points [low, high]`` with ``*`` where the interval excludes 0."""
+    low, high = difference["interval"]
+    return (f"{100 * difference['estimate']:+.0f} [{100 * low:+.0f}, {100 * high:+.0f}]"
+            + ("*" if difference["significant"] else ""))
+
+
+def _table(result: dict, differences: dict[str, dict], kinds: tuple[str, ...], paper: bool) -> list[str]:
+    """One row per explorer that has every kind in ``kinds`` (cells ``kind / kind`` per level, the
+    paper's count with ``paper``), then the differences' rows."""
+    lines = ["| explorer | runs | " + " | ".join(f"R ≥ {level}" for level in LEVELS) + " |",
+             "| --- | --- | " + " | ".join("---" for _ in LEVELS) + " |"]
+    for explorer, stats in result["explorers"].items():
+        if all(kind in stats for kind in kinds):
+            cells = [" / ".join(_fraction_cell(stats, kind, level) for kind in kinds)
+                     + (f" (paper {stats['paper'][level]} %)" if paper and level in stats["paper"] else "")
+                     for level in (f"{level}" for level in LEVELS)]
+            lines.append(f"| {explorer.upper()} | {stats['runs']} | " + " | ".join(cells) + " |")
+    for name, versus in differences.items():
+        if all(kind in versus for kind in kinds):
+            cells = [" / ".join(_difference_cell(versus[kind][f"{level}"]) for kind in kinds) for level in LEVELS]
+            lines.append(f"| {name.upper()} (points) |  | " + " | ".join(cells) + " |")
+    return lines
+
+
 def write_markdown(result: dict, path: Path) -> None:
     """Per level, the fraction of runs (best / final evaluated policy) with its 95 % interval,
-    beside the paper's; then the SDE − REX differences."""
-    header = ["| explorer | runs | " + " | ".join(f"R ≥ {level}" for level in LEVELS) + " |",
-              "| --- | --- | " + " | ".join("---" for _ in LEVELS) + " |"]
-    lines = list(header)
-    for explorer, stats in result["explorers"].items():
-        cells = []
-        for level in (f"{level}" for level in LEVELS):
-            best, final = (stats[kind][level] / stats["runs"] for kind in ("best", "final"))
-            (b_low, b_high), (f_low, f_high) = (stats[f"{kind}_interval"][level] for kind in ("best", "final"))
-            paper = stats["paper"].get(level)
-            cells.append(f"{_percent(best)} % [{_percent(b_low)}, {_percent(b_high)}] / "
-                         f"{_percent(final)} % [{_percent(f_low)}, {_percent(f_high)}]"
-                         + (f" (paper {paper} %)" if paper is not None else ""))
-        lines.append(f"| {explorer.upper()} | {stats['runs']} | " + " | ".join(cells) + " |")
+    beside the paper's; then the SDE − REX differences; then, if measured, the same for the
+    final policies evaluated on more episodes (``analysis/ballcatch_final.py``)."""
     differences = result.get("differences") or (
         {"sde − rex": result["sde_minus_rex"]} if "sde_minus_rex" in result else {})
-    for name, versus in differences.items():
-        cells = []
-        for level in (f"{level}" for level in LEVELS):
-            parts = []
-            for kind in ("best", "final"):
-                d = versus[kind][level]
-                low, high = d["interval"]
-                parts.append(f"{100 * d['estimate']:+.0f} [{100 * low:+.0f}, {100 * high:+.0f}]"
-                             + ("*" if d["significant"] else ""))
-            cells.append(" / ".join(parts))
-        lines.append(f"| {name.upper()} (points) |  | " + " | ".join(cells) + " |")
+    lines = _table(result, differences, ("best", "final"), paper=True)
+    if "final_policy" in result:
+        episodes, seed = result["final_policy"]["episodes"], result["final_policy"]["seed"]
+        lines += ["", f"The final policy evaluated on {episodes} episodes (seed {seed}; "
+                  "`analysis/ballcatch_final.py`, rule in `docs/ballcatch/final_policy_rule.md`), percent of "
+                  "runs whose mean reward over them reached the level:", ""]
+        lines += _table(result, differences, ("final_policy",), paper=False)
     for explorer, stats in result["explorers"].items():
         if stats["improvement"]:
             change = stats["improvement"]["change"]
@@ -307,7 +350,12 @@ def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:
         return 1
     args.out.mkdir(parents=True, exist_ok=True)
     name = FIGURE[args.estimator]
-    result = report(runs, args.estimator, load_initial(args.sweeps, args.estimator))
+    initial = load_per_run(args.sweeps, args.estimator, "initial.json", "initial_eval_return")
+    final_policy = load_per_run(args.sweeps, args.estimator, "final_policy.json", "final_policy_return")
+    result = report(runs, args.estimator, initial, final_policy)
+    evaluated = final_policy_episodes(args.sweeps)
+    if evaluated is not None:
+        result["final_policy"] = {"episodes": evaluated[0], "seed": evaluated[1]}
     (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
     write_markdown(result, args.out / f"{name}.md")
     method = "REINFORCE settings" if args.estimator == "all" else args.estimator.upper()

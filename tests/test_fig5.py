@@ -214,3 +214,63 @@ def test_video_picks_the_best_or_the_median_run():
     assert video.pick(runs, "best").index == 1
     assert video.pick(runs, "median").index == 0  # -2.0, the middle of five
     assert video.pick(runs + [video.Run(5, -1.0, None, "pybrain")], "best").index == 1  # ties: the lower index
+
+
+def _write_final_policy(directory: Path, explorer: str, first_run: int, returns: list[float],
+                        episodes: int = 20, seed: int = 7) -> None:
+    """``final_policy.json`` as ``analysis/ballcatch_final.py`` writes it into a job directory."""
+    (directory / "final_policy.json").write_text(json.dumps(
+        {"explorer": explorer, "estimator": "reinforce", "first_run": first_run, "episodes": episodes, "seed": seed,
+         "final_policy_return": returns}))
+
+
+def test_final_policies_on_more_episodes_are_counted_beside_the_trainers_evaluation(tmp_path):
+    for explorer, curves in CURVES.items():
+        _write_job(tmp_path / explorer, explorer, 0, curves)
+    _write_final_policy(tmp_path / "sde", "sde", 0, [-1.08, -1.0, -1.7, -1.12])
+    _write_final_policy(tmp_path / "rex", "rex", 0, [-1.95, -1.5, -3.0, -1.2])
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out"), "--estimator", "reinforce"]) == 0
+    result = json.loads((tmp_path / "out" / "fig5.json").read_text())
+    sde, rex = result["explorers"]["sde"], result["explorers"]["rex"]
+    assert result["final_policy"] == {"episodes": 20, "seed": 7}
+    assert sde["final"]["-1.1"] == 1 and sde["final_policy"]["-1.1"] == 2 and sde["final_policy"]["-1.0"] == 1
+    assert rex["final_policy"] == {"-2.0": 3, "-1.5": 2, "-1.1": 0, "-1.0": 0}
+    assert result["sde_minus_rex"]["final_policy"]["-1.1"]["estimate"] == pytest.approx(0.5)
+    table = (tmp_path / "out" / "fig5.md").read_text()
+    assert "evaluated on 20 episodes (seed 7" in table
+    assert "| SDE | 4 | 100 % [51, 100] | 75 % [30, 95] | 50 % [15, 85] | 25 % [5, 70] |" in table
+
+
+def test_final_policies_of_some_runs_only_or_of_two_evaluations_are_refused(tmp_path):
+    _write_job(tmp_path / "sde", "sde", 0, CURVES["sde"])
+    _write_final_policy(tmp_path / "sde", "sde", 0, [-1.0, -1.0])
+    with pytest.raises(ValueError, match="2 runs .first 2. have no final_policy.json"):
+        fig5.main([str(tmp_path), "--out", str(tmp_path / "out")])
+    _write_job(tmp_path / "more", "sde", 2, CURVES["sde"][2:])
+    _write_final_policy(tmp_path / "more", "sde", 2, [-1.0, -1.0], episodes=10)
+    with pytest.raises(ValueError, match="different evaluations"):
+        fig5.main([str(tmp_path), "--out", str(tmp_path / "out")])
+
+
+def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path):
+    """Given the job's own seed and episode count, the evaluation of the loaded final controllers
+    is the trainer's final evaluation, to the bit, however the runs are split into chunks; on
+    another seed the balls differ; a job the config tree no longer rebuilds is refused."""
+    final = load_script("ballcatch_final")
+    job = ["+experiment=ballcatch", "runs=3", "updates=2", "eval_period=2", "episode_queue=2",
+           "env.episode_length=60", "logger=none"]
+    assert run_cli(*job, run_dir=tmp_path / "job", timeout=600).returncode == 0
+    summary = json.loads((tmp_path / "job" / "summary.json").read_text())
+    assert final.main(["--episodes", "3", "--seed", "0", "--chunk", "2", str(tmp_path)]) == 0
+    found = json.loads((tmp_path / "job" / "final_policy.json").read_text())
+    assert found["final_policy_return"] == summary["final_eval_return"]  # means: no scale
+    assert (found["explorer"], found["estimator"], found["first_run"]) == ("sde", "reinforce", 0)
+    with pytest.raises(SystemExit):  # the file holds another evaluation
+        final.main(["--episodes", "3", "--seed", "7", str(tmp_path)])
+    assert final.main(["--episodes", "3", "--seed", "7", "--chunk", "3", "--force", str(tmp_path)]) == 0
+    other = json.loads((tmp_path / "job" / "final_policy.json").read_text())["final_policy_return"]
+    assert other != summary["final_eval_return"]
+    overrides = tmp_path / "job" / ".hydra" / "overrides.yaml"
+    overrides.write_text(overrides.read_text() + "- env.jitter=0.1\n")
+    with pytest.raises(SystemExit, match="env.jitter: 0.05 -> 0.1"):
+        final.main(["--episodes", "3", "--seed", "7", "--force", str(tmp_path)])
