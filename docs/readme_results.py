@@ -69,8 +69,9 @@ def summary() -> str:
          f"SDE {_percent(fig6['sde'])}, REX {_percent(fig6['rex'])}",
          f"SDE {fig6['sde']['paper'][CATCH]} %, REX {fig6['rex']['paper'][CATCH]} %", "docs/reproduce/fig5_6.md"),
         (f"Fig. 5 at each explorer's selected learner (REINFORCE), {fig5_selected['sde']['runs']} runs each: "
-         "ending with a catch; reaching one",
+         "ending with a catch; the final policy catching on 20 episodes; reaching a catch",
          f"SDE {_percent(fig5_selected['sde'], 'final')}, REX {_percent(fig5_selected['rex'], 'final')}; "
+         f"SDE {_percent(fig5_selected['sde'], 'final_policy')}, REX {_percent(fig5_selected['rex'], 'final_policy')}; "
          f"SDE {_percent(fig5_selected['sde'])}, REX {_percent(fig5_selected['rex'])}",
          f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach one", "docs/reproduce/fig5_6.md"),
         (f"`+experiment=ballcatch` (selected learner), {selected['runs']} runs (seed 4242): ending with a catch; "
