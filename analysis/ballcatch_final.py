@@ -67,16 +67,17 @@ def rebuilt_config(job: FinishedRun, changes: dict[str, object]) -> object:
 
 
 def load_final_parameters(policy: torch.nn.Module, final: dict[str, list], start: int, count: int) -> None:
-    """Copies runs ``start .. start + count`` of the summary's ``final_parameters`` into ``policy``
-    (stacked over runs: each parameter's first dimension is the run)."""
-    state = policy.state_dict()
-    missing = sorted(set(final) ^ set(state))
-    if missing:
-        raise SystemExit(f"error: the summary's final_parameters do not match the policy's ({missing[:3]}): "
+    """Copies runs ``start .. start + count`` of the summary's ``final_parameters`` into ``policy``'s
+    parameters (stacked over runs: each one's first dimension is the run). What is not a parameter
+    (a σ̂ the job kept fixed) is what the config builds, as in the job."""
+    parameters = dict(policy.named_parameters())
+    mismatched = sorted(set(final) ^ set(parameters))
+    if mismatched:
+        raise SystemExit(f"error: the summary's final_parameters do not match the policy's ({mismatched[:3]}): "
                          "the job was written by another version of the policy")
     with torch.no_grad():
         for name, values in final.items():
-            target = state[name]
+            target = parameters[name]
             target.copy_(torch.as_tensor(values[start:start + count], dtype=target.dtype).reshape(target.shape))
 
 

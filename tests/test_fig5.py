@@ -252,19 +252,20 @@ def test_final_policies_of_some_runs_only_or_of_two_evaluations_are_refused(tmp_
         fig5.main([str(tmp_path), "--out", str(tmp_path / "out")])
 
 
-def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path):
+@pytest.mark.parametrize("experiment", [["+experiment=ballcatch", "episode_queue=2"],  # σ̂ learned
+                                        ["+experiment=ballcatch_enac"]])  # σ̂ fixed: not a parameter
+def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path, experiment):
     """Given the job's own seed and episode count, the evaluation of the loaded final controllers
     is the trainer's final evaluation, to the bit, however the runs are split into chunks; on
     another seed the balls differ; a job the config tree no longer rebuilds is refused."""
     final = load_script("ballcatch_final")
-    job = ["+experiment=ballcatch", "runs=3", "updates=2", "eval_period=2", "episode_queue=2",
-           "env.episode_length=60", "logger=none"]
+    job = [*experiment, "runs=3", "updates=2", "eval_period=2", "env.episode_length=60", "logger=none"]
     assert run_cli(*job, run_dir=tmp_path / "job", timeout=600).returncode == 0
     summary = json.loads((tmp_path / "job" / "summary.json").read_text())
     assert final.main(["--episodes", "3", "--seed", "0", "--chunk", "2", str(tmp_path)]) == 0
     found = json.loads((tmp_path / "job" / "final_policy.json").read_text())
     assert found["final_policy_return"] == summary["final_eval_return"]  # means: no scale
-    assert (found["explorer"], found["estimator"], found["first_run"]) == ("sde", "reinforce", 0)
+    assert (found["explorer"], found["first_run"]) == ("sde", 0)
     with pytest.raises(SystemExit):  # the file holds another evaluation
         final.main(["--episodes", "3", "--seed", "7", str(tmp_path)])
     assert final.main(["--episodes", "3", "--seed", "7", "--chunk", "3", "--force", str(tmp_path)]) == 0
