@@ -2,7 +2,7 @@
 
 The README holds a short table of the headline results between the lines ``<!-- results:start -->``
 and ``<!-- results:end -->``. This script writes that table from ``docs/table1/table1.json``,
-``docs/ballcatch/{fig5,fig6,methods,fig5_selected/fig5,selected/fig5}.json``, the quick
+``docs/ballcatch/{fig5,fig6,methods,fig5_selected/fig5,fig6_selected/fig6,selected/fig5}.json``, the quick
 start's run (``docs/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json`` and
 ``docs/sac/bench_sac.json``, so that no figure in the README is typed by hand::
 
@@ -49,6 +49,7 @@ def summary() -> str:
     methods = _load("ballcatch/methods.json")["explorers"]
     selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
     fig5_selected = _load("ballcatch/fig5_selected/fig5.json")["explorers"]
+    fig6_selected = _load("ballcatch/fig6_selected/fig6.json")["explorers"]
     quick_start = _load("ballcatch/runs/selected/seed0/summary.json")["final_eval_return"][0]
     ppo = _load("ppo/bench_ppo.json")
     ratio = ppo["sde_over_sb3"]
@@ -74,6 +75,13 @@ def summary() -> str:
          f"SDE {_percent(fig5_selected['sde'], 'final_policy')}, REX {_percent(fig5_selected['rex'], 'final_policy')}; "
          f"SDE {_percent(fig5_selected['sde'])}, REX {_percent(fig5_selected['rex'])}",
          f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach one", "docs/reproduce/fig5_6.md"),
+        (f"Fig. 6 at each explorer's selected learner (ENAC, σ̂ fixed), {fig6_selected['sde']['runs']} runs each: "
+         "ending with a catch; the final policy catching on 20 episodes; reaching a catch",
+         f"SDE {_percent(fig6_selected['sde'], 'final')}, REX {_percent(fig6_selected['rex'], 'final')}; "
+         f"SDE {_percent(fig6_selected['sde'], 'final_policy')}, REX {_percent(fig6_selected['rex'], 'final_policy')}; "
+         f"SDE {_percent(fig6_selected['sde'])}, REX {_percent(fig6_selected['rex'])}",
+         f"SDE {fig6_selected['sde']['paper'][CATCH]} %, REX {fig6_selected['rex']['paper'][CATCH]} % reach one",
+         "docs/reproduce/fig5_6.md"),
         (f"`+experiment=ballcatch` (selected learner), {selected['runs']} runs (seed 4242): ending with a catch; "
          "the quick start's seed 0",
          f"{selected['final'][CATCH]} of {selected['runs']} ({_percent(selected, 'final')}); "
