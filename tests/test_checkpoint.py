@@ -119,7 +119,10 @@ def test_json_written_atomically(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- command line
 
-CLI = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=7")
+#: Long enough (about 4 s of updates after start-up) that a signal sent after the first rows still
+#: reaches the job before it ends on a loaded machine; the whole job stays a few seconds.
+UPDATES = 600
+CLI = ("+experiment=minimize", "runs=2", f"updates={UPDATES}", "eval_period=10", "checkpoint_period=7")
 
 
 def rows_in(path: Path) -> int:
@@ -176,7 +179,7 @@ def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
     assert (run_dir / "metrics.csv").read_bytes() == (ref_dir / "metrics.csv").read_bytes()
     resumed, uninterrupted = summary_without_wall(run_dir), summary_without_wall(ref_dir)
     assert resumed == uninterrupted
-    assert resumed["updates_done"] == 150
+    assert resumed["updates_done"] == UPDATES
     scalars = Path("sde_torchrl", "scalars", "return_mean.csv")  # TorchRL's CSV logger too
     assert (run_dir / scalars).read_bytes() == (ref_dir / scalars).read_bytes()
     assert not list(run_dir.glob("*.tmp"))
