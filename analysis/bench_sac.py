@@ -35,11 +35,20 @@ critic loss ``Σ_k (Q_k - y)²`` is halved to SB3's ``½ Σ_k MSE`` (Adam would 
 With ``learning_starts > 0`` both sides act uniformly at random until then (SB3's default
 ``use_sde_at_warmup=False``; TorchRL's ``init_random_frames``).
 
-Differences left (the library has no option for them yet, issue 25 item 2): ``σ̂ = expln(p)``
-here, ``exp(p)`` in SB3 (equal while ``p <= 0``: each run records its largest ``p``); SB3 counts
-its ``train_freq`` resampling period over the run, our ``every_n`` restarts at each reset; SB3
-adds 1e-6 to the action variance and to ``1 - tanh²`` and scores ``atanh`` of the squashed action,
-ours scores the exact pre-squash sample.
+Differences left, as the committed runs were made: ``σ̂ = expln(p)`` here, ``exp(p)`` in SB3
+(equal while ``p <= 0``: each run records its largest ``p``; the library's
+``SDEParams(sigma_transform="exp")`` is SB3's); SB3 counts its ``train_freq`` resampling period
+over the run, our ``every_n`` restarts at each reset (``schedule="every_n_steps"`` is SB3's
+counting); SB3 adds 1e-6 to the action variance and to ``1 - tanh²`` and scores ``atanh`` of the
+squashed action, ours scores the exact pre-squash sample.
+
+**The compiled update** (``run --compile``, the ``sde_compiled`` row): the whole gradient step
+above (fresh noise, both losses, their backward passes, the Adam steps, the target update) goes
+through ``torch.compile`` with compiled autograd, so that the backward passes join the graph
+instead of breaking it, as TorchRL's own SAC scripts do with their ``compile`` option. It computes
+the same step (tested against the eager one with the stored noise); the fresh noise inside it
+comes from inductor's random generator, not eager PyTorch's, so a compiled run is not the eager
+run of the same seed. The first steps compile (about 40 s here), inside the timed training.
 
 Each run writes ``<out>/<env>_<method>_seed<k>.json``: the deterministic return of 10 evaluation
 episodes at the end, the training episodes' returns against env steps, and env steps per
@@ -204,7 +213,7 @@ def make_loss(policy, critic, action_spec, zoo: dict):
     return loss
 
 
-def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh"):
+def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update: bool = False):
     """One SAC gradient step on a sampled minibatch, in SB3's order (see the module docstring).
 
     Args:
@@ -212,6 +221,7 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh"):
         sde: the :class:`~sde_torchrl.SDEParams` (``None`` for the plain Gaussian).
         zoo: the env's settings.
         loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the buffer's ``ξ``).
+        compile_update: run the whole step through ``torch.compile`` with compiled autograd.
 
     Returns:
         ``update(batch)``.
@@ -241,7 +251,15 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh"):
             alpha_optim.step()
         target.step()
 
-    return update
+    if not compile_update:
+        return update
+    compiled = torch.compile(update)
+
+    def compiled_update(batch) -> None:
+        with torch._dynamo.config.patch(compiled_autograd=True):  # the backward passes inside the graph
+            compiled(batch)
+
+    return compiled_update
 
 
 def make_torchrl_env(env_id: str, seed: int, primer=None):
@@ -275,10 +293,11 @@ def evaluate_torchrl(policy, env_id: str, seed: int, episodes: int = EVAL_EPISOD
 
 
 def train_torchrl(method: str, env_key: str, seed: int, steps: int, eval_episodes: int = EVAL_EPISODES,
-                  loss_noise: str = "fresh", overrides: dict | None = None) -> dict:
+                  loss_noise: str = "fresh", overrides: dict | None = None, compile_update: bool = False) -> dict:
     """Train ``sde`` or ``plain`` on TorchRL; returns the run's record (see the module docstring).
 
-    ``overrides`` replaces :data:`ZOO` entries (the tests' tiny runs).
+    ``overrides`` replaces :data:`ZOO` entries (the tests' tiny runs); ``compile_update`` compiles
+    the gradient step (:func:`make_update`).
     """
     from torchrl.collectors import Collector
     from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
@@ -292,7 +311,7 @@ def train_torchrl(method: str, env_key: str, seed: int, steps: int, eval_episode
     policy, critic, sde = make_torchrl_policy(method, obs_dim, action_spec, zoo)
     env = make_torchrl_env(zoo["env_id"], seed, sde.make_tensordict_primer() if sde else None)
     loss = make_loss(policy, critic, action_spec, zoo)
-    update = make_update(loss, sde, zoo, loss_noise)
+    update = make_update(loss, sde, zoo, loss_noise, compile_update)
     buffer = ReplayBuffer(storage=LazyTensorStorage(min(zoo["buffer_size"], steps)), sampler=RandomSampler(),
                           batch_size=zoo["batch_size"])
     collector = Collector(env, policy, frames_per_batch=zoo["train_freq"], total_frames=steps,
@@ -365,7 +384,7 @@ def train_sb3(env_key: str, seed: int, steps: int, use_sde: bool = True, eval_ep
 
 # ------------------------------------------------------------------------------------------ command
 def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise: str = "fresh",
-        eval_episodes: int = EVAL_EPISODES, overrides: dict | None = None) -> Path:
+        eval_episodes: int = EVAL_EPISODES, overrides: dict | None = None, compile_update: bool = False) -> Path:
     """Train one method with one seed and write ``<out>/<env>_<method>_seed<k>.json``.
 
     Args:
@@ -377,6 +396,7 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
         loss_noise: ``"fresh"`` or ``"stored"`` (``sde`` only, see :func:`make_update`).
         eval_episodes: deterministic evaluation episodes at the end.
         overrides: :data:`ZOO` entries replaced on both sides (a short budget's ``learning_starts``).
+        compile_update: compile the TorchRL gradient step (``<out>/<env>_<method>_compiled_seed<k>.json``).
 
     Returns:
         The path of the written run.
@@ -387,12 +407,12 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
                            overrides=overrides)
     else:
         result = train_torchrl(method, env_key, seed, steps, loss_noise=loss_noise, eval_episodes=eval_episodes,
-                               overrides=overrides)
+                               overrides=overrides, compile_update=compile_update)
     import stable_baselines3
     import torchrl
 
     result.update(method=method, env=env_key, env_id=ZOO[env_key]["env_id"], seed=seed,
-                  loss_noise=loss_noise if method == "sde" else None,
+                  loss_noise=loss_noise if method == "sde" else None, compiled=compile_update,
                   settings={**ZOO[env_key], **(overrides or {})}, overrides=overrides or {},
                   env_steps_per_s=result["env_steps"] / result["wall_s"],
                   env_steps_per_cpu_s=result["env_steps"] / result["cpu_s"],
@@ -401,7 +421,7 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
                             "stable_baselines3": stable_baselines3.__version__,
                             "python": platform.python_version()})
     out.mkdir(parents=True, exist_ok=True)
-    suffix = "_stored_noise" if method == "sde" and loss_noise == "stored" else ""
+    suffix = "_stored_noise" if method == "sde" and loss_noise == "stored" else "_compiled" if compile_update else ""
     path = out / f"{env_key}_{method}{suffix}_seed{seed}.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(result))
@@ -514,17 +534,21 @@ neighbours' load; CPU time less so). Curves: `bench_sac.png`."""
 
 
 NAMES = {"sde": "TorchRL SAC, SDE (ours)", "plain": "TorchRL SAC, Gaussian", "sb3": "SB3 SAC, gSDE",
-         "sb3_gauss": "SB3 SAC, Gaussian", "sde_stored": "ablation: TorchRL SAC, SDE, stored ξ in the losses"}
-#: The report's rows: the methods, then the ablation.
-ROWS = (*METHODS, "sde_stored")
+         "sb3_gauss": "SB3 SAC, Gaussian", "sde_compiled": "TorchRL SAC, SDE (ours), compiled update",
+         "plain_compiled": "TorchRL SAC, Gaussian, compiled update",
+         "sde_stored": "ablation: TorchRL SAC, SDE, stored ξ in the losses"}
+#: The report's rows: the methods, the compiled TorchRL methods, then the ablation.
+ROWS = (*METHODS, "sde_compiled", "plain_compiled", "sde_stored")
 
 
 def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
-    """Runs by env, then by row (``sde`` runs with the stored loss noise: the ``sde_stored`` ablation row)."""
+    """Runs by env, then by row (``sde`` runs with the stored loss noise: the ``sde_stored`` ablation row;
+    runs with the compiled update: ``<method>_compiled``)."""
     runs: dict[str, dict[str, list[dict]]] = {}
     for path in sorted(folder.glob("*_seed*.json")):
         data = json.loads(path.read_text())
-        row = "sde_stored" if data.get("loss_noise") == "stored" else data["method"]
+        row = "sde_stored" if data.get("loss_noise") == "stored" else \
+            f"{data['method']}_compiled" if data.get("compiled") else data["method"]
         runs.setdefault(data["env"], {m: [] for m in ROWS})[row].append(data)
     if not runs:
         raise SystemExit(f"bench_sac: no <env>_<method>_seed<k>.json runs in {folder}: run `bench_sac.py run` first")
@@ -590,12 +614,15 @@ def _env_table(env_runs: dict[str, list[dict]], stats: dict) -> list[str]:
             cpu_text = f"{np.mean(cpu_speed):.0f}"
         lines.append(f"| {NAMES[method]} | {len(finals)} | {stats[method]['steps']:,} | {_mean_sd(finals)} | "
                      f"{_mean_sd(late)} | {speed.mean():.0f} | {cpu_text} | {wall.mean():.0f} |")
-    for ours, theirs, label in (("sde", "sb3", "SDE / SB3 gSDE"), ("plain", "sb3_gauss", "Gaussian / SB3 Gaussian")):
+    pairs = (("sde", "sb3", "SDE / SB3 gSDE"), ("sde_compiled", "sb3", "SDE, compiled update / SB3 gSDE"),
+             ("plain", "sb3_gauss", "Gaussian / SB3 Gaussian"),
+             ("plain_compiled", "sb3_gauss", "Gaussian, compiled update / SB3 Gaussian"))
+    for ours, theirs, label in pairs:
         if ours not in stats or theirs not in stats:
             continue
         if len(stats[ours]["final"]) < 2 or len(stats[theirs]["final"]) < 2:
             continue  # no interval from one seed
-        pair, sde_pair, parts = stats.setdefault(f"{ours}_over_{theirs}", {}), ours == "sde", []
+        pair, sde_pair, parts = stats.setdefault(f"{ours}_over_{theirs}", {}), ours.startswith("sde"), []
         for quantity, name in (("final", "final return"), ("late", "late training return")):
             if len(stats[ours][quantity]) > 1 and len(stats[theirs][quantity]) > 1:
                 target = " (target ≥ 0.90)" if sde_pair and quantity == "final" else ""
@@ -663,10 +690,12 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
             with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-            color = {"sde": "C0", "sb3": "C0", "plain": "C1", "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
+            color = {"sde": "C0", "sde_compiled": "C0", "sb3": "C0", "plain": "C1", "plain_compiled": "C1",
+                     "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
             seeds = f"{len(method_runs)} seed{'s' if len(method_runs) > 1 else ''}"
             ax.plot(x, mean, label=f"{NAMES[method]} ({seeds})", color=color,
-                    linestyle="--" if method.startswith("sb3") else ":" if method == "sde_stored" else "-")
+                    linestyle="--" if method.startswith("sb3") else ":" if method == "sde_stored" else
+                    "-." if method.endswith("_compiled") else "-")
             if len(method_runs) > 1:
                 ax.fill_between(x, low, high, alpha=0.12, color=color)
         ax.set_xlabel("env steps")
@@ -693,6 +722,8 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--eval-episodes", type=int, default=EVAL_EPISODES, help="deterministic episodes at the end")
     run_p.add_argument("--loss-noise", choices=LOSS_NOISE, default="fresh",
                        help="SDE noise of the SAC losses: a fresh matrix per gradient step (SB3) or the stored ξ")
+    run_p.add_argument("--compile", action="store_true",
+                       help="torch.compile the whole TorchRL gradient step (losses, backward passes, Adam, target)")
     speed_p = sub.add_parser("update-speed", help="ms per gradient step of each method, interleaved in one process")
     speed_p.add_argument("--env", choices=ENVS, default="mountaincar")
     speed_p.add_argument("--updates", type=int, default=100, help="gradient steps per timing")
@@ -716,10 +747,15 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--eval-episodes must be positive, got {args.eval_episodes}")
         if args.loss_noise != "fresh" and args.method != "sde":
             parser.error("--loss-noise applies to the TorchRL SDE method (sde) only")
+        if args.compile and args.method.startswith("sb3"):
+            parser.error("--compile applies to the TorchRL methods (sde, plain), not to SB3")
+        if args.compile and args.loss_noise != "fresh":
+            parser.error("--compile runs the fresh loss noise only; drop --loss-noise stored or --compile")
         if args.learning_starts is not None and not 0 <= args.learning_starts < steps:
             parser.error(f"--learning-starts must be in [0, steps), got {args.learning_starts}")
         overrides = {} if args.learning_starts is None else {"learning_starts": args.learning_starts}
-        path = run(args.method, args.env, args.seed, steps, args.out, args.loss_noise, args.eval_episodes, overrides)
+        path = run(args.method, args.env, args.seed, steps, args.out, args.loss_noise, args.eval_episodes, overrides,
+                   args.compile)
         data = json.loads(path.read_text())
         print(f"{args.env} {args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -19,12 +20,12 @@ def _action_spec():
     return Bounded(-1.0, 1.0, shape=(1,))
 
 
-def _sde_setup(loss_noise: str, seed: int = 0):
+def _sde_setup(loss_noise: str, seed: int = 0, compile_update: bool = False):
     torch.manual_seed(seed)
     zoo = bench.ZOO["mountaincar"]
     policy, critic, sde = bench.make_torchrl_policy("sde", 2, _action_spec(), zoo)
     loss = bench.make_loss(policy, critic, _action_spec(), zoo)
-    return loss, sde, bench.make_update(loss, sde, zoo, loss_noise)
+    return loss, sde, bench.make_update(loss, sde, zoo, loss_noise, compile_update)
 
 
 def _transitions(n: int, stored_noise: torch.Tensor) -> TensorDict:
@@ -53,6 +54,26 @@ def test_the_sac_losses_draw_fresh_noise_not_the_stored_one():
     loss, _, update = _sde_setup("stored")
     update(_transitions(n, torch.full((n, 1, 64), float("nan"))))
     assert any(torch.isnan(v).any() for v in _parameters(loss)["actor_network_params"].values(True, True))
+
+
+def test_the_compiled_update_equals_the_eager_one(monkeypatch):
+    """``run --compile`` changes how the gradient step runs, not what it computes (stored ξ: no RNG inside).
+
+    The graphs are captured as in a run (Dynamo, compiled autograd, AOTAutograd) and run without
+    inductor's C++ code generation (``backend="aot_eager"``), which would take minutes here.
+    """
+    monkeypatch.setattr(torch, "compile", functools.partial(torch.compile, backend="aot_eager"))
+    stored = torch.randn(32, 1, 64)
+    after = {}
+    for compile_update in (False, True):
+        loss, _, update = _sde_setup("stored", compile_update=compile_update)
+        for _ in range(2):  # the second step reads the first one's Adam state and target critics
+            update(_transitions(32, stored))
+        after[compile_update] = _parameters(loss)
+    moved = (after[False] - _parameters(_sde_setup("stored")[0])).abs().max().values(True, True)
+    assert max(moved) > 1e-5  # the steps did move the parameters
+    for key, value in after[False].items(True, True):
+        torch.testing.assert_close(after[True][key], value, rtol=1e-4, atol=1e-5, msg=str(key))
 
 
 def test_fresh_noise_is_one_matrix_per_gradient_step_shared_by_the_batch_and_the_next_states():
@@ -97,6 +118,8 @@ def test_a_tiny_run_writes_its_result(tmp_path, method):
     (["run", "--method", "sde", "--env", "pendulum"], "invalid choice"),
     (["run", "--method", "sde", "--steps", "100", "--learning-starts", "100"], "--learning-starts must be in"),
     (["update-speed", "--updates", "0"], "--updates and --rounds must be positive"),
+    (["run", "--method", "sb3", "--compile"], "--compile applies to the TorchRL methods"),
+    (["run", "--method", "sde", "--compile", "--loss-noise", "stored"], "--compile runs the fresh loss noise only"),
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
@@ -104,14 +127,15 @@ def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
-def _fake_run(folder, env, method, seed, final, speed, loss_noise=None):
+def _fake_run(folder, env, method, seed, final, speed, loss_noise=None, compiled=False):
     curve = [[1000 * (k + 1), final * k / 14] for k in range(15)]
-    name = f"{env}_{method}{'_stored_noise' if loss_noise == 'stored' else ''}_seed{seed}.json"
+    suffix = "_stored_noise" if loss_noise == "stored" else "_compiled" if compiled else ""
+    name = f"{env}_{method}{suffix}_seed{seed}.json"
     (folder / name).write_text(json.dumps(
         {"method": method, "env": env, "seed": seed, "settings": bench.ZOO[env], "env_steps": 15_000, "curve": curve,
          "final_return_mean": final,
          "env_steps_per_s": speed, "env_steps_per_cpu_s": 1.5 * speed, "wall_s": 15_000 / speed,
-         "eval_returns": [final], "loss_noise": loss_noise}))
+         "eval_returns": [final], "loss_noise": loss_noise, "compiled": compiled}))
 
 
 def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
@@ -120,6 +144,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
         _fake_run(tmp_path, "mountaincar", "sb3", seed, sb3, 80)
         _fake_run(tmp_path, "mountaincar", "plain", seed, -1.0, 45)
         _fake_run(tmp_path, "mountaincar", "sb3_gauss", seed, -2.0, 90)
+        _fake_run(tmp_path, "mountaincar", "sde", seed, sde, 72, compiled=True)  # a row of its own, beside eager
     _fake_run(tmp_path, "mountaincar", "sde", 0, -1e6, 40, loss_noise="stored")  # the ablation: a row of its own
     _fake_run(tmp_path, "halfcheetah", "sde", 0, 500, 20)
     _fake_run(tmp_path, "halfcheetah", "sb3", 0, 600, 30)
@@ -130,6 +155,9 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
             f"{np.std(late, ddof=1):.1f} | {', '.join(f'{v:.1f}' for v in late)} | 40 | 60 | 375 |") in page
     assert "SDE / SB3 gSDE: final return 0.90×" in page and "env steps per second 0.50× [0.50, 0.50]" in page
     assert "late training return 0.90×" in page
+    assert "| TorchRL SAC, SDE (ours), compiled update | 3 | 15,000 | 90.0 ± 10.0 |" in page
+    assert "SDE, compiled update / SB3 gSDE: final return 0.90×" in page
+    assert "env steps per second 0.90× [0.90, 0.90] (target ≥ 0.8)" in page
     assert "| ablation: TorchRL SAC, SDE, stored ξ in the losses | 1 | 15,000 | -1000000.0 ± 0.0 |" in page
     assert "env steps per CPU second 0.50× [0.50, 0.50]" in page
     # returns that are not both positive: the difference, not a ratio

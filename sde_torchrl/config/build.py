@@ -20,6 +20,8 @@ from torchrl.envs import TransformedEnv
 
 from sde_torchrl.config.schemas import PGPEExplorerConf, TrainConf, loop_settings, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
+from sde_torchrl.jobs.heap import fix_mmap_threshold
+from sde_torchrl.jobs.resources import keeps_step_scores
 from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.objectives.estimators import ENACEstimator
 from sde_torchrl.trainers.optim import make_optimizer
@@ -150,6 +152,8 @@ def run_job(
         ArgumentError: for a config value that is not allowed (before anything is built).
     """
     conf = validate(cfg) if conf is None else conf
+    if keeps_step_scores(conf):  # its per-update tensors would fragment the heap: RSS +15 MB per update
+        fix_mmap_threshold()
     torch.set_num_threads(conf.threads)
     config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}

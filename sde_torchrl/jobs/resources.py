@@ -93,6 +93,21 @@ def _dimensions(env: Any) -> tuple[int, int, bool]:
     return GYM_STEP_FLOATS // 4, GYM_STEP_FLOATS // 4, False
 
 
+def keeps_step_scores(conf: Any) -> bool:
+    """Whether the job's estimator keeps one score per step and parameter (GPOMDP).
+
+    Such a job also makes and frees megabyte-sized tensors at every update, which is why
+    :func:`~sde_torchrl.config.build.run_job` fixes the heap's mmap threshold for it
+    (:mod:`sde_torchrl.jobs.heap`).
+
+    Examples:
+        >>> from types import SimpleNamespace as Conf
+        >>> keeps_step_scores(Conf(estimator=Conf(_target_="sde_torchrl.objectives.estimators.GPOMDPEstimator")))
+        True
+    """
+    return str(getattr(conf.estimator, "_target_", "")).endswith("GPOMDPEstimator")
+
+
 def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
     """The memory a job with config ``conf`` (a :class:`~sde_torchrl.config.schemas.TrainConf`) holds.
 
@@ -117,7 +132,7 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
     steps = conf.runs * (max(conf.episodes_per_update, conf.episode_queue) + conf.eval_episodes) * \
         conf.env.episode_length
     floats = step_floats(observation, action)
-    if str(getattr(conf.estimator, "_target_", "")).endswith("GPOMDPEstimator"):
+    if keeps_step_scores(conf):
         floats += 2 * (parameters if parameters is not None else 2 * observation * action)
     world_count = conf.runs * (conf.episodes_per_update + conf.eval_episodes) if worlds else 0
     return MemoryEstimate(base=BASE_BYTES, worlds=world_count * WORLD_BYTES, episodes=steps * floats * WORK_FACTOR)
