@@ -452,14 +452,15 @@ def _random_transitions(n: int, obs_dim: int, action_dim: int, feature_dim: int)
     }, [n])
 
 
-def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False) -> str:
+def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False, compile_update: bool = False) -> str:
     """Milliseconds per gradient step of each method, timed in one process, the methods interleaved.
 
     SB3: ``model.train(updates, batch_size)`` on a buffer filled by 1,000 collected steps; TorchRL:
     ``updates`` calls of :func:`make_update`'s step on minibatches sampled from a ``ReplayBuffer`` of
     1,000 random transitions. Each round times every method once; the median over ``rounds`` is
     reported (wall and CPU), so that a neighbour's load hits all methods alike. With ``profile``,
-    the TorchRL SDE step's time is split by function (cProfile, cumulative).
+    the TorchRL SDE step's time is split by function (cProfile, cumulative); with ``compile_update``
+    the compiled SDE step (:func:`make_update`) is timed too, its compilation in the warm-up round.
     """
     from stable_baselines3 import SAC
     from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
@@ -468,8 +469,8 @@ def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False)
     zoo = ZOO[env_key]
     obs_dim, action_dim, _ = _env_dims(zoo["env_id"])
     action_spec = make_torchrl_env(zoo["env_id"], 0).action_spec
-    steps = {}
-    for method in METHODS:
+    steps, methods = {}, (*METHODS, *(["sde_compiled"] if compile_update else []))
+    for method in methods:
         if method.startswith("sb3"):
             model = SAC("MlpPolicy", _gym_make(zoo["env_id"]), learning_rate=zoo["learning_rate"],
                         batch_size=zoo["batch_size"], ent_coef=zoo["ent_coef"], gamma=zoo["gamma"], tau=zoo["tau"],
@@ -478,8 +479,9 @@ def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False)
             model.learn(1000)  # collection only (learning_starts): fills the buffer, sets up the logger
             steps[method] = lambda model=model: model.train(updates, zoo["batch_size"])
             continue
-        policy, critic, sde = make_torchrl_policy(method, obs_dim, action_spec, zoo)
-        update = make_update(make_loss(policy, critic, action_spec, zoo), sde, zoo)
+        policy, critic, sde = make_torchrl_policy(method.removesuffix("_compiled"), obs_dim, action_spec, zoo)
+        update = make_update(make_loss(policy, critic, action_spec, zoo), sde, zoo,
+                             compile_update=method.endswith("_compiled"))
         buffer = ReplayBuffer(storage=LazyTensorStorage(1000), sampler=RandomSampler(), batch_size=zoo["batch_size"])
         buffer.extend(_random_transitions(1000, obs_dim, action_dim, sde.feature_dim if sde else 1))
 
@@ -488,7 +490,7 @@ def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False)
                 update(buffer.sample())
 
         steps[method] = torchrl_steps
-    wall, cpu = {m: [] for m in METHODS}, {m: [] for m in METHODS}
+    wall, cpu = {m: [] for m in methods}, {m: [] for m in methods}
     for _ in range(rounds + 1):  # the first round warms up
         for method, step in steps.items():
             start, cpu_start = time.perf_counter(), time.process_time()
@@ -499,9 +501,9 @@ def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False)
              f"{rounds} rounds (median; first round not timed)", "",
              "| method | ms / gradient step (wall) | ms / gradient step (CPU) | CPU time / SB3 counterpart's |",
              "| --- | --- | --- | --- |"]
-    counterpart = {"sde": "sb3", "plain": "sb3_gauss", "sb3": "sb3", "sb3_gauss": "sb3_gauss"}
-    med = {m: (float(np.median(wall[m][1:])), float(np.median(cpu[m][1:]))) for m in METHODS}
-    for method in METHODS:
+    counterpart = {"sde": "sb3", "sde_compiled": "sb3", "plain": "sb3_gauss", "sb3": "sb3", "sb3_gauss": "sb3_gauss"}
+    med = {m: (float(np.median(wall[m][1:])), float(np.median(cpu[m][1:]))) for m in methods}
+    for method in methods:
         lines.append(f"| {NAMES[method]} | {med[method][0]:.1f} | {med[method][1]:.1f} | "
                      f"{med[method][1] / med[counterpart[method]][1]:.2f} |")
     if profile:
@@ -729,6 +731,7 @@ def main(argv: list[str] | None = None) -> int:
     speed_p.add_argument("--updates", type=int, default=100, help="gradient steps per timing")
     speed_p.add_argument("--rounds", type=int, default=3, help="timed rounds (after one warm-up round)")
     speed_p.add_argument("--profile", action="store_true", help="split the TorchRL SDE step by function")
+    speed_p.add_argument("--compile", action="store_true", help="also time the compiled TorchRL SDE step")
     speed_p.add_argument("--out", type=Path, default=None, help="also write the tables to this markdown file")
     rep_p = sub.add_parser("report", help="tables and plot from a folder of runs")
     rep_p.add_argument("folder", type=Path)
@@ -762,11 +765,12 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "update-speed":
         if args.updates <= 0 or args.rounds <= 0:
             parser.error(f"--updates and --rounds must be positive, got {args.updates} and {args.rounds}")
-        page = update_speed(args.env, args.updates, args.rounds, args.profile)
+        page = update_speed(args.env, args.updates, args.rounds, args.profile, args.compile)
         if args.out is not None:
             args.out.parent.mkdir(parents=True, exist_ok=True)
             args.out.write_text(f"Generated by `python analysis/bench_sac.py update-speed --env {args.env} --updates "
-                                f"{args.updates} --rounds {args.rounds}{' --profile' if args.profile else ''}`.\n\n"
+                                f"{args.updates} --rounds {args.rounds}{' --profile' if args.profile else ''}"
+                                f"{' --compile' if args.compile else ''}`.\n\n"
                                 + page)
         sys.stdout.write(page)
     else:

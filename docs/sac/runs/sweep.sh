@@ -27,7 +27,7 @@ run --env halfcheetah --method sb3 --seed 1 --steps 4000 --learning-starts 1000
 run --env halfcheetah --method sde --seed 1 --steps 4000 --learning-starts 1000
 run --env mountaincar --method sde --seed 1 --steps 8000 --loss-noise stored
 # The compiled update (2026-12-02), each seed beside a fresh SB3 gSDE run of the same seed, so that the
-# two speeds are measured under the same load (these SB3 runs replace the earlier ones: same seeds, same returns)
+# two speeds are measured under the same load (these SB3 runs replace the earlier ones of the same seeds; SB3 SAC on CPU does not repeat its returns exactly)
 for seed in 0 1 2 3 4; do
   run --env mountaincar --method sde --seed $seed --steps 8000 --compile
   run --env mountaincar --method sb3 --seed $seed --steps 8000
