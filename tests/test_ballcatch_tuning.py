@@ -39,6 +39,7 @@ def test_selection_counts_catches_then_mean_then_order():
 @pytest.mark.parametrize("method, experiment", [
     ("reinforce_sde", "ballcatch"), ("reinforce_rex", "ballcatch_rex"),
     ("enac_sde", "ballcatch_enac"), ("enac_rex", "ballcatch_enac_rex"), ("gpomdp_sde", "ballcatch_gpomdp"),
+    ("pgpe", "ballcatch_pgpe"),
 ])
 def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment):
     """+experiment=ballcatch (ballcatch_rex) is the candidate docs/ballcatch/tuning.json chose,
