@@ -24,7 +24,8 @@ PROBE = textwrap.dedent("""
                     ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks",
                      "keepcost")]
     libc.mallinfo2.restype = MallInfo2
-    libc.malloc.restype, libc.malloc.argtypes, libc.free.argtypes = ctypes.c_void_p, [ctypes.c_size_t], [ctypes.c_void_p]
+    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
     if sys.argv[1] == "fixed":
         assert fix_mmap_threshold()
     libc.free(libc.malloc(20 << 20))
