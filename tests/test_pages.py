@@ -25,7 +25,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
     "fig6_selected": ("fig6", [str(BALLCATCH / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig6_selected", ("fig6.md", "fig6.json")),
     "methods_selected": ("fig5", [*(str(BALLCATCH / "runs" / folder) for folder in
-                                    ("fig5_selected/sde", "fig5_selected/rex", "methods_selected/gpomdp")),
+                                    ("fig5_selected/sde", "fig5_selected/rex", "methods_selected/gpomdp",
+                                     "methods_selected/pgpe")),
                                   "--estimator", "all"],
                          BALLCATCH / "methods_selected", ("methods.md", "methods.json")),
     "selected/fig5": ("fig5", [str(BALLCATCH / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
