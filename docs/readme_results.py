@@ -59,6 +59,9 @@ def summary() -> str:
     sac = _load("sac/bench_sac.json")["mountaincar"]
     sac_ratio, sac_compiled = sac["sde_over_sb3"], sac["sde_compiled_over_sb3"]
 
+    def ends_keeps_reaches(counts: dict) -> str:
+        return f"{_percent(counts, 'final')}; {_percent(counts, 'final_policy')}; {_percent(counts)}"
+
     def mean_sd(values: list[float]) -> str:
         return f"{statistics.mean(values):.0f} ± {statistics.stdev(values):.0f}"
 
@@ -93,9 +96,7 @@ def summary() -> str:
          "docs/reproduce/fig5_6.md"),
         (f"GPOMDP + SDE and PGPE at their selected learners, {gpomdp_selected['runs']} and {pgpe_selected['runs']} "
          "runs: ending with a catch; the final policy catching on 20 episodes; reaching a catch",
-         f"GPOMDP + SDE {_percent(gpomdp_selected, 'final')}; {_percent(gpomdp_selected, 'final_policy')}; "
-         f"{_percent(gpomdp_selected)} — PGPE {_percent(pgpe_selected, 'final')}; "
-         f"{_percent(pgpe_selected, 'final_policy')}; {_percent(pgpe_selected)}",
+         f"GPOMDP + SDE {ends_keeps_reaches(gpomdp_selected)} — PGPE {ends_keeps_reaches(pgpe_selected)}",
          "(not in the paper)", "docs/reproduce/methods.md"),
         (f"PGPE on Fig. 5's setting, {methods['pgpe']['runs']} runs: reaching a catch",
          f"PGPE {_percent(methods['pgpe'])}, SDE + GPOMDP {_percent(methods['sde+gpomdp'])}", "(not in the paper)",

@@ -26,8 +26,10 @@ run --env mountaincar --method sde --seed 0 --steps 8000 --loss-noise stored   #
 run --env halfcheetah --method sb3 --seed 1 --steps 4000 --learning-starts 1000
 run --env halfcheetah --method sde --seed 1 --steps 4000 --learning-starts 1000
 run --env mountaincar --method sde --seed 1 --steps 8000 --loss-noise stored
-# The compiled update (2026-12-02), each seed beside a fresh SB3 gSDE run of the same seed, so that the
-# two speeds are measured under the same load (these SB3 runs replace the earlier ones of the same seeds; SB3 SAC on CPU does not repeat its returns exactly)
+# The compiled update (2026-12-02) and a fresh SB3 gSDE run of each seed, so that the two speeds are
+# measured on the machine as it was then, shared with other jobs (as run: SB3 seeds 0-2 beside an earlier
+# build of the compiled runs, then compiled 0-2, then compiled and SB3 seeds 3 and 4 in turn). These SB3 runs
+# replace the earlier ones of the same seeds; SB3 SAC on CPU does not repeat its returns exactly.
 for seed in 0 1 2 3 4; do
   run --env mountaincar --method sde --seed $seed --steps 8000 --compile
   run --env mountaincar --method sb3 --seed $seed --steps 8000
