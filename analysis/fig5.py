@@ -14,7 +14,9 @@ of one estimator, and writes into ``--out DIR``:
   ``analysis/ballcatch_initial.py`` under the sweep directories, the mean initial and final
   evaluations and the mean change per run with its bootstrap interval; for runs whose
   ``metrics.csv`` records the exploration state (``sigma_min``, ``sigma_max``), how many runs'
-  exploration collapsed (a scale below :data:`COLLAPSE`: some of it, or all of it) and when.
+  exploration collapsed (a scale below :data:`COLLAPSE`: some of it, or all of it) and when;
+  and whether runs kept their level (:func:`kept`: the drop from the best mean of
+  :data:`WINDOW` consecutive evaluations to the last such mean).
 
 With ``--estimator all`` it compares the methods of the REINFORCE sweeps (issue 16): SDE and
 REX with REINFORCE, SDE with GPOMDP (``sde+gpomdp``) and PGPE, written as ``methods.*``, with
@@ -48,6 +50,9 @@ FIGURE = {"reinforce": "fig5", "enac": "fig6", "all": "methods"}
 #: A run's exploration has collapsed where its scale (SDE's σ̂, PGPE's |σ|) fell below this: 1/135
 #: of the start σ̂₀ = e⁻², a noise of about 0.005 on a torque at the ball's distance of 5 units.
 COLLAPSE = 1e-3
+#: Consecutive evaluations averaged when asking whether a run kept its level: 5 evaluations of 3
+#: episodes each (100 updates at the paper's period of 20), so that one lucky evaluation is not a peak.
+WINDOW = 5
 #: ``--estimator all``: the estimators compared on the REINFORCE sweeps' settings.
 COMPARED = ("reinforce", "gpomdp", "pgpe")
 #: ``--estimator all``: (method, baseline) pairs whose differences are reported.
@@ -169,6 +174,33 @@ def collapsed(by_run: dict[int, dict]) -> dict | None:
     return out
 
 
+def kept(by_run: dict[int, dict], window: int = WINDOW) -> dict | None:
+    """Whether runs keep their level: per run, the best mean of ``window`` consecutive
+    evaluations minus the mean of the last ``window`` (the drop from its peak: 0 where the run
+    ends at its best), as the median run's and the quartiles'; and the runs whose ``window``-mean
+    reached a catch (R ≥ -1.1) at some point and at the end. ``None`` if no run has ``2 window``
+    evaluations.
+
+    Examples:
+        >>> runs = {0: {"evals": [(u, -2.0) for u in range(5)] + [(u, -1.0) for u in range(5, 10)]},
+        ...         1: {"evals": [(u, -1.0) for u in range(5)] + [(u, -2.0) for u in range(5, 10)]}}
+        >>> k = kept(runs)
+        >>> k["drop"], k["catch_some_window"], k["catch_last_window"]
+        ([0.25, 0.5, 0.75], 2, 1)
+    """
+    import numpy as np
+
+    curves = [[value for _, value in sorted(run["evals"])] for run in by_run.values()]
+    curves = [np.asarray(curve) for curve in curves if len(curve) >= 2 * window]
+    if not curves:
+        return None
+    means = [np.convolve(curve, np.ones(window) / window, mode="valid") for curve in curves]
+    drops = [float(m.max() - m[-1]) for m in means]
+    return {"window": window, "runs": len(curves), "drop": [float(q) for q in np.quantile(drops, [0.25, 0.5, 0.75])],
+            "catch_some_window": sum(bool(m.max() >= -1.1) for m in means),
+            "catch_last_window": sum(bool(m[-1] >= -1.1) for m in means)}
+
+
 def report(runs: dict[str, dict[int, dict]], estimator: str,
            initial: dict[str, dict[int, float]] | None = None,
            final_policy: dict[str, dict[int, float]] | None = None) -> dict:
@@ -199,6 +231,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
         stats["paper"] = {f"{k}": v for k, v in PAPER[estimator].get(explorer, {}).items()}
         stats["improvement"] = improvement(by_run, (initial or {}).get(explorer, {}))
         stats["collapse"] = collapsed(by_run)
+        stats["kept"] = kept(by_run)
         explorers[explorer] = stats
     result = {"estimator": estimator, "explorers": explorers}
 
@@ -282,6 +315,14 @@ def write_markdown(result: dict, path: Path) -> None:
                         f"-{c[key]['last_update']})" if c[key]["runs"] else "")
                      for key, words in (("any", "some exploration scale"), ("all", "every exploration scale"))]
             lines += ["", f"{explorer.upper()}: exploration collapsed: " + "; ".join(parts)]
+    for explorer, stats in result["explorers"].items():
+        if stats.get("kept"):
+            k = stats["kept"]
+            lines += ["", f"{explorer.upper()}: level kept: the best mean of {k['window']} consecutive evaluations "
+                      f"lies {k['drop'][1]:.2f} above the mean of the last {k['window']} in the median run "
+                      f"(quartiles {k['drop'][0]:.2f}-{k['drop'][2]:.2f}); that mean reached a catch (R ≥ -1.1) at "
+                      f"some point in {_percent(k['catch_some_window'] / k['runs'])} % of runs and at the end in "
+                      f"{_percent(k['catch_last_window'] / k['runs'])} %"]
     lines += ["", "Cells: percent of runs whose best / final deterministic evaluation reached the level, with its "
               "95 % Wilson interval; the paper's count out of 100 runs where it states one. A − B: the "
               "difference in percentage points with its 95 % bootstrap interval over runs; * where the interval "
