@@ -120,7 +120,7 @@ def test_figure_helpers():
     assert figures.bounds((1.0, 0.5, 2.0)) == [0.5, 2.0]
 
 
-@pytest.mark.parametrize("name", ["runner", "figures", "ballcatch_tuning", "bench_ppo"])
+@pytest.mark.parametrize("name", ["runner", "figures", "ballcatch_tuning", "bench_ppo", "fig5", "ballcatch_scores"])
 def test_docstring_examples_of_the_analysis_modules_run(name):
     import doctest
 
