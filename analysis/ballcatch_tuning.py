@@ -1,6 +1,7 @@
 """The learner selection for ball catching (issue 22), by the rule in
-``docs/ballcatch/learner_selection.md``: the same 8 candidates for every method, one job of 8
-runs each on the tuning seed, the candidate with the most final catches chosen per method.
+``docs/ballcatch/learner_selection.md``: the same candidates for every method (8 in round 1, a
+ninth in round 2), one job of 8 runs each on the tuning seed, the candidate with the most final
+catches chosen per method and round.
 
 ``run`` trains the (method, candidate) jobs through ``train.py``, a few at a time
 (``analysis/runner.py``), into ``OUT/<method>/<candidate>``, and keeps no checkpoint of a finished
@@ -26,18 +27,20 @@ from runner import TrainJob, run_train_jobs
 SEED, RUNS = 1000, 8
 CATCH, GOOD_CATCH = -1.1, -1.0
 
-#: method → (label, the command's overrides, α₀): the rule's table "The methods", in its order.
+#: method → (label, the command's overrides, α₀, whether the command learns σ̂): the rule's table
+#: "The methods", in its order.
 METHODS = {
-    "reinforce_sde": ("REINFORCE + SDE", ["+experiment=ballcatch_paper"], 1e-4),
-    "reinforce_rex": ("REINFORCE + REX", ["+experiment=ballcatch_paper", "explorer=rex"], 1e-4),
-    "enac_sde": ("ENAC + SDE", ["+experiment=ballcatch_enac_paper"], 0.01),
-    "enac_rex": ("ENAC + REX", ["+experiment=ballcatch_enac_paper", "explorer=rex"], 0.01),
-    "gpomdp_sde": ("GPOMDP + SDE", ["+experiment=ballcatch_paper", "estimator=gpomdp"], 1e-4),
+    "reinforce_sde": ("REINFORCE + SDE", ["+experiment=ballcatch_paper"], 1e-4, True),
+    "reinforce_rex": ("REINFORCE + REX", ["+experiment=ballcatch_paper", "explorer=rex"], 1e-4, True),
+    "enac_sde": ("ENAC + SDE", ["+experiment=ballcatch_enac_paper"], 0.01, False),
+    "enac_rex": ("ENAC + REX", ["+experiment=ballcatch_enac_paper", "explorer=rex"], 0.01, False),
+    "gpomdp_sde": ("GPOMDP + SDE", ["+experiment=ballcatch_paper", "estimator=gpomdp"], 1e-4, True),
     "pgpe": ("PGPE", ["+experiment=ballcatch_paper", "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=false"],
-             1e-4),
+             1e-4, True),
 }
 _DECAY = ["optimizer.lr_schedule=linear", "optimizer.final_lr_fraction=0"]
-#: candidate → (description, overrides given α₀): the rule's table "The grid".
+#: candidate → (description, overrides given α₀): the rule's table "The grid" (C1–C8, round 1)
+#: and its round 2 (C9).
 CANDIDATES = {
     "C1": ("sum, sgd, α₀, constant", lambda a: ["estimator.episode_return=sum", "optimizer=sgd", f"lr={a:g}"]),
     "C2": ("mean, sgd, α₀, constant", lambda a: ["estimator.episode_return=mean", "optimizer=sgd", f"lr={a:g}"]),
@@ -53,7 +56,13 @@ CANDIDATES = {
                                                        *_DECAY]),
     "C8": ("mean, adam, 1e-2, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=adam", "lr=0.01",
                                                        *_DECAY]),
+    "C9": ("C7, σ̂ learning switched", lambda a: CANDIDATES["C7"][1](a)),
 }
+#: the candidates that switch whether σ̂ is learned (fixed where the method's command learns it).
+SIGMA_SWITCHED = ("C9",)
+#: the candidates each round chooses among (learner_selection.md; round 2 added on 2026-12-03).
+ROUNDS = {1: [f"C{i}" for i in range(1, 9)], 2: [f"C{i}" for i in range(1, 10)]}
+
 
 def job_overrides(method: str, candidate: str) -> list[str]:
     """The ``train.py`` overrides of one tuning job.
@@ -63,9 +72,12 @@ def job_overrides(method: str, candidate: str) -> list[str]:
         ['+experiment=ballcatch_enac_paper', 'explorer=rex', 'estimator.episode_return=mean', 'optimizer=sgd']
         >>> job_overrides("enac_rex", "C4")[4]
         'lr=0.1'
+        >>> [o for o in job_overrides("enac_rex", "C9") if "sigma" in o]  # ENAC's command fixes σ̂
+        ['explorer.learn_sigma=true']
     """
-    _, base, alpha = METHODS[method]
-    return [*base, *CANDIDATES[candidate][1](alpha), f"seed={SEED}", f"runs={RUNS}", "first_run=0",
+    _, base, alpha, learns_sigma = METHODS[method]
+    switch = [f"explorer.learn_sigma={str(not learns_sigma).lower()}"] if candidate in SIGMA_SWITCHED else []
+    return [*base, *CANDIDATES[candidate][1](alpha), *switch, f"seed={SEED}", f"runs={RUNS}", "first_run=0",
             "eval_period=50", "checkpoint_period=50", "logger=none"]
 
 
@@ -112,17 +124,20 @@ def select(results: dict[str, list[float] | None]) -> str | None:
 
 
 def report(tuning: Path, out: Path) -> dict:
-    """Writes ``tuning.json`` and ``tuning.md`` into ``out``; returns the numbers. A method is
-    given its chosen candidate only once every candidate's job has run (a directory that holds
-    no summary is a failed job, counted as no catch; a missing one has not run)."""
+    """Writes ``tuning.json`` and ``tuning.md`` into ``out``; returns the numbers. Each round
+    gives a method its chosen candidate (``chosen`` for round 1, ``chosen_round2``) only once
+    every candidate of that round has run (a directory that holds no summary is a failed job,
+    counted as no catch; a missing one has not run)."""
     numbers: dict = {"seed": SEED, "runs": RUNS, "methods": {}}
-    for method, (label, _, alpha) in METHODS.items():
+    for method, (label, _, alpha, _) in METHODS.items():
         results = {c: final_evaluations(tuning / method / c) for c in CANDIDATES}
         if all(r is None for r in results.values()):
             continue
-        complete = all((tuning / method / c).is_dir() for c in CANDIDATES)  # a job that ran and failed counts
+
+        chosen = [select({c: results[c] for c in ROUNDS[r]})  # a job that ran and failed counts
+                  if all((tuning / method / c).is_dir() for c in ROUNDS[r]) else None for r in (1, 2)]
         numbers["methods"][method] = {
-            "label": label, "alpha0": alpha, "chosen": select(results) if complete else None,
+            "label": label, "alpha0": alpha, "chosen": chosen[0], "chosen_round2": chosen[1],
             "candidates": {c: None if r is None else {
                 "catches": sum(v >= CATCH for v in r), "good_catches": sum(v >= GOOD_CATCH for v in r),
                 "mean_final": sum(r) / len(r), "finals": r} for c, r in results.items()},
@@ -142,7 +157,8 @@ def markdown(numbers: dict) -> str:
         f"Written by `analysis/ballcatch_tuning.py report` from the jobs under `docs/ballcatch/tuning/` "
         f"(rule: `learner_selection.md`; seed {numbers['seed']}, {numbers['runs']} runs per job, 500 updates). "
         "A cell: runs whose final deterministic evaluation is a catch (R ≥ -1.1) / a good catch (R ≥ -1.0), "
-        "and the mean final evaluation (mean reward per step); **bold**: the method's chosen candidate; "
+        "and the mean final evaluation (mean reward per step); **bold**: the method's candidate chosen in "
+        "round 1 (C1–C8, the shipped experiments and reported sweeps); †: its choice in round 2 (C1–C9); "
         "- : not run.",
         "",
         "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
@@ -153,11 +169,17 @@ def markdown(numbers: dict) -> str:
         for m in methods.values():
             c = m["candidates"][candidate]
             cell = "-" if c is None else f"{c['catches']} / {c['good_catches']}, {c['mean_final']:.2f}"
-            cells.append(f"**{cell}**" if m["chosen"] == candidate else cell)
+            cell = f"**{cell}**" if m["chosen"] == candidate else cell
+            cells.append(f"{cell} †" if m["chosen_round2"] == candidate else cell)
         lines.append(f"| {candidate}: {description} | " + " | ".join(cells) + " |")
-    waiting = [m["label"] for m in methods.values() if m["chosen"] is None]
-    if waiting:
-        lines += ["", f"Not chosen yet, their grid not complete: {', '.join(waiting)}."]
+    for round_, key in ((1, "chosen"), (2, "chosen_round2")):
+        waiting = [m["label"] for m in methods.values() if m[key] is None]
+        if waiting:
+            lines += ["", f"Not chosen yet in round {round_}, its candidates not all run: {', '.join(waiting)}."]
+    changed = [f"{m['label']} {m['chosen']} → {m['chosen_round2']}" for m in methods.values()
+               if m["chosen_round2"] is not None and m["chosen_round2"] != m["chosen"]]
+    if all(m["chosen_round2"] is not None for m in methods.values()):
+        lines += ["", "Round 2 changes the choice of: " + (", ".join(changed) if changed else "no method") + "."]
     lines += ["", "α₀: " + ", ".join(f"{m['label']} {m['alpha0']:g}" for m in methods.values()) + ".", ""]
     return "\n".join(lines)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from _helpers import compose_config, load_script
 
@@ -18,9 +20,14 @@ def test_every_job_is_a_valid_config_with_the_rules_learner(method):
         "C3": ("mean", "SGD", alpha0, "linear", 0.0), "C4": ("mean", "SGD", 10 * alpha0, "linear", 0.0),
         "C5": ("mean", "SGD", alpha0, "linear", 0.9), "C6": ("mean", "Adam", 1e-3, "linear", None),
         "C7": ("mean", "Adam", 3e-3, "linear", None), "C8": ("mean", "Adam", 1e-2, "linear", None),
+        "C9": ("mean", "Adam", 3e-3, "linear", None),
     }
+    assert list(expected) == list(tuning.CANDIDATES) == tuning.ROUNDS[2]
+    learns_sigma = tuning.METHODS[method][3]
     for candidate, (episode_return, optimizer, lr, schedule, momentum) in expected.items():
         conf = validate(compose_config(*tuning.job_overrides(method, candidate)))
+        switched = candidate == "C9"  # round 2: C7 with σ̂'s learning switched
+        assert conf.explorer.learn_sigma == (learns_sigma != switched), candidate
         assert conf.estimator.episode_return == episode_return, candidate
         assert conf.optimizer._target_ == f"torch.optim.{optimizer}", candidate
         assert conf.lr == pytest.approx(lr) and conf.optimizer.lr_schedule == schedule, candidate
@@ -44,8 +51,6 @@ def test_selection_counts_catches_then_mean_then_order():
 def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment):
     """+experiment=ballcatch (ballcatch_rex) is the candidate docs/ballcatch/tuning.json chose,
     but for the tuning job's own seed, runs and bookkeeping."""
-    import json
-
     from _helpers import REPO
     from omegaconf import OmegaConf
 
@@ -71,7 +76,29 @@ def test_a_method_is_chosen_for_only_once_its_whole_grid_has_run(tmp_path):
     numbers = tuning.report(tmp_path / "tuning", tmp_path / "out")
     assert numbers["methods"]["reinforce_sde"]["chosen"] is None
     assert numbers["methods"]["reinforce_sde"]["candidates"]["C7"]["catches"] == 6
-    assert "Not chosen yet, their grid not complete: REINFORCE + SDE." in (tmp_path / "out" / "tuning.md").read_text()
+    text = (tmp_path / "out" / "tuning.md").read_text()
+    assert "Not chosen yet in round 1, its candidates not all run: REINFORCE + SDE." in text
+
+
+def test_round_two_chooses_among_all_nine_and_leaves_round_one_as_it_was(tmp_path):
+    import shutil
+
+    from _helpers import REPO
+
+    committed = REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde"
+    for candidate in tuning.ROUNDS[1]:
+        shutil.copytree(committed / candidate, tmp_path / "tuning" / "reinforce_sde" / candidate)
+    numbers = tuning.report(tmp_path / "tuning", tmp_path / "out")["methods"]["reinforce_sde"]
+    assert (numbers["chosen"], numbers["chosen_round2"]) == ("C7", None)
+    c9 = tmp_path / "tuning" / "reinforce_sde" / "C9"
+    shutil.copytree(committed / "C7", c9)  # C9 equal to C7: the tie goes to the earlier candidate
+    assert tuning.report(tmp_path / "tuning", tmp_path / "out")["methods"]["reinforce_sde"]["chosen_round2"] == "C7"
+    summary = json.loads((c9 / "summary.json").read_text())
+    summary["final_eval_return"] = [-1.0] * 8  # every run a catch (C7 regresses on the mean reward)
+    (c9 / "summary.json").write_text(json.dumps(summary))
+    numbers = tuning.report(tmp_path / "tuning", tmp_path / "out")["methods"]["reinforce_sde"]
+    assert (numbers["chosen"], numbers["chosen_round2"]) == ("C7", "C9")
+    assert "Round 2 changes the choice of: REINFORCE + SDE C7 → C9." in (tmp_path / "out" / "tuning.md").read_text()
 
 
 def test_run_leaves_a_finished_job_as_it_is(tmp_path):
