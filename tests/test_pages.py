@@ -29,6 +29,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                                      "methods_selected/pgpe")),
                                   "--estimator", "all"],
                          BALLCATCH / "methods_selected", ("methods.md", "methods.json")),
+    "score_probe": ("fig5", [*(str(BALLCATCH / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
+                             "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
     "selected/fig5": ("fig5", [str(BALLCATCH / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
     "tuning": ("ballcatch_tuning", ["report", str(BALLCATCH / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
