@@ -61,7 +61,7 @@ CANDIDATES = {
 #: the candidates that switch whether σ̂ is learned (fixed where the method's command learns it).
 SIGMA_SWITCHED = ("C9",)
 #: the candidates each round chooses among (learner_selection.md; round 2 added on 2026-12-03).
-ROUNDS = {1: [f"C{i}" for i in range(1, 9)], 2: [f"C{i}" for i in range(1, 10)]}
+ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)}
 
 
 def job_overrides(method: str, candidate: str) -> list[str]:
