@@ -44,8 +44,9 @@ squashed action, ours scores the exact pre-squash sample.
 
 **The compiled update** (``run --compile``, the ``sde_compiled`` row): the whole gradient step
 above (fresh noise, both losses, their backward passes, the Adam steps, the target update) goes
-through ``torch.compile`` with compiled autograd, so that the backward passes join the graph
-instead of breaking it, as TorchRL's own SAC scripts do with their ``compile`` option. It computes
+through :func:`~sde_torchrl.compile_step` (``torch.compile`` with AOTAutograd's default partition,
+whose saved forward values avoid inductor's slow boolean ReLU masks on the CPU), as TorchRL's own SAC
+scripts compile theirs with their ``compile`` option. It computes
 the same step (tested against the eager one with the stored noise); the fresh noise inside it
 comes from inductor's random generator, not eager PyTorch's, so a compiled run is not the eager
 run of the same seed. The first steps compile, inside the timed training: the report gives the
@@ -224,12 +225,14 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update:
         sde: the :class:`~sde_torchrl.SDEParams` (``None`` for the plain Gaussian).
         zoo: the env's settings.
         loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the buffer's ``ξ``).
-        compile_update: run the whole step through ``torch.compile`` with compiled autograd.
+        compile_update: run the whole step through :func:`~sde_torchrl.compile_step`.
 
     Returns:
         ``update(batch)``.
     """
     from torchrl.objectives import SoftUpdate
+
+    from sde_torchrl import compile_step
 
     lr = zoo["learning_rate"]
     actor_optim = torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=lr)
@@ -254,15 +257,7 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update:
             alpha_optim.step()
         target.step()
 
-    if not compile_update:
-        return update
-    compiled = torch.compile(update)
-
-    def compiled_update(batch) -> None:
-        with torch._dynamo.config.patch(compiled_autograd=True):  # the backward passes inside the graph
-            compiled(batch)
-
-    return compiled_update
+    return compile_step(update) if compile_update else update
 
 
 def make_torchrl_env(env_id: str, seed: int, primer=None):
@@ -296,11 +291,13 @@ def evaluate_torchrl(policy, env_id: str, seed: int, episodes: int = EVAL_EPISOD
 
 
 def train_torchrl(method: str, env_key: str, seed: int, steps: int, eval_episodes: int = EVAL_EPISODES,
-                  loss_noise: str = "fresh", overrides: dict | None = None, compile_update: bool = False) -> dict:
+                  loss_noise: str = "fresh", overrides: dict | None = None, compile_update: bool = False,
+                  compile_policy: bool = False) -> dict:
     """Train ``sde`` or ``plain`` on TorchRL; returns the run's record (see the module docstring).
 
     ``overrides`` replaces :data:`ZOO` entries (the tests' tiny runs); ``compile_update`` compiles
-    the gradient step (:func:`make_update`).
+    the gradient step (:func:`make_update`), ``compile_policy`` the collector's policy forward
+    (TorchRL's ``Collector(compile_policy=True)``).
     """
     from torchrl.collectors import Collector
     from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
@@ -318,7 +315,8 @@ def train_torchrl(method: str, env_key: str, seed: int, steps: int, eval_episode
     buffer = ReplayBuffer(storage=LazyTensorStorage(min(zoo["buffer_size"], steps)), sampler=RandomSampler(),
                           batch_size=zoo["batch_size"])
     collector = Collector(env, policy, frames_per_batch=zoo["train_freq"], total_frames=steps,
-                          init_random_frames=zoo["learning_starts"], auto_register_policy_transforms=True)
+                          init_random_frames=zoo["learning_starts"], auto_register_policy_transforms=True,
+                          compile_policy=compile_policy)
     curve, rounds, done_frames, updates = [], [], 0, 0
     start, cpu_start = time.perf_counter(), time.process_time()
     for batch in collector:
@@ -391,7 +389,8 @@ def train_sb3(env_key: str, seed: int, steps: int, use_sde: bool = True, eval_ep
 
 # ------------------------------------------------------------------------------------------ command
 def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise: str = "fresh",
-        eval_episodes: int = EVAL_EPISODES, overrides: dict | None = None, compile_update: bool = False) -> Path:
+        eval_episodes: int = EVAL_EPISODES, overrides: dict | None = None, compile_update: bool = False,
+        compile_policy: bool = False) -> Path:
     """Train one method with one seed and write ``<out>/<env>_<method>_seed<k>.json``.
 
     Args:
@@ -404,6 +403,8 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
         eval_episodes: deterministic evaluation episodes at the end.
         overrides: :data:`ZOO` entries replaced on both sides (a short budget's ``learning_starts``).
         compile_update: compile the TorchRL gradient step (``<out>/<env>_<method>_compiled_seed<k>.json``).
+        compile_policy: with ``compile_update``, also compile the collector's policy forward
+            (``<out>/<env>_<method>_compiled_policy_seed<k>.json``).
 
     Returns:
         The path of the written run.
@@ -414,12 +415,13 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
                            overrides=overrides)
     else:
         result = train_torchrl(method, env_key, seed, steps, loss_noise=loss_noise, eval_episodes=eval_episodes,
-                               overrides=overrides, compile_update=compile_update)
+                               overrides=overrides, compile_update=compile_update, compile_policy=compile_policy)
     import stable_baselines3
     import torchrl
 
     result.update(method=method, env=env_key, env_id=ZOO[env_key]["env_id"], seed=seed,
                   loss_noise=loss_noise if method == "sde" else None, compiled=compile_update,
+                  compiled_policy=compile_policy,
                   settings={**ZOO[env_key], **(overrides or {})}, overrides=overrides or {},
                   env_steps_per_s=result["env_steps"] / result["wall_s"],
                   env_steps_per_cpu_s=result["env_steps"] / result["cpu_s"],
@@ -428,7 +430,8 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
                             "stable_baselines3": stable_baselines3.__version__,
                             "python": platform.python_version()})
     out.mkdir(parents=True, exist_ok=True)
-    suffix = "_stored_noise" if method == "sde" and loss_noise == "stored" else "_compiled" if compile_update else ""
+    suffix = "_stored_noise" if method == "sde" and loss_noise == "stored" else \
+        "_compiled" * compile_update + "_policy" * compile_policy
     path = out / f"{env_key}_{method}{suffix}_seed{seed}.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(result))
@@ -545,19 +548,21 @@ neighbours' load; CPU time less so). Curves: `bench_sac.png`."""
 NAMES = {"sde": "TorchRL SAC, SDE (ours)", "plain": "TorchRL SAC, Gaussian", "sb3": "SB3 SAC, gSDE",
          "sb3_gauss": "SB3 SAC, Gaussian", "sde_compiled": "TorchRL SAC, SDE (ours), compiled update",
          "plain_compiled": "TorchRL SAC, Gaussian, compiled update",
+         "sde_compiled_policy": "TorchRL SAC, SDE (ours), compiled update and policy forward",
          "sde_stored": "ablation: TorchRL SAC, SDE, stored ξ in the losses"}
 #: The report's rows: the methods, the compiled TorchRL methods, then the ablation.
-ROWS = (*METHODS, "sde_compiled", "plain_compiled", "sde_stored")
+ROWS = (*METHODS, "sde_compiled", "sde_compiled_policy", "plain_compiled", "sde_stored")
 
 
 def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
     """Runs by env, then by row (``sde`` runs with the stored loss noise: the ``sde_stored`` ablation row;
-    runs with the compiled update: ``<method>_compiled``)."""
+    runs with the compiled update: ``<method>_compiled``, also the compiled policy: ``<method>_compiled_policy``)."""
     runs: dict[str, dict[str, list[dict]]] = {}
     for path in sorted(folder.glob("*_seed*.json")):
         data = json.loads(path.read_text())
         row = "sde_stored" if data.get("loss_noise") == "stored" else \
-            f"{data['method']}_compiled" if data.get("compiled") else data["method"]
+            f"{data['method']}_compiled{'_policy' * bool(data.get('compiled_policy'))}" if data.get("compiled") \
+            else data["method"]
         runs.setdefault(data["env"], {m: [] for m in ROWS})[row].append(data)
     if not runs:
         raise SystemExit(f"bench_sac: no <env>_<method>_seed<k>.json runs in {folder}: run `bench_sac.py run` first")
@@ -629,7 +634,7 @@ def _env_table(env_runs: dict[str, list[dict]], stats: dict) -> list[str]:
         wall = np.array([r["wall_s"] for r in env_runs[method]])
         stats[method] = {"final": finals.tolist(), "late": late[np.isfinite(late)].tolist(), "speed": speed.tolist(),
                          "steps": env_runs[method][0]["env_steps"], "seeds": [r["seed"] for r in env_runs[method]]}
-        if method.endswith("_compiled"):
+        if "_compiled" in method:
             compiling = np.array([compilation_s(r)[0] for r in env_runs[method]])
             steps = np.array([r["env_steps"] for r in env_runs[method]])
             stats[method]["compilation_s"] = compiling.tolist()
@@ -641,6 +646,7 @@ def _env_table(env_runs: dict[str, list[dict]], stats: dict) -> list[str]:
         lines.append(f"| {NAMES[method]} | {len(finals)} | {stats[method]['steps']:,} | {_mean_sd(finals)} | "
                      f"{_mean_sd(late)} | {speed.mean():.0f} | {cpu_text} | {wall.mean():.0f} |")
     pairs = (("sde", "sb3", "SDE / SB3 gSDE"), ("sde_compiled", "sb3", "SDE, compiled update / SB3 gSDE"),
+             ("sde_compiled_policy", "sb3", "SDE, compiled update and policy forward / SB3 gSDE"),
              ("plain", "sb3_gauss", "Gaussian / SB3 Gaussian"),
              ("plain_compiled", "sb3_gauss", "Gaussian, compiled update / SB3 Gaussian"))
     for ours, theirs, label in pairs:
@@ -722,12 +728,12 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
             with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-            color = {"sde": "C0", "sde_compiled": "C0", "sb3": "C0", "plain": "C1", "plain_compiled": "C1",
-                     "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
+            color = {"sde": "C0", "sde_compiled": "C0", "sde_compiled_policy": "C0", "sb3": "C0", "plain": "C1",
+                     "plain_compiled": "C1", "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
             seeds = f"{len(method_runs)} seed{'s' if len(method_runs) > 1 else ''}"
             ax.plot(x, mean, label=f"{NAMES[method]} ({seeds})", color=color,
                     linestyle="--" if method.startswith("sb3") else ":" if method == "sde_stored" else
-                    "-." if method.endswith("_compiled") else "-")
+                    "-." if "_compiled" in method else "-")
             if len(method_runs) > 1:
                 ax.fill_between(x, low, high, alpha=0.12, color=color)
         ax.set_xlabel("env steps")
@@ -756,6 +762,8 @@ def main(argv: list[str] | None = None) -> int:
                        help="SDE noise of the SAC losses: a fresh matrix per gradient step (SB3) or the stored ξ")
     run_p.add_argument("--compile", action="store_true",
                        help="torch.compile the whole TorchRL gradient step (losses, backward passes, Adam, target)")
+    run_p.add_argument("--compile-policy", action="store_true",
+                       help="with --compile, also compile the collector's policy (Collector(compile_policy=True))")
     speed_p = sub.add_parser("update-speed", help="ms per gradient step of each method, interleaved in one process")
     speed_p.add_argument("--env", choices=ENVS, default="mountaincar")
     speed_p.add_argument("--updates", type=int, default=100, help="gradient steps per timing")
@@ -784,11 +792,13 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--compile applies to the TorchRL methods (sde, plain), not to SB3")
         if args.compile and args.loss_noise != "fresh":
             parser.error("--compile runs the fresh loss noise only; drop --loss-noise stored or --compile")
+        if args.compile_policy and not args.compile:
+            parser.error("--compile-policy goes with --compile (the update compiled too)")
         if args.learning_starts is not None and not 0 <= args.learning_starts < steps:
             parser.error(f"--learning-starts must be in [0, steps), got {args.learning_starts}")
         overrides = {} if args.learning_starts is None else {"learning_starts": args.learning_starts}
         path = run(args.method, args.env, args.seed, steps, args.out, args.loss_noise, args.eval_episodes, overrides,
-                   args.compile)
+                   args.compile, args.compile_policy)
         data = json.loads(path.read_text())
         print(f"{args.env} {args.method} seed {args.seed}: final return {data['final_return_mean']:.1f}, "
               f"{data['env_steps_per_s']:.0f} env steps/s, {data['wall_s']:.0f} s -> {path}")

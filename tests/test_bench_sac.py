@@ -59,7 +59,7 @@ def test_the_sac_losses_draw_fresh_noise_not_the_stored_one():
 def test_the_compiled_update_equals_the_eager_one(monkeypatch):
     """``run --compile`` changes how the gradient step runs, not what it computes (stored ξ: no RNG inside).
 
-    The graphs are captured as in a run (Dynamo, compiled autograd, AOTAutograd) and run without
+    The graphs are captured as in a run (Dynamo, AOTAutograd) and run without
     inductor's C++ code generation (``backend="aot_eager"``), which would take minutes here.
     """
     monkeypatch.setattr(torch, "compile", functools.partial(torch.compile, backend="aot_eager"))
@@ -122,6 +122,7 @@ def test_a_tiny_run_writes_its_result(tmp_path, method):
     (["update-speed", "--updates", "0"], "--updates and --rounds must be positive"),
     (["run", "--method", "sb3", "--compile"], "--compile applies to the TorchRL methods"),
     (["run", "--method", "sde", "--compile", "--loss-noise", "stored"], "--compile runs the fresh loss noise only"),
+    (["run", "--method", "sde", "--compile-policy"], "--compile-policy goes with --compile"),
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
@@ -129,15 +130,15 @@ def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
-def _fake_run(folder, env, method, seed, final, speed, loss_noise=None, compiled=False):
+def _fake_run(folder, env, method, seed, final, speed, loss_noise=None, compiled=False, compiled_policy=False):
     curve = [[1000 * (k + 1), final * k / 14] for k in range(15)]
-    suffix = "_stored_noise" if loss_noise == "stored" else "_compiled" if compiled else ""
+    suffix = "_stored_noise" if loss_noise == "stored" else "_compiled" * compiled + "_policy" * compiled_policy
     name = f"{env}_{method}{suffix}_seed{seed}.json"
     (folder / name).write_text(json.dumps(
         {"method": method, "env": env, "seed": seed, "settings": bench.ZOO[env], "env_steps": 15_000, "curve": curve,
          "final_return_mean": final,
          "env_steps_per_s": speed, "env_steps_per_cpu_s": 1.5 * speed, "wall_s": 15_000 / speed,
-         "eval_returns": [final], "loss_noise": loss_noise, "compiled": compiled,
+         "eval_returns": [final], "loss_noise": loss_noise, "compiled": compiled, "compiled_policy": compiled_policy,
          # 15 rounds of 1 s; compiled: the first takes 1,000 / 6 s more
          "update_rounds_s": [[1.0 + (15_000 / speed / 6 if compiled and k == 0 else 0.0), 1.0] for k in range(15)]}))
 
@@ -149,6 +150,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
         _fake_run(tmp_path, "mountaincar", "plain", seed, -1.0, 45)
         _fake_run(tmp_path, "mountaincar", "sb3_gauss", seed, -2.0, 90)
         _fake_run(tmp_path, "mountaincar", "sde", seed, sde, 72, compiled=True)  # a row of its own, beside eager
+        _fake_run(tmp_path, "mountaincar", "sde", seed, sde, 76, compiled=True, compiled_policy=True)  # and another
     _fake_run(tmp_path, "mountaincar", "sde", 0, -1e6, 40, loss_noise="stored")  # the ablation: a row of its own
     _fake_run(tmp_path, "halfcheetah", "sde", 0, 500, 20)
     _fake_run(tmp_path, "halfcheetah", "sb3", 0, 600, 30)
@@ -164,6 +166,9 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
     assert "env steps per second 0.90× [0.90, 0.90] (target ≥ 0.8)" in page
     # 15,000 steps at 72/s is 208 s, of which 35 s compile: without them 86.4/s, 1.08× SB3's 80
     assert "without the compilation (35 s a run) 1.08× [1.08, 1.08]" in page
+    assert "| TorchRL SAC, SDE (ours), compiled update and policy forward | 3 | 15,000 | 90.0 ± 10.0 |" in page
+    assert "SDE, compiled update and policy forward / SB3 gSDE: final return 0.90×" in page
+    assert "env steps per second 0.95× [0.95, 0.95] (target ≥ 0.8)" in page
     assert "| ablation: TorchRL SAC, SDE, stored ξ in the losses | 1 | 15,000 | -1000000.0 ± 0.0 |" in page
     assert "env steps per CPU second 0.50× [0.50, 0.50]" in page
     # returns that are not both positive: the difference, not a ratio

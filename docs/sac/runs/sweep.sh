@@ -26,7 +26,7 @@ run --env mountaincar --method sde --seed 0 --steps 8000 --loss-noise stored   #
 run --env halfcheetah --method sb3 --seed 1 --steps 4000 --learning-starts 1000
 run --env halfcheetah --method sde --seed 1 --steps 4000 --learning-starts 1000
 run --env mountaincar --method sde --seed 1 --steps 8000 --loss-noise stored
-# The compiled update (2026-12-02) and a fresh SB3 gSDE run of each seed, so that the two speeds are
+# The compiled update (2026-12-02; compiled autograd and inductor's min-cut partition, before compile_step) and a fresh SB3 gSDE run of each seed, so that the two speeds are
 # measured on the machine as it was then, shared with other jobs (as run: SB3 seeds 0-2 beside an earlier
 # build of the compiled runs, then compiled 0-2, then compiled and SB3 seeds 3 and 4 in turn). These SB3 runs
 # replace the earlier ones of the same seeds; SB3 SAC on CPU does not repeat its returns exactly.
