@@ -58,6 +58,11 @@ def summary() -> str:
     ratio = ppo["sde_over_sb3"]
     sac = _load("sac/bench_sac.json")["mountaincar"]
     sac_ratio, sac_compiled = sac["sde_over_sb3"], sac["sde_compiled_over_sb3"]
+    zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]
+    ours_zoo, zoo_ratio = zoo["sde_compiled_policy"], zoo["sde_compiled_policy_over_sb3"]
+    zoo_final = _interval(zoo_ratio["final"]) if "final" in zoo_ratio else \
+        f"difference {zoo_ratio['final_difference']['estimate']:+.1f} [{zoo_ratio['final_difference']['low']:+.1f}, " \
+        f"{zoo_ratio['final_difference']['high']:+.1f}]"
 
     def ends_keeps_reaches(counts: dict) -> str:
         return f"{_percent(counts, 'final')}; {_percent(counts, 'final_policy')}; {_percent(counts)}"
@@ -112,6 +117,12 @@ def summary() -> str:
          f"{sac_ratio['late']['estimate']:.2f}× [{sac_ratio['late']['low']:.2f}, {sac_ratio['late']['high']:.2f}]; "
          f"speed {_interval(sac_ratio['speed'])}; compiled update: {_interval(sac_compiled['speed'])}, "
          f"{_interval(sac_compiled['speed_without_compilation'])} without the compilation",
+         "(not in the paper)", "docs/reproduce/sac.md"),
+        (f"SAC on MountainCarContinuous at the zoo's budget ({ours_zoo['steps']:,} steps), compiled update and policy "
+         "forward: final deterministic return (seeds); env steps/s; per CPU second",
+         f"SDE {mean_sd(ours_zoo['final'])} ({len(ours_zoo['final'])}), SB3 gSDE {mean_sd(zoo['sb3']['final'])} "
+         f"({len(zoo['sb3']['final'])}): {zoo_final}; speed {_interval(zoo_ratio['speed'])}; "
+         f"{_interval(zoo_ratio['cpu_speed'])}",
          "(not in the paper)", "docs/reproduce/sac.md"),
     ]
     lines = ["| result | ours [95 % interval] | paper | page |", "| --- | --- | --- | --- |"]
