@@ -435,7 +435,7 @@ def run(method: str, env_key: str, seed: int, steps: int, out: Path, loss_noise:
                             "python": platform.python_version()})
     out.mkdir(parents=True, exist_ok=True)
     suffix = "_stored_noise" if method == "sde" and loss_noise == "stored" else \
-        "_compiled" * compile_update + "_policy" * compile_policy
+        compiled_suffix(compile_update, compile_policy)
     path = out / f"{env_key}_{method}{suffix}_seed{seed}.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(result))
@@ -558,6 +558,16 @@ NAMES = {"sde": "TorchRL SAC, SDE (ours)", "plain": "TorchRL SAC, Gaussian", "sb
 ROWS = (*METHODS, "sde_compiled", "sde_compiled_policy", "plain_compiled", "sde_stored")
 
 
+def compiled_suffix(compiled: bool, compiled_policy: bool) -> str:
+    """What a run's compilation adds to its file name and its report row.
+
+    Examples:
+        >>> compiled_suffix(True, True), compiled_suffix(True, False), compiled_suffix(False, False)
+        ('_compiled_policy', '_compiled', '')
+    """
+    return "_compiled" * compiled + "_policy" * (compiled and compiled_policy)
+
+
 def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
     """Runs by env, then by row (``sde`` runs with the stored loss noise: the ``sde_stored`` ablation row;
     runs with the compiled update: ``<method>_compiled``, also the compiled policy: ``<method>_compiled_policy``)."""
@@ -565,8 +575,7 @@ def load_runs(folder: Path) -> dict[str, dict[str, list[dict]]]:
     for path in sorted(folder.glob("*_seed*.json")):
         data = json.loads(path.read_text())
         row = "sde_stored" if data.get("loss_noise") == "stored" else \
-            f"{data['method']}_compiled{'_policy' * bool(data.get('compiled_policy'))}" if data.get("compiled") \
-            else data["method"]
+            data["method"] + compiled_suffix(bool(data.get("compiled")), bool(data.get("compiled_policy")))
         runs.setdefault(data["env"], {m: [] for m in ROWS})[row].append(data)
     if not runs:
         raise SystemExit(f"bench_sac: no <env>_<method>_seed<k>.json runs in {folder}: run `bench_sac.py run` first")
@@ -732,8 +741,8 @@ def _plot(runs: dict[str, dict[str, list[dict]]], path: Path) -> None:
             with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
                 warnings.simplefilter("ignore", RuntimeWarning)
                 mean, low, high = np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
-            color = {"sde": "C0", "sde_compiled": "C0", "sde_compiled_policy": "C0", "sb3": "C0", "plain": "C1",
-                     "plain_compiled": "C1", "sb3_gauss": "C1"}.get(method, "C2")  # pairs: one colour
+            # pairs: one colour (SDE and SB3 gSDE, the Gaussians), the ablation its own
+            color = "C2" if method == "sde_stored" else "C1" if method.startswith(("plain", "sb3_gauss")) else "C0"
             seeds = f"{len(method_runs)} seed{'s' if len(method_runs) > 1 else ''}"
             ax.plot(x, mean, label=f"{NAMES[method]} ({seeds})", color=color,
                     linestyle="--" if method.startswith("sb3") else ":" if method == "sde_stored" else

@@ -38,16 +38,14 @@ class SaveForwardValues(CustomPartitionerFn):
         return "sde_torchrl.SaveForwardValues"
 
 
-def compile_step(step: Callable, save_forward_values: bool = True) -> Callable:
-    """``torch.compile(step)``, by default with the :class:`SaveForwardValues` partitioner.
+def compile_step(step: Callable) -> Callable:
+    """``torch.compile(step)`` with the :class:`SaveForwardValues` partitioner.
 
     The step (losses, ``backward()``, optimiser steps, target updates) compiles at its first
     calls (tens of seconds on the CPU); ``backward()`` breaks the graph, each side compiles.
 
     Args:
         step: the function to compile.
-        save_forward_values: partition with :class:`SaveForwardValues` (``False``: inductor's
-            min-cut default).
 
     Returns:
         The compiled function.
@@ -61,5 +59,4 @@ def compile_step(step: Callable, save_forward_values: bool = True) -> Callable:
         >>> callable(compiled)
         True
     """
-    options = {"custom_partitioner_fn": SaveForwardValues()} if save_forward_values else {}
-    return torch.compile(step, options=options)
+    return torch.compile(step, options={"custom_partitioner_fn": SaveForwardValues()})
