@@ -44,10 +44,9 @@ squashed action, ours scores the exact pre-squash sample.
 
 **The compiled update** (``run --compile``, the ``sde_compiled`` row): the whole gradient step
 above (fresh noise, both losses, their backward passes, the Adam steps, the target update) goes
-through :func:`~sde_torchrl.compile_step` (``torch.compile`` with AOTAutograd's default partition,
-whose saved forward values avoid inductor's slow boolean ReLU masks on the CPU), as TorchRL's own SAC
-scripts compile theirs with their ``compile`` option. It computes
-the same step (tested against the eager one with the stored noise); the fresh noise inside it
+through ``torch.compile`` (inductor, its default partitioner), as TorchRL's own SAC scripts compile
+theirs with their ``compile`` option. It computes the same step (tested against the eager one with
+inductor and the stored noise); the fresh noise inside it
 comes from inductor's random generator, not eager PyTorch's, so a compiled run is not the eager
 run of the same seed. The first steps compile, inside the timed training: the report gives the
 compilation's time (the first round of gradient steps less the median round, :func:`compilation_s`)
@@ -229,14 +228,12 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update:
         sde: the :class:`~sde_torchrl.SDEParams` (``None`` for the plain Gaussian).
         zoo: the env's settings.
         loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the buffer's ``ξ``).
-        compile_update: run the whole step through :func:`~sde_torchrl.compile_step`.
+        compile_update: run the whole step through ``torch.compile`` (inductor, its default partitioner).
 
     Returns:
         ``update(batch)``.
     """
     from torchrl.objectives import SoftUpdate
-
-    from sde_torchrl import compile_step
 
     lr = zoo["learning_rate"]
     actor_optim = torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=lr)
@@ -261,7 +258,7 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update:
             alpha_optim.step()
         target.step()
 
-    return compile_step(update) if compile_update else update
+    return torch.compile(update) if compile_update else update
 
 
 def make_torchrl_env(env_id: str, seed: int, primer=None):

@@ -23,7 +23,6 @@ _LAZY = {
     **dict.fromkeys(("SDEActor", "action_bounds", "make_sde_actor"), "sde_torchrl.modules.sde_actor"),
     "BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
     "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched",
-    "compile_step": "sde_torchrl.utils.compile",
 }
 
 
@@ -52,7 +51,6 @@ __all__ = [
     "SDEParams",
     "TanhSDENormal",
     "action_bounds",
-    "compile_step",
     "episode_returns",
     "episode_scores",
     "expln",
