@@ -1,11 +1,11 @@
 #!/bin/bash
 # The runs in docs/sac/zoo_budget/runs: MountainCarContinuous at the zoo's budget (50,000 env steps), ours against
-# SB3, 5 seeds each (SEEDS=n for seeds 0..n-1). Two lanes, one per core (torch.set_num_threads(1) in each run), each alternating the two sides
-# so that both meet the same load.
+# SB3, 5 seeds each (SEEDS=n for seeds 0..n-1). Two lanes, one per core (torch.set_num_threads(1) in each
+# run), each alternating the two sides so that both meet the same load.
 # NOISE=sde (default): ours with SDE, the compiled update and policy forward, against SB3 SAC + gSDE.
 # NOISE=gauss: the plain tanh Gaussians, ours with the compiled update, against SB3 SAC without gSDE.
-# ONLY=sde (or ONLY=sb3) runs one side alone, over both lanes.
-# Usage, from the repository root: [NOISE=sde|gauss] [ONLY=sde|sb3] [SEEDS=n] bash docs/sac/zoo_budget/sweep.sh [OUT]
+# ONLY=ours (or ONLY=sb3) runs one side alone, over both lanes.
+# Usage, from the repository root: [NOISE=sde|gauss] [ONLY=ours|sb3] [SEEDS=n] bash docs/sac/zoo_budget/sweep.sh [OUT]
 # (OUT: docs/sac/zoo_budget/runs)
 set -euo pipefail
 OUT=${1:-docs/sac/zoo_budget/runs}
@@ -24,9 +24,8 @@ lane() { for ((s = 0; s < SEEDS; s++)); do if (( (s + $1) % 2 == 0 )); then ours
 alone() { for ((s = $2; s < SEEDS; s += 2)); do $1 $s; done; }
 case "$ONLY" in
   "") lane 0 & lane 1 & ;;
-  sde) alone ours 0 & alone ours 1 & ;;
-  sb3) alone sb3 0 & alone sb3 1 & ;;
-  *) echo "sweep.sh: ONLY must be sde, sb3 or empty, got '$ONLY'" >&2; exit 2 ;;
+  ours | sb3) alone "$ONLY" 0 & alone "$ONLY" 1 & ;;
+  *) echo "sweep.sh: ONLY must be ours, sb3 or empty, got '$ONLY'" >&2; exit 2 ;;
 esac
 wait
 python analysis/bench_sac.py report "$OUT" --out "$(dirname "$OUT")"
