@@ -278,9 +278,9 @@ def recompute_boolean_masks(joint_graph, joint_inputs):
 
     Inductor's min-cut partitioner saves the smallest tensors the backward needs; for ReLU,
     ``hardtanh``, ``clamp`` and ``min`` those are their boolean masks (1 byte each, where the
-    float inputs they come from are 4). Inductor's CPU code stores a boolean tensor far slower than
-    a float one (torch 2.13: about 0.9 ms against 0.03 ms for ``[2, 512, 64]``), and at the zoo's
-    batch of 512 those stores took more of the compiled step than its matrix products.
+    float inputs they come from are 4). Inductor's CPU code (torch 2.13) stores a boolean tensor many
+    times slower than a float one, and at the zoo's batch of 512 those stores took more of the
+    compiled step than its matrix products (``docs/reproduce/sac.md``).
     Marking every boolean node ``MUST_RECOMPUTE`` (the tag of selective activation checkpointing)
     keeps the min-cut partitioner but makes it save the float values and recompute the masks,
     fused into the backward's kernels. The step computes the same values (tested against the
@@ -295,9 +295,10 @@ def recompute_boolean_masks(joint_graph, joint_inputs):
 
     Examples:
         >>> graph = torch.fx.symbolic_trace(lambda x: x > 0)
-        >>> next(iter(graph.graph.nodes)).next.meta["val"] = torch.zeros(2, dtype=torch.bool)
-        >>> recompute_boolean_masks(graph, None) is graph
-        True
+        >>> mask = list(graph.graph.nodes)[1]
+        >>> mask.meta["val"] = torch.zeros(2, dtype=torch.bool)
+        >>> recompute_boolean_masks(graph, None) is graph, mask.meta["recompute"].name
+        (True, 'MUST_RECOMPUTE')
     """
     from torch.utils.checkpoint import CheckpointPolicy
 
