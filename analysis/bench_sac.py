@@ -260,17 +260,27 @@ def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update:
             alpha_optim.step()
         target.step()
 
-    if not compile_update:
-        return update
-    compiled = torch.compile(update)
+    return torch.compile(update, backend=inductor_recomputing_boolean_masks) if compile_update else update
 
-    def compiled_update(batch) -> None:
-        # the pass is not part of AOTAutograd's cache key: without the cache, a graph cached by a
-        # process without the pass is not reused
-        with torch._functorch.config.patch(joint_custom_pass=recompute_boolean_masks, enable_autograd_cache=False):
-            compiled(batch)
 
-    return compiled_update
+def inductor_recomputing_boolean_masks(graph, example_inputs):
+    """``torch.compile``'s inductor backend, its partition made under :func:`recomputing_boolean_masks`.
+
+    The settings hold while a graph compiles, not at every call of the compiled function.
+    """
+    from torch._inductor.compile_fx import compile_fx
+
+    with recomputing_boolean_masks():
+        return compile_fx(graph, example_inputs)
+
+
+def recomputing_boolean_masks():
+    """AOTAutograd's settings that apply :func:`recompute_boolean_masks` to what compiles within them.
+
+    The pass is not part of AOTAutograd's cache key, so its cache is off: a graph cached by a
+    process without the pass is not reused.
+    """
+    return torch._functorch.config.patch(joint_custom_pass=recompute_boolean_masks, enable_autograd_cache=False)
 
 
 def recompute_boolean_masks(joint_graph, joint_inputs):

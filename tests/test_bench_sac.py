@@ -75,7 +75,7 @@ def test_the_compiled_update_equals_the_eager_one():
         torch.testing.assert_close(after[True][key], value, rtol=1e-4, atol=1e-5, msg=str(key))
 
 
-def _saved_for_backward(joint_pass) -> list[torch.dtype]:
+def _saved_for_backward(settings) -> list[torch.dtype]:
     """The dtypes the forward of ``relu(relu(x W) W)`` saves for its backward, partitioned as inductor does."""
     from functorch.compile import aot_function, min_cut_rematerialization_partition
     from torch._inductor.decomposition import select_decomp_table
@@ -90,15 +90,15 @@ def _saved_for_backward(joint_pass) -> list[torch.dtype]:
     step = aot_function(lambda x, w: torch.relu(torch.relu(x @ w) @ w).sum(), fw_compiler=forward_compiler,
                         bw_compiler=lambda graph, _: graph, partition_fn=min_cut_rematerialization_partition,
                         decompositions=select_decomp_table())
-    with torch._functorch.config.patch(joint_custom_pass=joint_pass, enable_autograd_cache=False):
+    with settings:
         step(torch.randn(4, 3, requires_grad=True), torch.randn(3, 3, requires_grad=True)).backward()
     return saved
 
 
 def test_the_compiled_step_saves_no_boolean_mask_for_its_backward():
     """Without the pass, inductor's partitioner saves ReLU's boolean mask; with it, only float tensors."""
-    assert torch.bool in _saved_for_backward(None)
-    saved = _saved_for_backward(bench.recompute_boolean_masks)
+    assert torch.bool in _saved_for_backward(torch._functorch.config.patch(enable_autograd_cache=False))
+    saved = _saved_for_backward(bench.recomputing_boolean_masks())
     assert saved and torch.bool not in saved
 
 
