@@ -57,15 +57,22 @@ CANDIDATES = {
     "C8": ("mean, adam, 1e-2, linear decay", lambda a: ["estimator.episode_return=mean", "optimizer=adam", "lr=0.01",
                                                        *_DECAY]),
     "C9": ("C7, σ̂ learning switched", lambda a: CANDIDATES["C7"][1](a)),
+    "C10": ("C7, σ̂₀ = e⁻³", lambda a: [*CANDIDATES["C7"][1](a), "explorer.init_param=-3"]),
+    "C11": ("C7, σ̂₀ = e⁻⁴", lambda a: [*CANDIDATES["C7"][1](a), "explorer.init_param=-4"]),
+    "C12": ("C7, scaled observation and a constant feature", lambda a: [*CANDIDATES["C7"][1](a),
+                                                                       "env.observation=scaled"]),
 }
 #: the candidates that switch whether σ̂ is learned (fixed where the method's command learns it).
 SIGMA_SWITCHED = ("C9",)
-#: the candidates each round chooses among (learner_selection.md; round 2 added on 2026-12-03).
-ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)}
+#: the candidates each round chooses among, in the order that breaks its last tie
+#: (learner_selection.md; rounds 2 and 3 added on 2026-12-03).
+ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)[:9], 3: ["C7", "C1", "C10", "C11", "C12"]}
+#: round → (tuning seed, runs per job, folder under the tuning directory).
+ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), 3: (3000, 16, "round3")}
 
 
-def job_overrides(method: str, candidate: str) -> list[str]:
-    """The ``train.py`` overrides of one tuning job.
+def job_overrides(method: str, candidate: str, round_: int = 1) -> list[str]:
+    """The ``train.py`` overrides of one tuning job of round ``round_`` (its seed and runs).
 
     Examples:
         >>> job_overrides("enac_rex", "C4")[:4]
@@ -74,21 +81,28 @@ def job_overrides(method: str, candidate: str) -> list[str]:
         'lr=0.1'
         >>> [o for o in job_overrides("enac_rex", "C9") if "sigma" in o]  # ENAC's command fixes σ̂
         ['explorer.learn_sigma=true']
+        >>> job_overrides("reinforce_sde", "C10", round_=3)[-7:-3]
+        ['explorer.init_param=-3', 'seed=3000', 'runs=16', 'first_run=0']
     """
     _, base, alpha, learns_sigma = METHODS[method]
+    seed, runs, _ = ROUND_JOBS[round_]
     switch = [f"explorer.learn_sigma={str(not learns_sigma).lower()}"] if candidate in SIGMA_SWITCHED else []
-    return [*base, *CANDIDATES[candidate][1](alpha), *switch, f"seed={SEED}", f"runs={RUNS}", "first_run=0",
+    return [*base, *CANDIDATES[candidate][1](alpha), *switch, f"seed={seed}", f"runs={runs}", "first_run=0",
             "eval_period=50", "checkpoint_period=50", "logger=none"]
 
 
-def jobs(out: Path, methods: list[str], candidates: list[str]) -> list[TrainJob]:
-    """The (method, candidate) jobs, each in ``out/<method>/<candidate>``.
+def jobs(out: Path, methods: list[str], candidates: list[str], round_: int = 1) -> list[TrainJob]:
+    """The (method, candidate) jobs of round ``round_``, each in ``out/[round3/]<method>/<candidate>``.
 
     Examples:
         >>> [job.name for job in jobs(Path("tuning"), ["enac_sde"], ["C1", "C2"])]
         ['enac_sde/C1', 'enac_sde/C2']
+        >>> [str(job.run_dir) for job in jobs(Path("tuning"), ["pgpe"], ["C7"], round_=3)]
+        ['tuning/round3/pgpe/C7']
     """
-    return [TrainJob(f"{m}/{c}", tuple(job_overrides(m, c)), out / m / c) for m in methods for c in candidates]
+    folder = out / ROUND_JOBS[round_][2]
+    return [TrainJob(f"{m}/{c}", tuple(job_overrides(m, c, round_)), folder / m / c)
+            for m in methods for c in candidates]
 
 
 def final_evaluations(run_dir: Path) -> list[float] | None:
@@ -190,8 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     run = sub.add_parser("run", help="train the tuning jobs")
     run.add_argument("--out", type=Path, required=True)
     run.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
-    run.add_argument("--candidates", nargs="+", choices=list(CANDIDATES), default=list(CANDIDATES))
+    run.add_argument("--candidates", nargs="+", choices=list(CANDIDATES), default=ROUNDS[1])
     run.add_argument("--workers", type=int, default=2)
+    run.add_argument("--round", type=int, choices=list(ROUND_JOBS), default=1,
+                     help="the round whose seed and runs the jobs take (round 3: seed 3000, 16 runs)")
     rep = sub.add_parser("report", help="write tuning.md / tuning.json")
     rep.add_argument("tuning", type=Path)
     rep.add_argument("--out", type=Path, required=True)
@@ -202,7 +218,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.workers < 1:
         parser.error(f"--workers={args.workers}: a positive integer")
-    failed = run_train_jobs(jobs(args.out, args.methods, args.candidates), args.workers, command=True,
+    if any(c not in ROUNDS[args.round] for c in args.candidates):
+        parser.error(f"round {args.round}'s candidates are {' '.join(ROUNDS[args.round])}")
+    failed = run_train_jobs(jobs(args.out, args.methods, args.candidates, args.round), args.workers, command=True,
                             keep_checkpoints=False)  # run outputs are committed, checkpoints are not
     return 1 if failed else 0
 
