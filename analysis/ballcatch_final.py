@@ -16,8 +16,14 @@ the episodes and seed, and each run's return as a mean reward per step (the pape
 ``analysis/fig5.py`` reports the counts beside the trainer's when every run has one. The rule
 that fixed ``--episodes 20 --seed 7`` before any run: ``docs/ballcatch/final_policy_rule.md``.
 
+With ``--model NAME`` the same policies are evaluated in another arm model (``pybrain_held``: the
+arm joints held level, a diagnostic) and with their behaviour per episode
+(:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`), into ``reevaluation_NAME.json``
+(rule: ``docs/ballcatch/reevaluation_rule.md``).
+
 Usage:
     python analysis/ballcatch_final.py --episodes 20 --seed 7 docs/ballcatch/runs/fig5_selected/sde
+    python analysis/ballcatch_final.py --episodes 20 --seed 7 --model pybrain_held docs/ballcatch/runs/fig5_selected/sde
 """
 
 from __future__ import annotations
@@ -35,6 +41,8 @@ from omegaconf import OmegaConf
 from sde_torchrl.config.build import build_trainer
 from sde_torchrl.config.compose import compose
 from sde_torchrl.config.schemas import validate
+from sde_torchrl.envs.ballcatch.models import ARM_MODELS
+from sde_torchrl.envs.ballcatch.outcomes import catch_outcomes
 from sde_torchrl.jobs.checkpoint import config_differences, result_config
 from sde_torchrl.jobs.run_dir import FinishedRun, finished_runs
 from sde_torchrl.trainers.summary import mean_reward_factor
@@ -59,7 +67,8 @@ def rebuilt_config(job: FinishedRun, changes: dict[str, object]) -> object:
     cfg = compose([*job_overrides(job), *(f"{key}={value}" for key, value in changes.items())])
     current = result_config(OmegaConf.to_container(cfg, resolve=True))
     saved = result_config(job.config)
-    differences = [line for line in config_differences(saved, current) if line.split(":")[0] not in CHANGED]
+    changed = (*CHANGED, *changes)
+    differences = [line for line in config_differences(saved, current) if line.split(":")[0] not in changed]
     if differences:
         raise SystemExit(f"error: {job.path}: the config tree no longer rebuilds this job's policy "
                          f"({'; '.join(differences[:3])}); check out the commit the job ran on")
@@ -81,25 +90,43 @@ def load_final_parameters(policy: torch.nn.Module, final: dict[str, list], start
             target.copy_(torch.as_tensor(values[start:start + count], dtype=target.dtype).reshape(target.shape))
 
 
-def evaluate_job(job: FinishedRun, episodes: int, seed: int, chunk: int) -> dict:
-    """Each run's final policy of ``job``, evaluated on ``episodes`` episodes under ``seed``."""
+def evaluate_job(job: FinishedRun, episodes: int, seed: int, chunk: int, model: str | None = None) -> dict:
+    """Each run's final policy of ``job``, evaluated on ``episodes`` episodes under ``seed``; in arm
+    ``model`` (``None``: the job's own) with each episode's return and behaviour."""
     summary = job.summary
     runs, first = summary["runs"], summary["first_run"]
     returns: list[float] = []
+    per_episode: dict[str, list] = {}
     for start in range(0, runs, chunk):
         count = min(chunk, runs - start)
-        cfg = rebuilt_config(job, {"runs": count, "first_run": first + start, "eval_episodes": episodes,
-                                   "seed": seed, "logger": "none"})
+        changes = {"runs": count, "first_run": first + start, "eval_episodes": episodes, "seed": seed, "logger": "none"}
+        cfg = rebuilt_config(job, changes if model is None else {**changes, "env.model": model})
         trainer = build_trainer(validate(cfg))
         try:
             load_final_parameters(trainer.policy, summary["final_parameters"], start, count)
-            returns += trainer.evaluate().tolist()
+            evaluation = trainer.evaluation_episodes()
+            returns += trainer.estimator.returns(evaluation).mean(-1).tolist()
+            if model is not None:
+                for key, values in episode_outcomes(evaluation, trainer, mean_reward_factor(summary)).items():
+                    per_episode.setdefault(key, []).extend(values)
         finally:
             trainer.close()
         log.info("%s: runs %d-%d evaluated", job.path, first + start, first + start + count - 1)
     scale = mean_reward_factor(summary)
-    return {"explorer": summary["explorer"], "estimator": summary["estimator"], "first_run": first,
-            "episodes": episodes, "seed": seed, "final_policy_return": [scale * value for value in returns]}
+    result = {"explorer": summary["explorer"], "estimator": summary["estimator"], "first_run": first,
+              "episodes": episodes, "seed": seed, "final_policy_return": [scale * value for value in returns]}
+    return result if model is None else {**result, "model": model, "per_episode": per_episode}
+
+
+def episode_outcomes(episodes, trainer, scale: float) -> dict[str, list]:
+    """Per run, each evaluation episode's return (mean reward per step) and behaviour
+    (:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`), as lists ``[runs][episodes]``."""
+    ball = torch.cat([episodes["observation"][..., :1, :], episodes["next", "observation"]], -2)
+    reward = episodes["next", "reward"][..., 0]
+    ground_z = trainer.eval_env.base_env.config.arm.ground_z
+    outcomes = catch_outcomes(ball, episodes["action"][..., 3], reward, ground_z)
+    outcomes["return"] = scale * trainer.estimator.returns(episodes)
+    return {key: value.tolist() for key, value in outcomes.items()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -109,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, required=True, help="seed of the evaluation env's streams")
     parser.add_argument("--chunk", type=int, default=10, help="runs evaluated at once (memory)")
     parser.add_argument("--force", action="store_true", help="evaluate jobs that already have the file")
+    parser.add_argument("--model", choices=list(ARM_MODELS),
+                        help="evaluate in this arm, with each episode's behaviour, into reevaluation_MODEL.json")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.chunk < 1:
         parser.error("--episodes and --chunk must be at least 1")
@@ -117,14 +146,14 @@ def main(argv: list[str] | None = None) -> int:
     if not jobs:
         parser.error(f"no finished jobs under {[str(s) for s in args.sweeps]}")
     for job in jobs:
-        out = job.path / "final_policy.json"
+        out = job.path / ("final_policy.json" if args.model is None else f"reevaluation_{args.model}.json")
         if out.is_file() and not args.force:
             found = json.loads(out.read_text())
             if (found["episodes"], found["seed"]) != (args.episodes, args.seed):
                 parser.error(f"{out} holds {found['episodes']} episodes on seed {found['seed']}: "
                              "pass --force to replace it")
             continue
-        result = evaluate_job(job, args.episodes, args.seed, args.chunk)
+        result = evaluate_job(job, args.episodes, args.seed, args.chunk, args.model)
         out.write_text(json.dumps(result, indent=1))
     return 0
 

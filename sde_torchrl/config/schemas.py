@@ -105,7 +105,8 @@ class BallCatchEnvConf:
     Attributes:
         episode_length: steps of 0.01 s per episode.
         jitter: half-width of the uniform horizontal release offset, in ``[0, 0.4]``.
-        model: the arm, ``pybrain`` (after PyBrain's ``arm.xode``, the authors' arm) or ``cup``.
+        model: the arm, ``pybrain`` (after PyBrain's ``arm.xode``, the authors' arm), ``cup``, or the
+            diagnostic ``pybrain_held`` (the pybrain arm with shoulder, elbow and wrist held).
 
     Examples:
         >>> BallCatchEnvConf().episode_length

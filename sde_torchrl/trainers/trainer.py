@@ -29,7 +29,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from sde_torchrl.collectors.episode_queue import EpisodeQueue
 from sde_torchrl.collectors.rollout import collect_episodes
 from sde_torchrl.jobs.checkpoint import job_streams, restore_job, result_config, save_job
-from sde_torchrl.jobs.run_dir import RunDirectory, metric_rows
+from sde_torchrl.jobs.run_dir import FinishedRun, RunDirectory, episodes_after, metric_rows, recorded_rows
 from sde_torchrl.objectives.estimators import EpisodicEstimator
 from sde_torchrl.objectives.pgpe import PGPEEstimator
 from sde_torchrl.trainers.guard import FiniteGuard
@@ -88,9 +88,12 @@ class Trainer:
     def evaluate(self) -> torch.Tensor:
         """Mean return of deterministic episodes (no exploration noise) per run, ``[runs]``, in
         the estimator's return definition, on the CPU."""
+        return self.estimator.returns(self.evaluation_episodes()).mean(-1).cpu()
+
+    def evaluation_episodes(self) -> TensorDictBase:
+        """Fresh deterministic episodes (no exploration noise) on the evaluation env, ``[runs, E, T]``."""
         with set_exploration_type(ExplorationType.DETERMINISTIC):
-            episodes = self._rollout(self.eval_env)
-        return self.estimator.returns(episodes).mean(-1).cpu()
+            return self._rollout(self.eval_env)
 
     def update(self, episodes: TensorDictBase, update: int) -> dict[str, torch.Tensor]:
         """One estimator pass and one optimiser step (eq. 1 with ``SGD``) at update ``update``'s
@@ -116,8 +119,7 @@ class Trainer:
 
     def episodes_after(self, update: int) -> int:
         """Episodes each run has collected by the end of update ``update`` (0-based)."""
-        s = self.settings
-        return (update + 1) * s.episodes_per_update + max(s.episode_queue - s.episodes_per_update, 0)
+        return episodes_after(update, self.settings.episodes_per_update, self.settings.episode_queue)
 
     def close(self) -> None:
         """Closes both envs (their simulators: 200 ball-catching worlds hold ~5.7 GB), so that a
@@ -135,8 +137,10 @@ class Trainer:
         The job holds ``out_dir`` (:meth:`RunDirectory.lock`) until it returns. If ``out_dir``
         holds a checkpoint, the job resumes from it: ``metrics.csv`` is checked against it, cut
         back to the checkpointed update and continued, and every random stream continues where
-        it was, so the outputs equal those of an uninterrupted job. A checkpoint of a finished
-        job only (re)writes the summary, once ``metrics.csv`` is checked.
+        it was, so the outputs equal those of an uninterrupted job. A finished job is final
+        (:meth:`RunDirectory.finished_job`): with or without its checkpoint, if its files agree
+        nothing is changed and its summary is returned; a finished checkpoint whose summary is
+        missing or disagrees with it only rewrites the summary, once ``metrics.csv`` is checked.
 
         Args:
             out_dir: the run directory (Hydra's output directory in ``train.py``).
@@ -155,13 +159,20 @@ class Trainer:
             NonFiniteError: a non-finite value; ``metrics.csv`` keeps the updates before it.
             TrainingInterrupted: on Ctrl-C, SIGTERM or SIGUSR2, after saving a checkpoint
                 (:mod:`~sde_torchrl.trainers.interrupt`).
-            CheckpointMismatchError: ``out_dir`` holds another job's checkpoint.
+            CheckpointMismatchError: ``out_dir`` holds another job's checkpoint, or another
+                config's finished job.
             RunDirectoryInUse: another process holds ``out_dir`` (nothing is changed).
-            DamagedFileError: ``checkpoint.pt`` or ``metrics.csv`` is damaged (nothing is resumed).
+            DamagedFileError: ``checkpoint.pt`` or ``metrics.csv`` is damaged (nothing is resumed),
+                or the files of a finished job without a checkpoint disagree
+                (:class:`~sde_torchrl.jobs.run_dir.UnfinishedRunError`; nothing is changed).
         """
         run_dir = RunDirectory(out_dir)
         config = result_config(config)
         with run_dir.lock():
+            done = run_dir.finished_job(config)
+            if done is not None:
+                log.info("%s", finished_line(done))
+                return done.summary
             state = self._resume(run_dir, config)
             try:
                 if not state.finished:
@@ -170,7 +181,7 @@ class Trainer:
                 close_logger(self.logger)
             summary = {**(labels or {}), **summarize(state, self.settings, self.policy, self.episodes_after),
                        "episode_return": self.estimator.episode_return}
-            run_dir.write_summary(summary)
+            summary = run_dir.write_summary(summary)
         log.info("results in %s", run_dir.path.resolve())
         return summary
 
@@ -235,9 +246,7 @@ class Trainer:
 
     def _recorded_rows(self, state: LoopState) -> list[dict[str, Any]]:
         """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
-        return [row for k in range(state.update)
-                for row in self._rows(k, state.returns[k], state.evals.get(k), state.grad_norms[k],
-                                      state.explorations[k])]
+        return recorded_rows(vars(state), self.settings.first_run, self.episodes_after)
 
     def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
         if self.queue is not None:
@@ -262,5 +271,21 @@ class Trainer:
         run_dir.clear_error()
         if not state.finished:
             run_dir.truncate_logger_csv(self.episodes_after(state.update - 1) if state.update else 0)
-        log.info("resuming %s after update %d of %d", run_dir.path, state.update, self.settings.updates)
+            log.info("resuming %s after update %d of %d", run_dir.path, state.update, self.settings.updates)
+        else:
+            log.info("%s holds a finished job whose summary.json is missing or disagrees with its checkpoint: "
+                     "rewritten from it", run_dir.path)
         return state
+
+
+def finished_line(job: FinishedRun) -> str:
+    """The one line that reports a finished job found in its directory, and the choices left.
+
+    Examples:
+        >>> from pathlib import Path
+        >>> finished_line(FinishedRun(Path("runs/a"), {"runs": 2, "updates_done": 12}, []))  # doctest: +ELLIPSIS
+        'runs/a holds a finished job (12 updates of 2 runs): nothing was changed; a finished job is final: ...'
+    """
+    return (f"{job.path} holds a finished job ({job.summary['updates_done']} updates of {job.summary['runs']} runs): "
+            "nothing was changed; a finished job is final: to train with other settings (more updates, say), give "
+            "the job another directory; to train this one again from the start, remove its directory first")

@@ -313,7 +313,7 @@ def make_ballcatch_env(
         episode_length: steps per episode (the paper's 500).
         jitter: half-width of the uniform horizontal release offset.
         seed: seed of the release jitter.
-        model: the arm, ``"pybrain"`` (default) or ``"cup"`` (:data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`).
+        model: the arm, a key of :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS` (default ``"pybrain"``).
         device: where the observations and rewards are put (the physics runs on the CPU).
 
     Returns:

@@ -40,6 +40,11 @@ Two models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`):
   sinks onto it, the ball lands on the open palm, rolls over the fingers and drops (the paper's
   R ~ -2); closing the hand holds it; pulling back drops it at once.
 
+* ``"pybrain_held"``: model ``"pybrain"`` with shoulder, elbow and wrist held at their start
+  angles (position-held joints; the action's arm torques are ignored), so the palm stays level at
+  height 0.5 whatever the controller does. A diagnostic (how a policy's hand does on a level
+  palm), not the paper's task.
+
 Plain data (no pybullet): the physics that reads it is :mod:`~sde_torchrl.envs.ballcatch.world`.
 """
 
@@ -47,7 +52,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -126,6 +131,8 @@ class ArmModel:
             the collision shapes' bounding boxes).
         camera_target: where the rendering camera looks.
         camera_yaw: the camera's yaw in degrees (it looks from 8 units away, 12 degrees down).
+        hold_arm: hold shoulder, elbow and wrist at ``initial_pose`` (position control far
+            stronger than any torque) and ignore the action's arm torques.
 
     Examples:
         >>> round(ARM_MODELS["pybrain"].ground_z, 6), len(ARM_MODELS["pybrain"].joints)
@@ -150,6 +157,7 @@ class ArmModel:
     inertia_from_file: bool
     camera_target: tuple[float, float, float]
     camera_yaw: float
+    hold_arm: bool = False
 
     @property
     def ground_z(self) -> float:
@@ -160,7 +168,7 @@ class ArmModel:
 DEFAULT_MODEL = "pybrain"
 """The arm of ``BallCatch-v0``, ``env=ballcatch`` and the paper experiments: the authors' arm."""
 
-ARM_MODELS = {
+_PORTED_ARMS = {
     "pybrain": ArmModel(
         urdf="arm_pybrain.urdf",
         joints=ARM_JOINTS + tuple(f"{f}_{k}" for f in PYBRAIN_FINGERS for k in range(3)),
@@ -202,9 +210,11 @@ ARM_MODELS = {
         camera_yaw=25.0,
     ),
 }
-"""The arm models: ``"cup"`` (``assets/ballcatch.urdf``) and ``"pybrain"`` (after PyBrain's
-``arm.xode``, ``assets/arm_pybrain.urdf``). Every finger joint of model "pybrain" gets the whole
-finger torque, as PyBrain's one-value actuator for several joints applies its value to each."""
+ARM_MODELS = {**_PORTED_ARMS, "pybrain_held": replace(_PORTED_ARMS["pybrain"], hold_arm=True)}
+"""The arm models: ``"cup"`` (``assets/ballcatch.urdf``), ``"pybrain"`` (after PyBrain's
+``arm.xode``, ``assets/arm_pybrain.urdf``) and ``"pybrain_held"`` (the diagnostic: its arm
+joints held at the start angles). Every finger joint of model "pybrain" gets the whole finger
+torque, as PyBrain's one-value actuator for several joints applies its value to each."""
 
 SCRIPTED_WEIGHTS = np.array(
     [
@@ -247,13 +257,15 @@ does a hand closed from the start; an always-open hand gives the zero-torque reg
 
 def scripted_weights(model: str = DEFAULT_MODEL) -> np.ndarray:
     """The hand-written catching controller's weights for an arm model: :data:`SCRIPTED_WEIGHTS`
-    (``"cup"``) or :data:`PYBRAIN_SCRIPTED_WEIGHTS` (``"pybrain"``).
+    (``"cup"``) or :data:`PYBRAIN_SCRIPTED_WEIGHTS` (``"pybrain"``, ``"pybrain_held"``).
 
     Examples:
         >>> scripted_weights("pybrain")[3].tolist()  # only the fingers act
         [4.0, 0.0, -7.0]
     """
-    return {"cup": SCRIPTED_WEIGHTS, "pybrain": PYBRAIN_SCRIPTED_WEIGHTS}[model]
+    if model not in ARM_MODELS:
+        raise ValueError(f"model must be one of {', '.join(ARM_MODELS)}, got {model!r}")
+    return SCRIPTED_WEIGHTS if model == "cup" else PYBRAIN_SCRIPTED_WEIGHTS
 
 
 def scripted_action(observation: Sequence[float], model: str = DEFAULT_MODEL) -> np.ndarray:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
-from sde_torchrl.envs.ballcatch.models import ARM_MODELS, DEFAULT_MODEL, ArmModel
+from sde_torchrl.envs.ballcatch.models import ARM_JOINTS, ARM_MODELS, DEFAULT_MODEL, ArmModel
 
 __all__ = ["TIME_STEP", "BallCatchConfig", "BallCatchWorld"]
 
@@ -26,6 +26,9 @@ ASSETS = Path(__file__).parents[1] / "assets"
 TIME_STEP = 0.01
 """Seconds per physics step (the paper's 0.01 s)."""
 GRAVITY = -9.81
+HOLD_FORCE = 1e6
+"""Maximum force of the position motors that hold the arm of a model with ``hold_arm``: far
+above the largest torque (600) and the loaded arm's weight torque (about 400)."""
 
 
 @dataclass(frozen=True)
@@ -40,7 +43,8 @@ class BallCatchConfig:
         jitter: half-width of the uniform horizontal offset (x and y, units) of the ball's release
             point around the spot above the palm centre. Default 0.05.
         model: the arm, a key of :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`:
-            ``"pybrain"`` (the default, after the authors' ``arm.xode``) or ``"cup"``.
+            ``"pybrain"`` (the default, after the authors' ``arm.xode``), ``"cup"`` or the
+            diagnostic ``"pybrain_held"`` (the pybrain arm with its arm joints held).
         ball_mass: ball mass in kg.
         ball_friction: lateral friction of every body (ball, robot, ground).
         drop_height: release height of the ball centre above the palm centre.
@@ -130,9 +134,11 @@ class BallCatchWorld:
         except pybullet.error as err:
             self.close()
             raise RuntimeError(f"BallCatch {name}: building the world failed: {err}") from err
-        torques = self.config.max_torques
+        torques, held = self.config.max_torques, self.config.arm.hold_arm
         # per joint: its actuator, that actuator's maximum torque and the joint's share of it
-        self._drive = tuple((a, float(torques[a]), gain) for a, gain in self.config.arm.transmission)
+        # (none for the arm's three joints when the model holds them)
+        self._drive = tuple((a, float(torques[a]), 0.0 if held and a < len(ARM_JOINTS) else gain)
+                            for a, gain in self.config.arm.transmission)
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> None:
@@ -187,6 +193,12 @@ class BallCatchWorld:
             self.robot, self.joints, pybullet.VELOCITY_CONTROL, targetVelocities=[0.0] * len(self.joints),
             forces=list(arm.joint_friction), physicsClientId=cid,
         )
+        if arm.hold_arm:  # position motors on the arm joints; the action's torques act on top of them
+            held = len(ARM_JOINTS)
+            pybullet.setJointMotorControlArray(
+                self.robot, self.joints[:held], pybullet.POSITION_CONTROL,
+                targetPositions=list(arm.initial_pose[:held]), forces=[HOLD_FORCE] * held, physicsClientId=cid,
+            )
         for joint, angle in zip(self.joints, arm.initial_pose, strict=True):
             pybullet.resetJointState(self.robot, joint, angle, 0.0, physicsClientId=cid)
         self.palm_home = np.asarray(
