@@ -52,7 +52,7 @@ from sde_torchrl.utils.options import (
 # schemas, not Enums: Hydra would reject an unknown Enum value while composing, which in a multirun
 # stops the whole sweep instead of failing that one job (with its error.txt). The arm names are
 # kept beside the models' data, which imports pybullet on use: a test checks the two agree.
-ARM_MODELS = ("pybrain", "cup")
+ARM_MODELS = ("pybrain", "cup", "pybrain_held")
 
 
 # ------------------------------------------------------------------------------ schemas
