@@ -15,6 +15,9 @@ Errors are reported in one line on stderr, and the exit code says which kind:
 - 4: a file of the run directory is damaged (``checkpoint.pt``, ``metrics.csv``,
   ``summary.json``): the line names the file, what is wrong and the least destructive remedy;
   nothing was resumed from it;
+- 0 also for a run directory that holds a finished job of the same config: a finished job is
+  final, so the job says so in one line (``<dir> holds a finished job (...)``) and changes no
+  file there (not ``.hydra/``, not ``train.log``); to train it again, remove the directory;
 - 130: interrupted by Ctrl-C, with a checkpoint; 143 (SIGTERM, how schedulers preempt) and 140
   (SIGUSR2, submitit's signal before a time limit, outside submitit) likewise: the job finishes
   its update, checkpoints, names the signal and the update, and the same command resumes it.
@@ -33,7 +36,8 @@ import logging
 import os
 import sys
 import traceback
-from contextlib import ExitStack
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +73,9 @@ class JobFailure:
 
 #: Failures of this process's jobs, reported once the (multi)run is over.
 FAILURES: list[JobFailure] = []
+#: This process's jobs found finished in their directories: one line each, reported at the end
+#: (not logged: the log file is in the run directory, which is left as it was).
+FINISHED: list[str] = []
 #: Full tracebacks wanted: read once at start-up (``cli`` then sets ``HYDRA_FULL_ERROR`` itself).
 DEBUG = False
 
@@ -115,6 +122,42 @@ def save_hydra_config(cfg: DictConfig, out_dir: str) -> None:
         write_atomically(target / name, lambda f, node=node: f.write(OmegaConf.to_yaml(node).encode()))
 
 
+def report_finished(cfg: DictConfig, out_dir: str) -> bool:
+    """Whether ``out_dir`` holds this config's finished job, checked as the reader checks it
+    (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.finished_job`, before anything is built); if
+    so, its line is recorded for the end and nothing is changed.
+
+    Raises:
+        CheckpointMismatchError: it holds a finished job of another config.
+        DamagedFileError: it holds no checkpoint and its files disagree.
+    """
+    from sde_torchrl.jobs.checkpoint import result_config  # torch: the run directory is ours
+    from sde_torchrl.jobs.run_dir import RunDirectory
+    from sde_torchrl.trainers.trainer import finished_line
+
+    done = RunDirectory(out_dir).finished_job(result_config(OmegaConf.to_container(cfg, resolve=True)))
+    if done is None:
+        return False
+    FINISHED.append(finished_line(done))
+    return True
+
+
+@contextmanager
+def log_file_suspended(out_dir: str) -> Iterator[None]:
+    """Hydra's log file handlers that write into ``out_dir`` (``train.log``) detached for the
+    ``with`` block: what the job logs goes to the console only."""
+    root = logging.getLogger()
+    inside = [handler for handler in root.handlers if isinstance(handler, logging.FileHandler)
+              and Path(handler.baseFilename).resolve().parent == Path(out_dir).resolve()]
+    for handler in inside:
+        root.removeHandler(handler)
+    try:
+        yield
+    finally:
+        for handler in inside:
+            root.addHandler(handler)
+
+
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> None:
     """Trains (or resumes) one job; a failure is recorded in ``error.txt`` and reported once
@@ -130,17 +173,24 @@ def main(cfg: DictConfig) -> None:
             message, code = one_line(error)
             FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
             return
-        if not Path(out_dir, "checkpoint.pt").exists():  # a resumed job keeps its first session's
+        # A directory with a summary holds a finished job (or, rarely, one about to resume from an
+        # older checkpoint): leave its files as they are, train.log included, unless it trains.
+        finished = Path(out_dir, "summary.json").exists()
+        if finished:
+            stack.enter_context(log_file_suspended(out_dir))
+        elif not Path(out_dir, "checkpoint.pt").exists():  # a resumed job keeps its first session's
             save_hydra_config(cfg, out_dir)
         try:
             conf = validate(cfg)  # a bad value fails here, before the seconds of importing torch
+            if finished and report_finished(cfg, out_dir):
+                return
             from sde_torchrl.config.build import run_job  # torch: imported once the run directory is ours
 
             summary = run_job(cfg, out_dir, dict(hydra_cfg.runtime.choices),
                               progress=progress_wanted(cfg.get("progress"), multirun), conf=conf)
         except Exception as error:  # noqa: BLE001 - every failure is recorded, then reported
             message, code = one_line(error)
-            if _is_foreign_checkpoint(error):  # the directory is another job's: leave it as it is
+            if finished or _is_foreign_checkpoint(error):  # a finished job's, or another's: leave it as it is
                 FAILURES.append(JobFailure(out_dir, overrides, message, code, multirun, error_file=False))
                 return
             try:
@@ -181,6 +231,8 @@ def cli() -> int:
     finally:
         if previous is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
+    for line in FINISHED:
+        sys.stdout.write(f"{line}\n")
     if not FAILURES:
         return 0
     for failure in FAILURES:

@@ -239,7 +239,9 @@ def test_damaged_checkpoint_points_to_the_previous_one(crashed, reference):
     resumed = build(*BUDGET).train(crashed, checkpoint_period=4)
     assert (crashed / "metrics.csv").read_bytes() == (reference / "metrics.csv").read_bytes()
     assert resumed["final_parameters"] == json.loads((reference / "summary.json").read_text())["final_parameters"]
-    (crashed / "checkpoint.pt").unlink()  # starting over: the previous job's checkpoints go
+    (crashed / "checkpoint.pt").unlink()  # a finished job without its checkpoint is still final
+    assert build("updates=1").train(crashed) == resumed and previous.exists()
+    (crashed / "summary.json").unlink()  # no longer finished: a new job removes the previous one's checkpoints
     build("updates=1").train(crashed)
     assert not previous.exists()
 

@@ -11,25 +11,33 @@
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
 
-A directory without a checkpoint starts a new job: :meth:`RunDirectory.start_new_job` removes
-the outputs of an earlier, unfinished or failed job there, so that no stale file is mistaken
-for this job's.
+A finished job is final: ``summary.json`` records the SHA-256 of ``metrics.csv`` and of its own
+entries, and :func:`check_finished` is the one check that its files agree (the job runs it
+before doing anything in a directory that holds a summary, the reader before reading one). A
+rerun of the same config finds it finished and changes nothing; another config is refused; a
+finished job is never removed or trained again by a job (:meth:`RunDirectory.start_new_job`
+refuses to): starting over means removing the directory. A directory without a summary or a
+checkpoint starts a new job: :meth:`RunDirectory.start_new_job` removes the outputs of an
+earlier, unfinished or failed job there, so that no stale file is mistaken for this job's.
 
 Read back, beside the writer: :func:`read_metrics` is the one parser of ``metrics.csv`` (typed
 :class:`MetricRow` rows), and :func:`read_finished_run` / :func:`finished_runs` the one reader of
 a finished job (summary, config and rows), which refuses a directory a live job holds or whose
-files disagree; the analysis scripts read run directories through them only.
+files disagree; :func:`finished_runs` finds a sweep's jobs by the files a job writes
+(:data:`JOB_FILES`), so that a job killed before its first row is named, not skipped. The
+analysis scripts read run directories through them only.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import logging
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,8 +51,9 @@ from sde_torchrl.jobs.checkpoint import (
     CheckpointMismatchError,
     config_differences,
     load_checkpoint,
+    result_config,
 )
-from sde_torchrl.jobs.lock import held_by, hold_run_directory, make_run_directory
+from sde_torchrl.jobs.lock import LOCK, held_by, hold_run_directory, make_run_directory
 from sde_torchrl.utils.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -52,6 +61,23 @@ log = logging.getLogger(__name__)
 #: The exploration state after each update (:func:`~sde_torchrl.trainers.summary.exploration_state`).
 EXPLORATION_FIELDS = ("sigma_min", "sigma_max", "weight_max")
 METRIC_FIELDS = ("run", "update", "episodes", "return_mean", "eval_return", "grad_norm", *EXPLORATION_FIELDS)
+#: The files a job writes into its run directory, its job record ``job_config.json`` first: a
+#: directory holding any of them is a job's (:func:`job_directories`), whatever state it is in.
+JOB_FILES = ("job_config.json", LOCK, "metrics.csv", "summary.json", CHECKPOINT, "error.txt")
+#: ``summary.json``'s entries that its own digest (``sha256``) leaves out: the digest itself, and
+#: the training time, which adds up the sessions of a resumed job.
+UNDIGESTED = ("sha256", "wall_s")
+
+
+def episodes_after(update: int, episodes_per_update: int, episode_queue: int = 0) -> int:
+    """Episodes each run has collected by the end of update ``update`` (0-based): an episode
+    queue is filled first.
+
+    Examples:
+        >>> episodes_after(0, 5), episodes_after(2, 5), episodes_after(0, 1, episode_queue=20)
+        (5, 15, 20)
+    """
+    return (update + 1) * episodes_per_update + max(episode_queue - episodes_per_update, 0)
 
 
 def metric_rows(
@@ -84,9 +110,31 @@ def metric_rows(
     } for r in range(len(return_mean))]
 
 
-def csv_lines(rows: Sequence[dict[str, Any]]) -> list[bytes]:
+def recorded_rows(loop: Mapping[str, Any], first_run: int, episodes: Any) -> list[dict[str, Any]]:
+    """The ``metrics.csv`` rows a loop record holds (a checkpoint's ``loop``, or a
+    :class:`~sde_torchrl.trainers.summary.LoopState`'s fields): every update up to ``update``.
+
+    Args:
+        loop: ``update``, ``returns``, ``evals``, ``grad_norms`` and ``explorations``, each of
+            the last four indexable by update.
+        first_run: global index of the job's first run.
+        episodes: update → episodes each run has collected by its end.
+
+    Examples:
+        >>> loop = {"update": 1, "returns": torch.tensor([[-1.0]]), "evals": {},
+        ...         "grad_norms": torch.tensor([[2.0]]), "explorations": torch.tensor([[[0.5], [0.5], [1.0]]])}
+        >>> recorded_rows(loop, 3, lambda k: 10 * (k + 1))[0]["run"]
+        3
+    """
+    return [row for k in range(loop["update"])
+            for row in metric_rows(first_run, k, episodes(k), loop["returns"][k], loop["evals"].get(k),
+                                   loop["grad_norms"][k], loop["explorations"][k])]
+
+
+def csv_lines(rows: Sequence[dict[str, Any]], fields: Sequence[str] = METRIC_FIELDS) -> list[bytes]:
     """The lines of a ``metrics.csv`` holding ``rows``, header first, byte for byte as
-    :class:`MetricsFile` writes them.
+    :class:`MetricsFile` writes them (``fields``: the columns of a file written before the last
+    ones were recorded; the rows' other entries are left out).
 
     Examples:
         >>> lines = csv_lines(metric_rows(0, 3, 40, torch.tensor([-1.0]), torch.tensor([-0.5]), torch.tensor([2.0]),
@@ -97,7 +145,7 @@ def csv_lines(rows: Sequence[dict[str, Any]]) -> list[bytes]:
         0,3,40,-1.0,-0.5,2.0,0.25,0.5,1.0
     """
     text = io.StringIO(newline="")
-    writer = csv.DictWriter(text, fieldnames=METRIC_FIELDS)
+    writer = csv.DictWriter(text, fieldnames=fields, extrasaction="raise" if fields == METRIC_FIELDS else "ignore")
     writer.writeheader()
     writer.writerows(rows)
     return text.getvalue().encode().splitlines(keepends=True)
@@ -149,13 +197,27 @@ def read_metrics(path: str | os.PathLike) -> list[MetricRow]:
         >>> [(row.run, row.return_mean, row.eval_return, row.sigma_max) for row in read_metrics(path)]
         [(0, -1.5, None, 0.5), (1, -2.0, None, 0.75)]
     """
+    with open(path, newline="") as f:
+        return _typed_rows(csv.DictReader(f))
+
+
+def read_metrics_text(text: str) -> list[MetricRow]:
+    """:func:`read_metrics` of the file's text.
+
+    Examples:
+        >>> [row.return_mean for row in read_metrics_text("run,update,episodes,return_mean\\r\\n0,0,5,-1.5\\r\\n")]
+        [-1.5]
+    """
+    return _typed_rows(csv.DictReader(io.StringIO(text, newline="")))
+
+
+def _typed_rows(reader: csv.DictReader) -> list[MetricRow]:
     def number(text: str | None) -> float | None:
         return float(text) if text else None
 
-    with open(path, newline="") as f:
-        return [MetricRow(int(row["run"]), int(row["update"]), int(row["episodes"]), float(row["return_mean"]),
-                          *(number(row.get(name)) for name in METRIC_FIELDS[4:]))
-                for row in csv.DictReader(f)]
+    return [MetricRow(int(row["run"]), int(row["update"]), int(row["episodes"]), float(row["return_mean"]),
+                      *(number(row.get(name)) for name in METRIC_FIELDS[4:]))
+            for row in reader]
 
 
 class RunDirectory:
@@ -191,16 +253,20 @@ class RunDirectory:
         return hold_run_directory(self.path)
 
     def start_new_job(self, config: dict[str, Any] | None = None) -> None:
-        """Removes an earlier job's metrics, summary, error file and TorchRL CSV logger files
+        """Removes an earlier, unfinished job's metrics, error file and TorchRL CSV logger files
         (no checkpoint: nothing resumes; the logger would otherwise append to the old rows), and
         records ``config`` in ``job_config.json``.
 
-        Rows of an earlier job whose recorded config differs are not removed: such a directory
-        is refused as one with another config's checkpoint is.
+        A finished job's files are never removed, and rows of an earlier job whose recorded
+        config differs are not either: such a directory is refused as one with another config's
+        checkpoint is.
 
         Raises:
+            FinishedRunError: the directory holds a finished job (its ``summary.json``).
             CheckpointMismatchError: ``metrics.csv`` holds rows of a job with another config.
         """
+        if self.summary.exists():
+            raise FinishedRunError(self.path, "a new job would remove its files")
         if config is not None and self.job_config.exists() and self.metrics.exists() \
                 and len(self.metrics.read_bytes().splitlines()) > 1:
             diff = config_differences(json.loads(self.job_config.read_text()), config)
@@ -219,8 +285,13 @@ class RunDirectory:
         """Removes the error file of a failed session (the job is resumed)."""
         self.error.unlink(missing_ok=True)
 
-    def write_summary(self, summary: dict[str, Any]) -> None:
-        """Writes ``summary.json`` atomically.
+    def write_summary(self, summary: dict[str, Any]) -> dict[str, Any]:
+        """Writes ``summary.json`` atomically, with the SHA-256 of ``metrics.csv`` as it is now
+        (``metrics_sha256``) and of its own entries (``sha256``, :func:`summary_digest`), which
+        :func:`check_finished` verifies.
+
+        Returns:
+            The summary written.
 
         Raises:
             ValueError: a value is NaN or infinite (JSON has neither): nothing is written.
@@ -228,7 +299,59 @@ class RunDirectory:
         where = _non_finite(summary)
         if where is not None:
             raise ValueError(f"{self.summary} not written: {where} is not a finite number")
+        summary = {key: value for key, value in summary.items() if key not in ("metrics_sha256", "sha256")}
+        summary["metrics_sha256"] = hashlib.sha256(self.metrics.read_bytes()).hexdigest()
+        summary["sha256"] = summary_digest(summary)
         write_json_atomic(self.summary, summary)
+        return summary
+
+    def finished_job(self, config: dict[str, Any] | None) -> FinishedRun | None:
+        """The finished job this directory holds, checked (:func:`check_finished`), if any.
+
+        Args:
+            config: the result config of the job asking (:func:`~sde_torchrl.jobs.checkpoint.result_config`);
+                ``None`` skips the comparison.
+
+        Returns:
+            The finished job, when its files agree and its config is ``config``; ``None`` when
+            there is no ``summary.json``, or when a ``checkpoint.pt`` decides (an unfinished one
+            is resumed, a finished one rewrites a summary that disagrees with it).
+
+        Raises:
+            CheckpointMismatchError: it holds a finished job of another config (nothing is changed).
+            UnfinishedRunError: there is no checkpoint and its files disagree (nothing can rebuild them).
+            DamagedFileError: there is no checkpoint and ``summary.json`` is not valid JSON.
+        """
+        if not self.summary.exists():
+            return None
+        try:
+            job = check_finished(self.path, live=False)
+        except (DamagedFileError, CheckpointMismatchError, FileNotFoundError):
+            if self.has_checkpoint():
+                return None
+            raise
+        recorded = self.recorded_config(job)
+        if config is not None and recorded is not None:
+            diff = config_differences(recorded, config)
+            if diff:
+                more = ("; a finished job is not trained further in its directory: to train for other updates, "
+                        "give the job another directory" if {d.split(":")[0] for d in diff} == {"updates"} else "")
+                raise CheckpointMismatchError(
+                    f"{self.path} holds a finished job of another config ({'; '.join(diff[:5])}); it was left "
+                    f"unchanged: rerun with the same overrides, or give this job another directory (hydra.run.dir, "
+                    f"or hydra.sweep.dir for a sweep){more}")
+        return job
+
+    def recorded_config(self, job: FinishedRun) -> dict[str, Any] | None:
+        """The result config the directory's job ran with: its checkpoint's, else its
+        ``job_config.json``, else its summary's ``config`` label; ``None`` if none is recorded."""
+        if self.has_checkpoint():
+            saved = load_checkpoint(self.checkpoint).get("config")
+            if saved is not None:
+                return saved
+        if self.job_config.exists():
+            return json.loads(self.job_config.read_text())
+        return result_config(job.summary.get("config"))
 
     def check_metrics(self, rows: Sequence[dict[str, Any]], finished: bool) -> None:
         """Checks that ``metrics.csv`` begins with exactly ``rows`` (what the checkpoint recorded)
@@ -271,9 +394,10 @@ class RunDirectory:
         return sorted(self.path.glob("*/scalars/*.csv"))
 
 
-class UnfinishedRunError(ValueError):
+class UnfinishedRunError(DamagedFileError):
     """A run directory that does not hold a finished job: running, interrupted, failed, or
-    with files that disagree with each other.
+    with files that disagree with each other (a job refuses such a directory as it refuses a
+    damaged file: ``train.py`` exits 4).
 
     Examples:
         >>> str(UnfinishedRunError("runs/3", "it has no summary.json", "run its command again"))
@@ -281,8 +405,26 @@ class UnfinishedRunError(ValueError):
     """
 
     def __init__(self, path: str | os.PathLike, problem: str, remedy: str) -> None:
-        self.path, self.problem = Path(path), problem
-        super().__init__(f"{path} is not a finished run: {problem}; {remedy}")
+        super().__init__(path, problem, remedy)
+        self.args = (f"{path} is not a finished run: {problem}; {remedy}",)
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+class FinishedRunError(CheckpointMismatchError):
+    """A run directory that holds a finished job, which a job would have to remove or train
+    again: a finished job is final (``train.py`` exits 2, nothing is changed).
+
+    Examples:
+        >>> str(FinishedRunError("runs/3", "a new job would remove its files")).split(";")[0]
+        'runs/3 holds a finished job: a new job would remove its files'
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str) -> None:
+        self.path = Path(path)
+        super().__init__(f"{path} holds a finished job: {problem}; it was left unchanged: give this job another "
+                         "directory (hydra.run.dir, or hydra.sweep.dir for a sweep), or remove that one to start over")
 
 
 @dataclass(frozen=True)
@@ -329,12 +471,95 @@ class FinishedRun:
         return {run: [value for _, value in points] for run, points in self.series(field).items()}
 
 
+def summary_digest(summary: Mapping[str, Any]) -> str:
+    """SHA-256 of ``summary.json``'s entries but :data:`UNDIGESTED`, as canonical JSON (sorted
+    keys): what its ``sha256`` entry records, so that an edited summary is found.
+
+    Examples:
+        >>> summary_digest({"runs": 2, "wall_s": 1.5}) == summary_digest({"wall_s": 9.0, "runs": 2})
+        True
+        >>> summary_digest({"runs": 2}) == summary_digest({"runs": 3})
+        False
+    """
+    entries = {key: value for key, value in summary.items() if key not in UNDIGESTED}
+    text = json.dumps(entries, sort_keys=True, allow_nan=False, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def check_finished(path: str | os.PathLike, *, live: bool = True) -> FinishedRun:
+    """Checks that a run directory holds a finished job whose files agree, and reads it: the one
+    check, run by the job on a directory that holds a summary (:meth:`RunDirectory.finished_job`)
+    and by the reader (:func:`read_finished_run`).
+
+    - no live process holds it (``live``);
+    - ``summary.json`` exists, is strict JSON and matches its own digest (``sha256``);
+    - ``metrics.csv`` matches the digest the summary recorded (``metrics_sha256``), is byte for
+      byte as the job writes it (header, columns, number format, line endings), holds one row per
+      run for each of the summary's ``updates_done`` updates in the job's order, and agrees with
+      the summary's per-run returns, evaluations, episodes and env steps;
+    - a kept ``checkpoint.pt`` is the finished job's: at that update, of the config the summary
+      records, and ``metrics.csv`` holds exactly the rows it recorded (what a rerun checks);
+    - a ``job_config.json`` records the config the summary records.
+
+    Summaries written before the digests were recorded are checked without them.
+
+    Args:
+        path: the run directory.
+        live: check that no live process holds it (the job itself holds it).
+
+    Returns:
+        The summary and the typed metrics rows.
+
+    Raises:
+        UnfinishedRunError: the job is running, did not finish, or its files disagree.
+        DamagedFileError: ``summary.json`` is not valid JSON, or ``checkpoint.pt`` is damaged.
+
+    Examples:
+        >>> import tempfile
+        >>> check_finished(tempfile.mkdtemp())  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.jobs.run_dir.UnfinishedRunError: ... is not a finished run: it has no summary.json; ...
+    """
+    path = Path(path)
+    again = "run the job's command again to finish it (it resumes from its checkpoint)"
+    if live:
+        holder = held_by(path)
+        if holder is not None:
+            raise UnfinishedRunError(path, f"a job is running in it (pid {holder})", "read it once that job has ended")
+    if not (path / "summary.json").exists():
+        raise UnfinishedRunError(path, "it has no summary.json", again)
+    checkpoint = path / CHECKPOINT
+    remedy = (f"run the job's command again: it checks metrics.csv against its {CHECKPOINT} and rewrites "
+              f"summary.json from it" if checkpoint.exists() else
+              f"without a {CHECKPOINT} nothing can rebuild them: restore the directory from where it was copied "
+              "(a committed one: git checkout -- DIRECTORY), or remove it to train the job again from the start")
+    try:
+        summary = read_summary(path / "summary.json")
+    except DamagedFileError as error:
+        raise DamagedFileError(error.path, error.problem, remedy) from None
+    if not (path / "metrics.csv").exists():
+        raise UnfinishedRunError(path, "it has no metrics.csv", remedy)
+    data = (path / "metrics.csv").read_bytes()
+    rows, problem = _parse_rows(data)
+    for check in (_rows_problem, _summary_problem, _digest_problem):
+        problem = problem or check(summary, data, rows)
+    if problem is None and checkpoint.exists():
+        problem = _checkpoint_problem(checkpoint, summary, data)
+    if problem is None and (path / "job_config.json").exists() and "config" in summary:
+        diff = config_differences(json.loads((path / "job_config.json").read_text()), result_config(summary["config"]))
+        problem = f"job_config.json records another config than summary.json ({'; '.join(diff[:3])})" if diff else None
+    if problem is not None:
+        resumable = checkpoint.exists() and not _checkpoint_is_finished(checkpoint)
+        raise UnfinishedRunError(path, problem, again if resumable else remedy)
+    return FinishedRun(path, summary, rows)
+
+
 def read_finished_run(path: str | os.PathLike) -> FinishedRun:
-    """Reads a run directory that holds a finished job, after checking that its files agree:
-    no live process holds it, ``summary.json`` exists, ``metrics.csv`` has one row per run for
-    each of the summary's ``updates_done`` updates, and a ``checkpoint.pt`` (if kept) is the
-    finished job's at that update. The one reader for analysis scripts: a directory mid-run, or
-    left by an interrupted or failed job, is refused by name instead of read as a result.
+    """Reads a run directory that holds a finished job, after checking that its files agree
+    (:func:`check_finished`, what the job itself checks) and that no live process holds it. The
+    one reader for analysis scripts: a directory mid-run, or left by an interrupted or failed
+    job, or whose files were changed, is refused by name instead of read as a result.
 
     Args:
         path: the run directory.
@@ -353,49 +578,166 @@ def read_finished_run(path: str | os.PathLike) -> FinishedRun:
         ...
         sde_torchrl.jobs.run_dir.UnfinishedRunError: ... is not a finished run: it has no summary.json; ...
     """
-    path = Path(path)
-    again = "run the job's command again to finish it (it resumes from its checkpoint)"
-    holder = held_by(path)
-    if holder is not None:
-        raise UnfinishedRunError(path, f"a job is running in it (pid {holder})", "read it once that job has ended")
-    if not (path / "summary.json").exists():
-        raise UnfinishedRunError(path, "it has no summary.json", again)
-    summary = read_summary(path / "summary.json")
-    rows = read_metrics(path / "metrics.csv")
-    runs, updates = summary.get("runs"), summary.get("updates_done")
-    if not isinstance(runs, int) or not isinstance(updates, int):
-        raise UnfinishedRunError(path, "its summary.json names no runs and updates_done", again)
-    if len(rows) != runs * updates or (rows and rows[-1].update != updates - 1):
-        last = rows[-1].update if rows else "none"
-        raise UnfinishedRunError(path, f"metrics.csv has {len(rows)} rows up to update {last}, summary.json says "
-                                       f"{runs} runs × {updates} updates", again)
-    if (path / CHECKPOINT).exists():
-        loop = load_checkpoint(path / CHECKPOINT)["loop"]
-        if loop.get("update") != updates or not loop.get("finished"):
-            raise UnfinishedRunError(path, f"its {CHECKPOINT} is at update {loop.get('update')}"
-                                           f"{'' if loop.get('finished') else ' (unfinished)'}, summary.json says "
-                                           f"{updates}", again)
-    return FinishedRun(path, summary, rows)
+    return check_finished(path, live=True)
 
 
-def finished_runs(*directories: str | os.PathLike) -> list[FinishedRun]:
-    """Every run directory under ``directories`` (each one holding a ``metrics.csv``), read by
+def job_directories(directory: str | os.PathLike) -> list[Path]:
+    """The run directories under ``directory`` (itself included), in path order: every directory
+    holding a file only a job writes (:data:`JOB_FILES`: its job record, its lock, ...), so that a
+    job killed before its first row, or live, or with its ``metrics.csv`` deleted, is found.
+
+    Examples:
+        >>> import tempfile
+        >>> sweep = Path(tempfile.mkdtemp())
+        >>> for job in ("0", "1"):
+        ...     (sweep / job).mkdir()
+        >>> _ = (sweep / "1" / "job_config.json").write_text("{}")
+        >>> [p.name for p in job_directories(sweep)]
+        ['1']
+    """
+    directory = Path(directory)
+    return sorted({found.parent for name in JOB_FILES for found in directory.rglob(name) if found.is_file()})
+
+
+def finished_runs(*directories: str | os.PathLike, finished_only: bool = False) -> list[FinishedRun]:
+    """Every run directory under ``directories`` (:func:`job_directories`), read by
     :func:`read_finished_run`, directory by directory in path order: one that is not finished
-    refuses the whole set, naming it, rather than giving results with a run missing or cut short.
+    (killed, live, failed, or with files that disagree) refuses the whole set, naming it, rather
+    than giving results with a run missing or cut short, unless ``finished_only``.
 
     Args:
         directories: sweep or run directories (shards of one sweep may be given together).
+        finished_only: leave out, with a warning naming each, the jobs that are not finished,
+            instead of refusing the set (an explicit choice: the results then miss those jobs).
 
     Raises:
         UnfinishedRunError: a run directory under ``directories`` is not finished.
+        DamagedFileError: one holds a damaged ``summary.json`` or ``checkpoint.pt``.
 
     Examples:
         >>> import tempfile
         >>> finished_runs(tempfile.mkdtemp(), tempfile.mkdtemp())
         []
     """
-    return [read_finished_run(metrics.parent) for directory in directories
-            for metrics in sorted(Path(directory).rglob("metrics.csv"))]
+    found = []
+    for run_dir in (job for directory in directories for job in job_directories(directory)):
+        try:
+            found.append(read_finished_run(run_dir))
+        except (DamagedFileError, CheckpointMismatchError) as error:
+            if not finished_only:
+                raise
+            log.warning("left out (finished_only): %s", error)
+    return found
+
+
+def _parse_rows(data: bytes) -> tuple[list[MetricRow], str | None]:
+    """``metrics.csv``'s rows, and what is wrong with its bytes: not as the job writes them."""
+    try:
+        text = data.decode()
+        header = next(csv.reader(io.StringIO(text, newline="")), [])
+        rows = read_metrics_text(text)
+    except (ValueError, KeyError, TypeError, csv.Error) as error:
+        return [], f"metrics.csv cannot be read ({type(error).__name__}: {error})"
+    if tuple(header) != METRIC_FIELDS[:len(header)] or len(header) < 5:
+        return rows, f"metrics.csv's header is not {','.join(METRIC_FIELDS)}"
+    expected = csv_lines([row._asdict() for row in rows], fields=tuple(header))
+    lines = data.splitlines(keepends=True)
+    for i, (have, want) in enumerate(zip(lines, expected, strict=False)):
+        if have != want:
+            return rows, f"metrics.csv's line {i + 1} is not as the job writes it ({have[:80]!r})"
+    if len(lines) != len(expected):
+        return rows, f"metrics.csv has {len(lines)} lines where its rows make {len(expected)}"
+    return rows, None
+
+
+def _digest_problem(summary: dict[str, Any], data: bytes, rows: list[MetricRow]) -> str | None:
+    """The summary's own digest, and the one it recorded of ``metrics.csv``, if any."""
+    if "sha256" in summary and summary["sha256"] != summary_digest(summary):
+        return "summary.json does not match its digest (sha256): an entry was changed"
+    if "metrics_sha256" in summary and summary["metrics_sha256"] != hashlib.sha256(data).hexdigest():
+        return "metrics.csv does not match the digest summary.json recorded (metrics_sha256): it was changed"
+    return None
+
+
+def _rows_problem(summary: dict[str, Any], data: bytes, rows: list[MetricRow]) -> str | None:
+    """One row per run for each update, in the job's order, with the episodes of that update."""
+    runs, updates, first = summary.get("runs"), summary.get("updates_done"), summary.get("first_run", 0)
+    if not isinstance(runs, int) or not isinstance(updates, int) or not isinstance(first, int):
+        return "its summary.json names no runs and updates_done"
+    if len(rows) != runs * updates or (rows and rows[-1].update != updates - 1):
+        last = rows[-1].update if rows else "none"
+        return (f"metrics.csv has {len(rows)} rows up to update {last}, summary.json says {runs} runs × {updates} "
+                "updates")
+    episodes = _episodes(summary)
+    for i, row in enumerate(rows):
+        run, update = first + i % runs, i // runs
+        if (row.run, row.update) != (run, update):
+            return f"metrics.csv's row {i + 1} is run {row.run}, update {row.update}, not run {run}, update {update}"
+        if episodes is not None and row.episodes != episodes(update):
+            return f"metrics.csv's row {i + 1} (run {run}, update {update}) counts {row.episodes} episodes, " \
+                   f"not {episodes(update)}"
+    return None
+
+
+def _summary_problem(summary: dict[str, Any], data: bytes, rows: list[MetricRow]) -> str | None:
+    """The summary's per-run numbers against the rows they were computed from."""
+    runs, updates = summary["runs"], summary["updates_done"]
+    if not rows:
+        return "metrics.csv has no rows"
+    first, last = rows[:runs], rows[-runs:]
+    derived = {"initial_return": [row.return_mean for row in first], "final_return": [row.return_mean for row in last],
+               "final_eval_return": [row.eval_return for row in last]}
+    settings, episodes = summary.get("settings") or {}, _episodes(summary)
+    if episodes is not None and "episode_length" in settings:
+        derived["env_steps"] = episodes(updates - 1) * settings["episode_length"] * runs
+    if episodes is not None and settings.get("r_lim") is not None:
+        derived["episodes_to_threshold"] = [
+            next((episodes(row.update) for row in rows[r::runs] if row.return_mean > settings["r_lim"]), None)
+            for r in range(runs)]
+    for key, value in derived.items():
+        if key in summary and summary[key] != value:
+            return f"summary.json's {key} is not what metrics.csv's rows give"
+    return None
+
+
+def _checkpoint_problem(checkpoint: Path, summary: dict[str, Any], data: bytes) -> str | None:
+    """A kept checkpoint against the summary and the rows: the finished job's, of its config."""
+    saved = load_checkpoint(checkpoint)
+    loop, updates = saved["loop"], summary["updates_done"]
+    if loop.get("update") != updates or not loop.get("finished"):
+        return (f"its {CHECKPOINT} is at update {loop.get('update')}{'' if loop.get('finished') else ' (unfinished)'}, "
+                f"summary.json says {updates}")
+    if saved.get("config") is not None and "config" in summary:
+        diff = config_differences(saved["config"], result_config(summary["config"]))
+        if diff:
+            return f"its {CHECKPOINT} was written by another config than summary.json's ({'; '.join(diff[:3])})"
+    episodes = _episodes(summary)
+    if episodes is None:
+        return None
+    expected = csv_lines(recorded_rows(loop, summary.get("first_run", 0), episodes))
+    lines = data.splitlines(keepends=True)
+    problem = _first_difference(lines, expected, recorded_rows(loop, summary.get("first_run", 0), episodes))
+    if problem is None and len(lines) != len(expected):
+        problem = f"it holds {len(lines) - 1} rows, {CHECKPOINT} recorded {len(expected) - 1}"
+    return None if problem is None else f"metrics.csv disagrees with its {CHECKPOINT}: {problem}"
+
+
+def _checkpoint_is_finished(checkpoint: Path) -> bool:
+    try:
+        return bool(load_checkpoint(checkpoint)["loop"].get("finished"))
+    except (OSError, DamagedFileError, CheckpointMismatchError, KeyError):
+        return False
+
+
+def _episodes(summary: dict[str, Any]) -> Any:
+    """Update → episodes each run has collected by its end, from the summary's settings (``None``
+    without them)."""
+    settings = summary.get("settings") or {}
+    per_update = settings.get("episodes_per_update")
+    if not isinstance(per_update, int):
+        return None
+    queue = settings.get("episode_queue") or 0
+    return lambda update: episodes_after(update, per_update, queue)
 
 
 def read_summary(path: str | os.PathLike) -> dict[str, Any]:

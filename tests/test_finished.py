@@ -1,0 +1,229 @@
+"""A finished run is final (issue 38): rerunning its command on its directory, with or without
+its checkpoint, changes nothing; the reader checks what the job checks; sweep readers find jobs by
+their job record and refuse a sweep with a job that is not finished."""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+from _helpers import REPO, compose_config, own_stderr_lines, run_cli
+
+from sde_torchrl.config.build import run_job
+from sde_torchrl.jobs.checkpoint import CheckpointMismatchError
+from sde_torchrl.jobs.lock import hold_run_directory
+from sde_torchrl.jobs.run_dir import (
+    FinishedRunError,
+    RunDirectory,
+    UnfinishedRunError,
+    finished_runs,
+    job_directories,
+    read_finished_run,
+)
+from sde_torchrl.utils.files import DamagedFileError
+
+BUDGET = ("+experiment=minimize", "logger=none", "runs=2", "updates=12", "episodes_per_update=4", "eval_period=5",
+          "checkpoint_period=4")
+COMMITTED = REPO / "docs" / "ballcatch" / "runs" / "score_probe" / "sde"
+
+
+def snapshot(directory: Path) -> dict[str, tuple[bytes, int]]:
+    """Every file under ``directory`` but the lock: content and modification time (ns)."""
+    return {str(p.relative_to(directory)): (p.read_bytes(), p.stat().st_mtime_ns)
+            for p in sorted(directory.rglob("*")) if p.is_file() and p.name != ".lock"}
+
+
+def train(run_dir: Path, *overrides: str) -> dict:
+    """The job of :data:`BUDGET` (with ``overrides``), run as ``train.py`` runs it, in this process."""
+    return run_job(compose_config(*BUDGET, *overrides), str(run_dir), {"experiment": "minimize"})
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory) -> Path:
+    """A finished job of :data:`BUDGET`, its checkpoints kept."""
+    out = tmp_path_factory.mktemp("finished") / "job"
+    train(out)
+    return out
+
+
+@pytest.fixture
+def finished(made, tmp_path) -> Path:
+    """A copy of :func:`made` to change."""
+    return Path(shutil.copytree(made, tmp_path / "job"))
+
+
+# ------------------------------------------------------------------------------- the job
+
+def test_a_committed_run_directory_survives_its_documented_command(tmp_path):
+    """A committed run directory (no checkpoint, by design), copied, and its command run on it
+    (the overrides it recorded, as its page documents them): one line, exit 0, no file changed."""
+    run_dir = Path(shutil.copytree(COMMITTED, tmp_path / "copy"))
+    overrides = yaml.safe_load((run_dir / ".hydra" / "overrides.yaml").read_text())
+    assert overrides == ["+experiment=ballcatch", "explorer.learn_sigma=false", "seed=2000", "runs=16", "logger=none"]
+    before = snapshot(run_dir)
+    result = run_cli(*overrides, run_dir=run_dir)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert own_stderr_lines(result.stderr) == []
+    assert result.stdout.splitlines() == [
+        f"{run_dir} holds a finished job (500 updates of 16 runs): nothing was changed; a finished job is final: to "
+        "train with other settings (more updates, say), give the job another directory; to train this one again "
+        "from the start, remove its directory first"]
+    assert snapshot(run_dir) == before
+
+
+@pytest.mark.parametrize("checkpoint", ["kept", "removed"])
+def test_a_finished_run_is_final_with_or_without_its_checkpoint(tmp_path, checkpoint):
+    cli = ("+experiment=minimize", "runs=2", "updates=6", "eval_period=3", "logger=none")
+    run_dir = tmp_path / "run"
+    assert run_cli(*cli, run_dir=run_dir).returncode == 0
+    if checkpoint == "removed":
+        for path in run_dir.glob("checkpoint*.pt"):
+            path.unlink()
+    before = snapshot(run_dir)
+    again = run_cli(*cli, run_dir=run_dir)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert [line for line in again.stdout.splitlines() if line.strip()] == [
+        f"{run_dir} holds a finished job (6 updates of 2 runs): nothing was changed; a finished job is final: to "
+        "train with other settings (more updates, say), give the job another directory; to train this one again "
+        "from the start, remove its directory first"]
+    assert snapshot(run_dir) == before
+    for other, code, says in [(("lr=0.01",), 2, "holds a finished job of another config (lr: 0.002 -> 0.01)"),
+                              (("updates=9",), 2, "updates: 6 -> 9"),
+                              (("explorer.bogus=1",), 2, "explorer.bogus: unknown key")]:
+        refused = run_cli(*cli, *other, run_dir=run_dir)
+        lines = own_stderr_lines(refused.stderr)
+        assert refused.returncode == code and len(lines) == 1 and says in lines[0], (other, refused.stderr[-2000:])
+        assert snapshot(run_dir) == before, other  # no error.txt, no rewritten .hydra/overrides.yaml or train.log
+
+
+def test_a_job_never_removes_a_finished_run(finished):
+    for path in finished.glob("checkpoint*.pt"):
+        path.unlink()
+    before = snapshot(finished)
+    with pytest.raises(FinishedRunError, match="holds a finished job: a new job would remove its files; it was left "
+                                               "unchanged: .* or remove that one to start over"):
+        RunDirectory(finished).start_new_job(None)
+    summary = json.loads((finished / "summary.json").read_text())
+    assert train(finished) == summary  # nothing trained, nothing written
+    assert snapshot(finished) == before
+
+
+def test_a_finished_checkpoint_rewrites_a_damaged_summary_only(finished):
+    summary = (finished / "summary.json").read_bytes()
+    (finished / "summary.json").write_bytes(summary.replace(b'"seed": 0', b'"seed": 5'))
+    with pytest.raises(UnfinishedRunError, match="summary.json does not match its digest"):
+        read_finished_run(finished)
+    train(finished)
+    assert (finished / "summary.json").read_bytes() == summary
+    assert read_finished_run(finished).summary["seed"] == 0
+
+
+# ------------------------------------------------------------------- what the reader checks
+
+def _change_a_value(lines: list[bytes]) -> list[bytes]:
+    fields = lines[7].split(b",")
+    fields[3] = repr(float(fields[3]) + 1e-6).encode()
+    return [*lines[:7], b",".join(fields), *lines[8:]]
+
+
+DAMAGES = {
+    "a changed value": lambda lines: _change_a_value(lines),
+    "a row overwritten by its neighbour": lambda lines: [*lines[:7], lines[6], *lines[8:]],
+    "an extra column": lambda lines: [line.rstrip(b"\r\n") + b",0\r\n" for line in lines],
+    "other line endings": lambda lines: [line.replace(b"\r\n", b"\n") for line in lines],
+}
+
+
+@pytest.mark.parametrize("damage", sorted(DAMAGES))
+@pytest.mark.parametrize("checkpoint", ["kept", "removed"])
+def test_the_reader_refuses_rows_the_job_refuses(finished, damage, checkpoint):
+    if checkpoint == "removed":
+        for path in finished.glob("checkpoint*.pt"):
+            path.unlink()
+    metrics = finished / "metrics.csv"
+    metrics.write_bytes(b"".join(DAMAGES[damage](metrics.read_bytes().splitlines(keepends=True))))
+    with pytest.raises(UnfinishedRunError):
+        read_finished_run(finished)
+    before = snapshot(finished)
+    with pytest.raises(DamagedFileError):  # the job: exit 4, nothing changed
+        train(finished)
+    assert snapshot(finished) == before
+
+
+def test_the_reader_refuses_an_edited_summary_and_the_job_too_without_a_checkpoint(finished):
+    for path in finished.glob("checkpoint*.pt"):
+        path.unlink()
+    summary = json.loads((finished / "summary.json").read_text())
+    summary["final_parameters"]["module.0.module.0.module.weight"][0][0] += 0.5
+    (finished / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(UnfinishedRunError, match="summary.json does not match its digest .*; without a checkpoint.pt "
+                                                 "nothing can rebuild them: restore the directory"):
+        read_finished_run(finished)
+    before = snapshot(finished)
+    with pytest.raises(UnfinishedRunError):
+        train(finished)
+    assert snapshot(finished) == before
+
+
+def test_the_reader_refuses_a_finished_checkpoint_of_another_seed(finished, tmp_path):
+    train(tmp_path / "seed1", "seed=1")
+    shutil.copy(tmp_path / "seed1" / "checkpoint.pt", finished / "checkpoint.pt")
+    with pytest.raises(UnfinishedRunError, match=r"its checkpoint.pt was written by another config than "
+                                                 r"summary.json's \(seed: 1 -> 0\)"):
+        read_finished_run(finished)
+    before = snapshot(finished)
+    with pytest.raises(CheckpointMismatchError, match=r"seed: 1 -> 0"):  # the job: exit 2
+        train(finished)
+    assert snapshot(finished) == before
+
+
+@pytest.mark.parametrize("damage", ["a row overwritten by its neighbour", "an extra column", "other line endings"])
+def test_a_summary_written_before_the_digests_is_still_checked_against_its_rows(finished, damage):
+    """Committed runs' summaries record no digests: their rows are checked against the summary,
+    their order and the bytes the job writes."""
+    for path in finished.glob("checkpoint*.pt"):
+        path.unlink()
+    summary = json.loads((finished / "summary.json").read_text())
+    del summary["sha256"], summary["metrics_sha256"]
+    (finished / "summary.json").write_text(json.dumps(summary))
+    assert read_finished_run(finished).summary == summary
+    metrics = finished / "metrics.csv"
+    metrics.write_bytes(b"".join(DAMAGES[damage](metrics.read_bytes().splitlines(keepends=True))))
+    with pytest.raises(UnfinishedRunError):
+        read_finished_run(finished)
+
+
+# ------------------------------------------------------------------------------ sweep readers
+
+def test_sweep_readers_find_jobs_by_their_record_and_refuse_one_not_finished(made, tmp_path, caplog):
+    sweep = tmp_path / "sweep"
+    for job in ("0", "1", "2"):
+        shutil.copytree(made, sweep / job)
+    assert [job.path.name for job in finished_runs(sweep)] == ["0", "1", "2"]
+    (sweep / "3").mkdir()
+    (sweep / "3" / "job_config.json").write_text("{}")  # killed before its first row
+    with pytest.raises(UnfinishedRunError, match=f"{sweep / '3'} is not a finished run: it has no summary.json"):
+        finished_runs(sweep)
+    (sweep / "1" / "metrics.csv").unlink()
+    with hold_run_directory(sweep / "2"):  # live
+        assert job_directories(sweep) == [sweep / name for name in ("0", "1", "2", "3")]
+        with pytest.raises(UnfinishedRunError, match=f"{sweep / '1'} is not a finished run: it has no metrics.csv"):
+            finished_runs(sweep)
+        with caplog.at_level(logging.WARNING, logger="sde_torchrl.jobs.run_dir"):
+            assert [job.path.name for job in finished_runs(sweep, finished_only=True)] == ["0"]
+    left_out = [record.getMessage() for record in caplog.records]
+    assert len(left_out) == 3 and all(message.startswith("left out (finished_only): ") for message in left_out)
+    assert "a job is running in it" in left_out[1]
+
+
+def test_every_committed_run_directory_reads_as_finished():
+    files = subprocess.run(["git", "ls-files", "docs"], cwd=REPO, capture_output=True, text=True, check=True).stdout
+    directories = sorted((REPO / name).parent for name in files.split() if name.endswith("/summary.json"))
+    assert len(directories) >= 78
+    for directory in directories:
+        assert read_finished_run(directory).summary["updates_done"] > 0, directory
