@@ -110,32 +110,38 @@ def test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds():
 
 
 # ---------------------------------------------- whole episodes of fixed linear maps (fast path)
-def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, worlds=2, steps=120, every_n=None):
+def _catching_setup(schedule="episode", bias=False, gaussian=None, runs=2, worlds=2, steps=120, every_n=None,
+                    observation="raw"):
     """The paper's controller (the cup arm's scripted weights) with SDE (or REX, ``schedule="step"``)
-    on ``[runs, worlds]`` worlds of the cup arm, whose contact timings these tests know."""
-
-    actor = LinearActor(3, 4, bias=bias, runs=runs)
+    on ``[runs, worlds]`` worlds of the cup arm, whose contact timings these tests know; with the
+    scaled observation, the weights that make the same map of the ball position."""
+    env = make_ballcatch_env(worlds, runs=runs, episode_length=steps, model="cup", observation=observation)
+    features = env.base_env.feature_dim
+    weights = torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float64)
+    if observation == "scaled":  # W [(x - c) / h, 1] = S x
+        low, high = torch.tensor(ARM_MODELS["cup"].workspace, dtype=torch.float64).unbind(-1)
+        weights = torch.cat([weights * (high - low) / 2, (weights @ ((low + high) / 2)).unsqueeze(-1)], -1)
+    actor = LinearActor(features, 4, bias=bias, runs=runs)
     with torch.no_grad():
-        actor.module.weight.copy_(torch.as_tensor(SCRIPTED_WEIGHTS, dtype=torch.float32))
-    sde = SDEParams(4, 3, schedule=schedule, every_n=every_n, init_param=-2.0, runs=runs,
+        actor.module.weight.copy_(weights.float())
+    sde = SDEParams(4, features, schedule=schedule, every_n=every_n, init_param=-2.0, runs=runs,
                     gaussian_init_param=gaussian)
     sde.streams = RunStreams(0, runs, "explore")
-    env = make_ballcatch_env(worlds, runs=runs, episode_length=steps, model="cup")
     env.set_seed(3)
     env.append_transform(sde.make_tensordict_primer())
     return env, make_sde_actor(actor, sde, squash=True, low=-1.0, high=1.0)
 
 
-@pytest.mark.parametrize("schedule", ["episode", "step"])
+@pytest.mark.parametrize(("schedule", "observation"), [("episode", "raw"), ("step", "raw"), ("episode", "scaled")])
 @pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
-def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode, schedule):
+def test_linear_episode_rollout_gives_the_tensor_rollout_episodes(mode, schedule, observation):
     # The worlds run the same physics under the same release jitter and noise (one ξ per episode
     # for SDE, one per step for REX); only the controller's float64 arithmetic differs (float32
     # on the step path), so the episodes agree to rounding until contacts amplify it (the ball
     # reaches the hand after ~95 steps).
     steps, before_contact = 120, 60
-    env, policy = _catching_setup(schedule)
-    env2, policy2 = _catching_setup(schedule)
+    env, policy = _catching_setup(schedule, observation=observation)
+    env2, policy2 = _catching_setup(schedule, observation=observation)
     base = linear_episode_env(env2, policy2)
     assert base is env2.base_env
     with torch.no_grad(), set_exploration_type(mode):

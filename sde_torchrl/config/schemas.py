@@ -107,6 +107,8 @@ class BallCatchEnvConf:
         jitter: half-width of the uniform horizontal release offset, in ``[0, 0.4]``.
         model: the arm, ``pybrain`` (after PyBrain's ``arm.xode``, the authors' arm), ``cup``, or the
             diagnostic ``pybrain_held`` (the pybrain arm with shoulder, elbow and wrist held).
+        observation: ``raw`` (the ball position, the paper's) or ``scaled`` (mapped onto
+            [-1, 1] over the arm's workspace, a constant feature 1 appended).
 
     Examples:
         >>> BallCatchEnvConf().episode_length
@@ -119,9 +121,11 @@ class BallCatchEnvConf:
     episode_length: int = 500
     jitter: float = 0.05
     model: str = "pybrain"
+    observation: str = "raw"
 
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
+        one_of("env.observation", self.observation, ("raw", "scaled"))
         if not is_finite_number(self.jitter) or not 0 <= self.jitter <= 0.4:
             raise ArgumentError("env.jitter", self.jitter, "a number in [0, 0.4]")
         one_of("env.model", self.model, ARM_MODELS)

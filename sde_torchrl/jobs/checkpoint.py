@@ -57,8 +57,9 @@ READABLE = (3, 4)
 NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress", "max_memory_gb")
 #: Config keys added after checkpoints were written, with their defaults: at its default such a
 #: key is left out of the result config, so that those checkpoints still resume. Off its default
-#: it counts (``device=cuda`` rounds otherwise than the CPU: not the same job).
-LATER_KEYS = {"device": "cpu"}
+#: it counts (``device=cuda`` rounds otherwise than the CPU: not the same job). A dotted key names
+#: an option inside a config group.
+LATER_KEYS = {"device": "cpu", "env.observation": "raw"}
 
 
 class CheckpointMismatchError(ValueError):
@@ -157,13 +158,24 @@ def result_config(config: dict[str, Any] | None) -> dict[str, Any] | None:
     Examples:
         >>> result_config({"seed": 1, "progress": True, "device": "cpu"})
         {'seed': 1}
-        >>> result_config({"seed": 1, "device": "cuda"})
-        {'seed': 1, 'device': 'cuda'}
+        >>> result_config({"seed": 1, "device": "cuda", "env": {"model": "cup", "observation": "raw"}})
+        {'seed': 1, 'device': 'cuda', 'env': {'model': 'cup'}}
     """
     if config is None:
         return None
-    return {k: v for k, v in config.items()
-            if k not in NON_RESULT_KEYS and not (k in LATER_KEYS and v == LATER_KEYS[k])}
+    return _without_defaults({k: v for k, v in config.items() if k not in NON_RESULT_KEYS}, "")
+
+
+def _without_defaults(config: dict[str, Any], prefix: str) -> dict[str, Any]:
+    """``config`` without the :data:`LATER_KEYS` (under ``prefix``) that hold their defaults."""
+    out = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if name in LATER_KEYS and value == LATER_KEYS[name]:
+            continue
+        nested = isinstance(value, dict) and any(later.startswith(f"{name}.") for later in LATER_KEYS)
+        out[key] = _without_defaults(value, f"{name}.") if nested else value
+    return out
 
 
 def config_differences(saved: Any, current: Any, prefix: str = "") -> list[str]:

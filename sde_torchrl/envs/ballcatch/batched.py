@@ -27,15 +27,19 @@ from sde_torchrl.envs.ballcatch.task import EPISODE_STEPS, CatchEpisode
 from sde_torchrl.envs.ballcatch.world import BallCatchConfig, BallCatchWorld
 from sde_torchrl.utils.rng import RunStreams
 
-__all__ = ["BatchedBallCatchEnv", "make_ballcatch_env", "make_parallel_ballcatch"]
+__all__ = ["OBSERVATIONS", "BatchedBallCatchEnv", "make_ballcatch_env", "make_parallel_ballcatch"]
+
+#: What the env can observe: the raw ball position (the paper's) or its scaled form.
+OBSERVATIONS = ("raw", "scaled")
 
 
 class BatchedBallCatchEnv(EnvBase):
     """N independent ball-catching worlds as one TorchRL env with ``batch_size [N]``.
 
-    Keys: ``"observation"`` (float32 ``[N, 3]``, ball xyz), ``"distance"`` (float32 ``[N, 1]``,
-    ball-palm centre distance, for diagnostics), ``"action"`` (``Bounded(-1, 1, [N, 4])``: shoulder,
-    elbow, wrist, fingers, scaled by the max torques), ``("next", "reward")`` ``[N, 1]`` and
+    Keys: ``"observation"`` (float32 ``[N, 3]``, ball xyz; ``[N, 4]`` scaled, see ``observation``),
+    ``"distance"`` (float32 ``[N, 1]``, ball-palm centre distance, for diagnostics), ``"action"``
+    (``Bounded(-1, 1, [N, 4])``: shoulder, elbow, wrist, fingers, scaled by the max torques),
+    ``("next", "reward")`` ``[N, 1]`` and
     ``"done"``/``"terminated"``/``"truncated"`` ``[N, 1]``. Episodes are never terminated; they are
     truncated after ``max_steps`` (500) steps. A ``"_reset"`` mask resets only the selected worlds.
 
@@ -53,6 +57,10 @@ class BatchedBallCatchEnv(EnvBase):
         runs: number of independent runs (leading batch dimension), or ``None``.
         first_run: global index of the first run (seeding shards of a sweep).
         stream: random stream name for the runs (``"env"`` or ``"eval_env"``).
+        observation: ``"raw"``, the ball position as the paper gives it, or ``"scaled"``: the
+            ball position mapped onto ``[-1, 1]`` over the arm's workspace
+            (:attr:`~sde_torchrl.envs.ballcatch.models.ArmModel.workspace`), a constant 1
+            appended (:meth:`features`).
 
     Examples:
         >>> import torch
@@ -75,7 +83,10 @@ class BatchedBallCatchEnv(EnvBase):
         runs: int | None = None,
         first_run: int = 0,
         stream: str = "env",
+        observation: str = "raw",
     ) -> None:
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {', '.join(OBSERVATIONS)}, got {observation!r}")
         if num_worlds < 1:
             raise ValueError(f"num_worlds must be >= 1, got {num_worlds}")
         if max_steps < 1:
@@ -85,6 +96,9 @@ class BatchedBallCatchEnv(EnvBase):
         batch = (num_worlds,) if runs is None else (runs, num_worlds)
         super().__init__(device=device, batch_size=torch.Size(batch))
         self.config = config or BallCatchConfig()
+        self.observation = observation
+        low, high = torch.tensor(self.config.arm.workspace, dtype=torch.float64).unbind(-1)
+        self._centre, self._half_width = (low + high) / 2, (high - low) / 2
         self.num_worlds = num_worlds * (runs or 1)  # worlds in all, stored flat
         num_worlds = self.num_worlds
         self.max_steps = max_steps
@@ -104,7 +118,7 @@ class BatchedBallCatchEnv(EnvBase):
     def _make_specs(self) -> None:
         n = tuple(self.batch_size)
         self.observation_spec = Composite(
-            observation=Unbounded(shape=(*n, 3), dtype=torch.float32, device=self.device),
+            observation=Unbounded(shape=(*n, self.feature_dim), dtype=torch.float32, device=self.device),
             distance=Unbounded(shape=(*n, 1), dtype=torch.float32, device=self.device),
             shape=n,
             device=self.device,
@@ -118,6 +132,42 @@ class BatchedBallCatchEnv(EnvBase):
             shape=n,
             device=self.device,
         )
+
+    # ------------------------------------------------------------------ observation
+    @property
+    def feature_dim(self) -> int:
+        """Length of the observation: 3 (raw) or 4 (scaled, with the constant feature)."""
+        return 3 if self.observation == "raw" else 4
+
+    def features(self, ball: torch.Tensor) -> torch.Tensor:
+        """The observation of ball positions ``[..., 3]``: themselves (raw) or ``[(x - c) / h, 1]``
+        (scaled), ``c`` and ``h`` the workspace's centre and half-widths, in ``ball``'s dtype.
+
+        Examples:
+            >>> env = BatchedBallCatchEnv(num_worlds=1, observation="scaled")
+            >>> env.features(torch.tensor([3.5, 0.0, 5.5], dtype=torch.float64)).tolist()
+            [0.0, 0.0, 0.8333333333333334, 1.0]
+            >>> env.close()
+        """
+        if self.observation == "raw":
+            return ball
+        centre, half = self._centre.to(ball), self._half_width.to(ball)
+        return torch.cat([(ball - centre) / half, torch.ones_like(ball[..., :1])], -1)
+
+    def ball_positions(self, observation: torch.Tensor) -> torch.Tensor:
+        """The ball positions ``[..., 3]`` an observation holds (the inverse of :meth:`features`)."""
+        if self.observation == "raw":
+            return observation
+        return observation[..., :3] * self._half_width.to(observation) + self._centre.to(observation)
+
+    def _affine_maps(self, matrices: torch.Tensor) -> torch.Tensor:
+        """Maps ``M`` of the observation (``[..., 4, F]``, float64) as maps ``[A | b]`` of the raw
+        ball position, ``M features(x) = A x + b`` (``[..., 4, 4]``)."""
+        if self.observation == "raw":
+            return torch.cat([matrices, torch.zeros_like(matrices[..., :1])], -1)
+        scale = matrices[..., :3] / self._half_width
+        offset = matrices[..., 3] - (scale * self._centre).sum(-1)
+        return torch.cat([scale, offset.unsqueeze(-1)], -1)
 
     # ------------------------------------------------------------------ EnvBase API
     def _set_seed(self, seed: int | None) -> None:
@@ -166,7 +216,8 @@ class BatchedBallCatchEnv(EnvBase):
         """
         reward = self._advance(u)
         batch = tuple(self.batch_size)
-        return (torch.tensor([e.ball for e in self.episodes], dtype=torch.float32).reshape(*batch, 3).to(self.device),
+        ball = torch.tensor([e.ball for e in self.episodes], dtype=torch.float64).reshape(*batch, 3)
+        return (self.features(ball).float().to(self.device),
                 torch.tensor(reward, dtype=torch.float32).reshape(*batch, 1).to(self.device))
 
     # ---------------------------------------------- whole episodes of linear controllers (fast path)
@@ -185,8 +236,9 @@ class BatchedBallCatchEnv(EnvBase):
         ~1e-7).
 
         Args:
-            matrices: ``M``, shaped ``[*batch_size, 4, 3]`` (one per episode) or
-                ``[*batch_size, steps, 4, 3]`` (one per step).
+            matrices: ``M``, shaped ``[*batch_size, 4, F]`` (one per episode) or
+                ``[*batch_size, steps, 4, F]`` (one per step), ``F`` the observation's length
+                (the maps act on the observation, :meth:`features`).
             steps: episode length.
             squash: apply ``tanh`` to ``u`` (else ``u`` is clipped to ``[-1, 1]`` like any action).
 
@@ -212,10 +264,11 @@ class BatchedBallCatchEnv(EnvBase):
             raise ValueError(f"steps must be >= 1, got {steps}")
         batch = tuple(self.batch_size)
         shape = tuple(matrices.shape)
-        if shape not in ((*batch, 4, 3), (*batch, steps, 4, 3)):
-            raise ValueError(f"matrices must have shape {(*batch, 4, 3)} or {(*batch, steps, 4, 3)}, got {shape}")
+        f = self.feature_dim
+        if shape not in ((*batch, 4, f), (*batch, steps, 4, f)):
+            raise ValueError(f"matrices must have shape {(*batch, 4, f)} or {(*batch, steps, 4, f)}, got {shape}")
         per_step = len(shape) == len(batch) + 3
-        flat = matrices.detach().cpu().double().reshape(self.num_worlds, -1, 12).numpy()
+        flat = self._affine_maps(matrices.detach().cpu().double()).reshape(self.num_worlds, -1, 16).numpy()
         finite = np.isfinite(flat).all(axis=(1, 2))
         if not finite.all():
             bad = np.flatnonzero(~finite).tolist()
@@ -223,11 +276,12 @@ class BatchedBallCatchEnv(EnvBase):
         offsets, episodes = self._jitter(), []
         for i, episode in enumerate(self.episodes):
             episode.reset(offsets[i])
-            maps = flat[i].tolist()  # rows of 12 floats, one world at a time: numpy lists them fastest
+            maps = flat[i].tolist()  # rows of 16 floats, one world at a time: numpy lists them fastest
             episodes.append(linear_episode(episode, maps if per_step else maps * steps, squash))
         observations, samples, rewards = (torch.tensor([e[k] for e in episodes], dtype=torch.float64) for k in range(3))
+        observations = self.features(observations)
         return tuple(t.float().reshape(*batch, *shape).to(self.device)  # computed on the CPU, on the env's device
-                     for t, shape in ((observations, (steps + 1, 3)), (samples, (steps, 4)), (rewards, (steps, 1))))
+                     for t, shape in ((observations, (steps + 1, f)), (samples, (steps, 4)), (rewards, (steps, 1))))
 
     # ------------------------------------------------------------------ helpers
     def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray:
@@ -255,7 +309,8 @@ class BatchedBallCatchEnv(EnvBase):
         episodes = self.episodes
         trunc = torch.tensor([e.truncated for e in episodes]).reshape(*batch, 1)
         data = {
-            "observation": torch.tensor([e.ball for e in episodes], dtype=torch.float32).reshape(*batch, 3),
+            "observation": self.features(torch.tensor([e.ball for e in episodes], dtype=torch.float64)).float()
+            .reshape(*batch, self.feature_dim),
             "distance": torch.tensor([e.distance for e in episodes], dtype=torch.float32).reshape(*batch, 1),
             "done": trunc,
             "terminated": torch.zeros_like(trunc),
@@ -300,7 +355,7 @@ def make_parallel_ballcatch(
 def make_ballcatch_env(
     episodes: int = 1, *, runs: int | None = None, first_run: int = 0, stream: str = "env",
     episode_length: int = EPISODE_STEPS, jitter: float = 0.05, seed: int | None = None, model: str = DEFAULT_MODEL,
-    device: torch.device | str = "cpu",
+    observation: str = "raw", device: torch.device | str = "cpu",
 ) -> TransformedEnv:
     """The batched ball-catching env as the trainer builds envs: ``[runs, episodes]`` worlds
     with ``is_init`` (episodes end by themselves after ``episode_length`` steps).
@@ -314,6 +369,7 @@ def make_ballcatch_env(
         jitter: half-width of the uniform horizontal release offset.
         seed: seed of the release jitter.
         model: the arm, a key of :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS` (default ``"pybrain"``).
+        observation: ``"raw"`` (the paper's) or ``"scaled"`` (:class:`BatchedBallCatchEnv`).
         device: where the observations and rewards are put (the physics runs on the CPU).
 
     Returns:
@@ -321,6 +377,6 @@ def make_ballcatch_env(
     """
     base = BatchedBallCatchEnv(
         num_worlds=episodes, config=BallCatchConfig(jitter=jitter, model=model), max_steps=episode_length,
-        seed=seed, device=device, runs=runs, first_run=first_run, stream=stream,
+        seed=seed, device=device, runs=runs, first_run=first_run, stream=stream, observation=observation,
     )
     return TransformedEnv(base, InitTracker())

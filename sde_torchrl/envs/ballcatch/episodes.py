@@ -16,7 +16,7 @@ __all__ = ["linear_episode"]
 def linear_episode(
     episode: CatchEpisode, matrices: Sequence[Sequence[float]], squash: bool = True
 ) -> tuple[list, list, list]:
-    """One episode of a freshly reset world under ``u_t = M_t x_t``, ``x_t`` the ball position.
+    """One episode of a freshly reset world under ``u_t = M_t x_t + b_t``, ``x_t`` the ball position.
 
     The hot loop of the fast path, in plain Python floats (numpy is slower on 3-vectors); each
     step goes through the task rules (:meth:`CatchEpisode.step
@@ -24,9 +24,9 @@ def linear_episode(
 
     Args:
         episode: the world's episode, just reset.
-        matrices: ``M_t`` for every step, each ``4 x 3`` flattened row by row into 12 floats
-            (the same object repeated for a map fixed per episode); their number is the episode
-            length.
+        matrices: ``[M_t | b_t]`` for every step, each ``4 x 4`` flattened row by row into 16
+            floats (the same object repeated for a map fixed per episode); their number is the
+            episode length.
         squash: the action is ``tanh(u)`` (else ``u``, which the task rules clip to ``[-1, 1]``).
 
     Returns:
@@ -34,12 +34,14 @@ def linear_episode(
         rewards (``steps`` each), as lists.
 
     Examples:
+        >>> import numpy as np
         >>> from sde_torchrl.envs.ballcatch.models import scripted_weights
         >>> from sde_torchrl.envs.ballcatch.world import BallCatchWorld
         >>> world = BallCatchWorld()
         >>> episode = CatchEpisode(world)
         >>> episode.reset((0.0, 0.0))
-        >>> observations, samples, rewards = linear_episode(episode, [scripted_weights().ravel().tolist()] * 500)
+        >>> affine = np.hstack([scripted_weights(), np.zeros((4, 1))])  # no offset
+        >>> observations, samples, rewards = linear_episode(episode, [affine.ravel().tolist()] * 500)
         >>> len(observations), len(samples), sum(rewards) / 500 > -1.0  # the scripted catch
         (501, 500, True)
         >>> world.close()
@@ -47,10 +49,10 @@ def linear_episode(
     ball = episode.ball
     observations, samples, rewards = [ball], [], []
     step, tanh = episode.step, math.tanh
-    for a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2 in matrices:
+    for a0, a1, a2, a, b0, b1, b2, b, c0, c1, c2, c, d0, d1, d2, d in matrices:
         x0, x1, x2 = ball
-        u = (a0 * x0 + a1 * x1 + a2 * x2, b0 * x0 + b1 * x1 + b2 * x2,
-             c0 * x0 + c1 * x1 + c2 * x2, d0 * x0 + d1 * x1 + d2 * x2)
+        u = (a0 * x0 + a1 * x1 + a2 * x2 + a, b0 * x0 + b1 * x1 + b2 * x2 + b,
+             c0 * x0 + c1 * x1 + c2 * x2 + c, d0 * x0 + d1 * x1 + d2 * x2 + d)
         samples.append(u)
         rewards.append(step([tanh(v) for v in u] if squash else u))
         ball = episode.ball

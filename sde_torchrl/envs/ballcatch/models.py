@@ -131,6 +131,9 @@ class ArmModel:
             the collision shapes' bounding boxes).
         camera_target: where the rendering camera looks.
         camera_yaw: the camera's yaw in degrees (it looks from 8 units away, 12 degrees down).
+        workspace: the box ``(low, high)`` per coordinate (x, y, z) where the ball is while an
+            episode is live (around the palm, from the ground to above the release), which the
+            scaled observation maps onto ``[-1, 1]``.
         hold_arm: hold shoulder, elbow and wrist at ``initial_pose`` (position control far
             stronger than any torque) and ignore the action's arm torques.
 
@@ -157,6 +160,7 @@ class ArmModel:
     inertia_from_file: bool
     camera_target: tuple[float, float, float]
     camera_yaw: float
+    workspace: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
     hold_arm: bool = False
 
     @property
@@ -188,6 +192,7 @@ _PORTED_ARMS = {
         inertia_from_file=True,
         camera_target=(2.5, 0.0, 2.5),
         camera_yaw=150.0,  # from the side away from the torso
+        workspace=((0.5, 6.5), (-3.0, 3.0), (0.0, 6.0)),  # palm centre (3.5, 0, 0.5), release at z 5.5
     ),
     "cup": ArmModel(
         urdf="ballcatch.urdf",
@@ -208,6 +213,7 @@ _PORTED_ARMS = {
         inertia_from_file=False,
         camera_target=(2.2, 0.0, 5.4),
         camera_yaw=25.0,
+        workspace=((-0.05, 5.95), (-3.0, 3.0), (0.0, 10.0)),  # palm centre (2.95, 0, 3.92), release at z 8.92
     ),
 }
 ARM_MODELS = {**_PORTED_ARMS, "pybrain_held": replace(_PORTED_ARMS["pybrain"], hold_arm=True)}
