@@ -204,7 +204,10 @@ def main(cfg: DictConfig) -> None:
             if DEBUG and not multirun:
                 raise
             return
-    log.info("final return per run: %s", [round(r, 3) for r in summary["final_return"]])
+    from sde_torchrl.trainers.summary import final_lines
+
+    for line in final_lines(summary):
+        log.info(line)
 
 
 def cli() -> int:

@@ -159,3 +159,36 @@ def mean_reward_factor(summary: dict[str, Any]) -> float:
     if summary.get("episode_return") != "sum":
         return 1.0  # a mean-return job need not record its episode length
     return per_step_factor("sum", summary["settings"]["episode_length"])
+
+
+def final_lines(summary: dict[str, Any]) -> list[str]:
+    """The lines that end a job's log: each run's final deterministic evaluation (the result),
+    then the last training return (exploratory episodes, which a learner that explores widely
+    keeps below its evaluation), both in the estimator's return definition. Ball catching gives
+    the evaluation as the paper's mean reward per step, with each run's level and the count of
+    runs per level.
+
+    Examples:
+        >>> final_lines({"env": "minimize", "final_eval_return": [-1.23456], "final_return": [-2.0]})
+        ['final evaluation per run (no exploration): [-1.235]', 'last training return per run: [-2.0]']
+        >>> lines = final_lines({"env": "ballcatch", "final_eval_return": [-1.05, -2.5], "final_return": [-2.0, -2.9]})
+        >>> lines[0]
+        'final evaluation per run (mean reward per step, no exploration): run 0 -1.050 catch, run 1 -2.500 dropped'
+        >>> lines[1]
+        'levels of the final evaluations: 0 good catch, 1 catch, 0 on the hand, 0 slowed, 1 dropped (of 2 runs)'
+    """
+    training = f"last training return per run: {[round(value, 3) for value in summary['final_return']]}"
+    if summary.get("env") != "ballcatch":
+        evals = [round(value, 3) for value in summary["final_eval_return"]]
+        return [f"final evaluation per run (no exploration): {evals}", training]
+    evals = [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
+    from sde_torchrl.envs.ballcatch.outcomes import LEVELS, catch_level
+
+    levels = [catch_level(value) for value in evals]
+    first = summary.get("first_run", 0)
+    runs = ", ".join(f"run {first + i} {value:.3f} {level}"
+                     for i, (value, level) in enumerate(zip(evals, levels, strict=True)))
+    names = [name for _, name in LEVELS] + ["dropped"]
+    counts = ", ".join(f"{levels.count(name)} {name}" for name in names)
+    return [f"final evaluation per run (mean reward per step, no exploration): {runs}",
+            f"levels of the final evaluations: {counts} (of {len(evals)} runs)", training]
