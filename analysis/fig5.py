@@ -123,6 +123,25 @@ def load_per_run(directories: list[Path], estimator: str, filename: str, key: st
     return values
 
 
+def behaviour_counts(directories: list[Path], estimator: str) -> dict[str, dict[str, int]]:
+    """``explorer → behaviour → episodes`` of the final policies re-evaluated in the job's own arm
+    with their behaviour (``reevaluation_pybrain.json``, ``analysis/ballcatch_final.py --model
+    pybrain``), for the explorers whose every job has one."""
+    from sde_torchrl.envs.ballcatch.outcomes import BEHAVIOURS
+
+    counts: dict[str, dict[str, int]] = {}
+    for directory in directories:
+        for path in sorted(directory.rglob("reevaluation_pybrain.json")):
+            found = json.loads(path.read_text())
+            label = method_label(found["explorer"], found["estimator"], estimator)
+            if label is not None:
+                codes = [code for run in found["per_episode"]["behaviour"] for code in run]
+                total = counts.setdefault(label, dict.fromkeys(BEHAVIOURS, 0))
+                for code, name in enumerate(BEHAVIOURS):
+                    total[name] += codes.count(code)
+    return counts
+
+
 def final_policy_episodes(directories: list[Path]) -> tuple[int, int] | None:
     """The episodes and seed of the ``final_policy.json`` files under ``directories`` as
     ``(episodes, seed)``, or ``None`` if there are none; files that disagree are refused."""
@@ -301,6 +320,12 @@ def write_markdown(result: dict, path: Path) -> None:
                   "`analysis/ballcatch_final.py`, rule in `docs/ballcatch/final_policy_rule.md`), percent of "
                   "runs whose mean reward over them reached the level:", ""]
         lines += _table(result, differences, ("final_policy",), paper=False)
+    for explorer, counts in result.get("behaviours", {}).items():
+        episodes = sum(counts.values())
+        lines += ["", f"{explorer.upper()}: what the final policies do on those episodes ({episodes}): "
+                  + ", ".join(f"{name} {_percent(count / episodes)} %" for name, count in counts.items())
+                  + " (dropped: the ball touched the ground; held: not dropped, the hand closing at the last step; "
+                  "kept on the hand: not dropped, the hand not closing)"]
     for explorer, stats in result["explorers"].items():
         if stats["improvement"]:
             change = stats["improvement"]["change"]
@@ -397,6 +422,9 @@ def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:
     evaluated = final_policy_episodes(args.sweeps)
     if evaluated is not None:
         result["final_policy"] = {"episodes": evaluated[0], "seed": evaluated[1]}
+    behaviours = behaviour_counts(args.sweeps, args.estimator)
+    if behaviours:
+        result["behaviours"] = behaviours
     (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
     write_markdown(result, args.out / f"{name}.md")
     method = "REINFORCE settings" if args.estimator == "all" else args.estimator.upper()

@@ -1,0 +1,135 @@
+"""Ball catching: the final policies of a sweep in the shipped arm and with the arm held level,
+by the rule in ``docs/ballcatch/reevaluation_rule.md``.
+
+Reads the ``reevaluation_pybrain.json`` and ``reevaluation_pybrain_held.json`` that
+``analysis/ballcatch_final.py --model ...`` wrote into every job of the sweeps (checking that
+the shipped arm's returns equal the job's ``final_policy.json``), and writes
+``reevaluation.json`` and ``reevaluation.md``: per explorer and arm the runs whose 20-episode
+return is a catch and a good catch, the behaviour of every episode (dropped, kept on the hand,
+held), the mean hold distance, and the rule's verdict on the tilted-palm lead.
+
+Usage:
+    python analysis/ballcatch_reevaluation.py --out docs/ballcatch docs/ballcatch/runs/fig5_selected
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from sde_torchrl.envs.ballcatch.outcomes import BEHAVIOURS
+
+ARMS = ("pybrain", "pybrain_held")
+CATCH, GOOD_CATCH = -1.1, -1.0
+#: The rule's group: SDE final policies whose 20-episode return in the shipped arm lies in [low, high).
+GROUP = (-1.3, -1.1)
+CONFIRMED, REFUTED = 0.5, 0.2
+
+
+def load(sweeps: list[Path]) -> dict[str, dict[str, dict[int, dict]]]:
+    """``explorer → arm → global run → {"return": R, "episodes": {field: [per episode]}}``."""
+    runs: dict = {}
+    files = sorted(path for sweep in sweeps for path in sweep.rglob("reevaluation_*.json"))
+    if not files:
+        raise SystemExit(f"error: no reevaluation_*.json under {[str(s) for s in sweeps]}: "
+                         "run analysis/ballcatch_final.py --model pybrain_held (and pybrain) first")
+    for path in files:
+        found = json.loads(path.read_text())
+        arm, explorer = found["model"], found["explorer"]
+        if arm == "pybrain":
+            committed = json.loads((path.parent / "final_policy.json").read_text())["final_policy_return"]
+            if committed != found["final_policy_return"]:
+                raise SystemExit(f"error: {path} does not reproduce {path.parent / 'final_policy.json'}: "
+                                 "the shipped arm no longer gives the committed final-policy returns")
+        for i, value in enumerate(found["final_policy_return"]):
+            episodes = {key: values[i] for key, values in found["per_episode"].items()}
+            runs.setdefault(explorer, {}).setdefault(arm, {})[found["first_run"] + i] = {"return": value,
+                                                                                         "episodes": episodes}
+    return runs
+
+
+def arm_numbers(runs: dict[int, dict]) -> dict:
+    """Counts of one explorer in one arm."""
+    returns = [run["return"] for run in runs.values()]
+    behaviours = [b for run in runs.values() for b in run["episodes"]["behaviour"]]
+    distances = [d for run in runs.values() for d in run["episodes"]["hold_distance"] if not math.isnan(d)]
+    return {
+        "runs": len(returns),
+        "catches": sum(r >= CATCH for r in returns),
+        "good_catches": sum(r >= GOOD_CATCH for r in returns),
+        "mean_return": sum(returns) / len(returns),
+        "episodes": len(behaviours),
+        "behaviours": {name: behaviours.count(code) for code, name in enumerate(BEHAVIOURS)},
+        "mean_hold_distance": sum(distances) / len(distances) if distances else None,
+    }
+
+
+def verdict(runs: dict[str, dict[int, dict]]) -> dict:
+    """The rule's test on SDE: of the runs in :data:`GROUP` in the shipped arm, the share that make a
+    good catch with the arm held."""
+    group = [r for r, run in runs["pybrain"].items() if GROUP[0] <= run["return"] < GROUP[1]]
+    good = [r for r in group if runs["pybrain_held"][r]["return"] >= GOOD_CATCH]
+    share = len(good) / len(group) if group else math.nan
+    outcome = "confirmed" if share >= CONFIRMED else "refuted" if share <= REFUTED else "open"
+    return {"group": len(group), "good_when_held": len(good), "share": share, "verdict": outcome}
+
+
+def markdown(numbers: dict) -> str:
+    """The page ``reevaluation.md``."""
+    v = numbers["verdict"]
+    lines = [
+        "# Ball catching: the final policies with the arm held level",
+        "",
+        f"Written by `analysis/ballcatch_reevaluation.py` (rule: `reevaluation_rule.md`) from the final policies of "
+        f"Fig. 5 at the selected learners, 20 episodes each on the same balls, in the shipped arm and in the "
+        f"diagnostic arm `pybrain_held` (shoulder, elbow and wrist held at their start angles, so the palm stays "
+        f"level at height 0.5). **The tilted-palm lead is {v['verdict']}**: of the {v['group']} SDE final policies "
+        f"whose 20-episode return in the shipped arm lies in [{GROUP[0]}, {GROUP[1]}), {v['good_when_held']} "
+        f"({100 * v['share']:.0f} %) make a good catch (R ≥ −1.0) with the arm held (confirmed at ≥ "
+        f"{100 * CONFIRMED:.0f} %, refuted at ≤ {100 * REFUTED:.0f} %).",
+        "",
+        "| explorer, arm | runs catching (R ≥ −1.1) | good catches (R ≥ −1.0) | mean R | episodes: dropped | "
+        "kept on the hand | held | mean hold distance |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for explorer, arms in numbers["explorers"].items():
+        for arm, n in arms.items():
+            b = n["behaviours"]
+            distance = "-" if n["mean_hold_distance"] is None else f"{n['mean_hold_distance']:.3f}"
+            lines.append(f"| {explorer.upper()}, {'held level' if arm == 'pybrain_held' else 'shipped'} | "
+                         f"{n['catches']} of {n['runs']} | {n['good_catches']} | {n['mean_return']:.3f} | "
+                         + " | ".join(str(b[name]) for name in BEHAVIOURS) + f" | {distance} |")
+    lines += [
+        "",
+        "A run catches when its 20-episode mean reward per step reaches the level. Behaviours per episode: "
+        "**dropped**, the ball touched the ground; **held**, not dropped and the hand closing at the last step; "
+        "**kept on the hand**, not dropped, the hand not closing. The hold distance is the mean ball-palm "
+        "distance from the ball's first contact to the end, over the episodes that did not drop it. "
+        "The shipped arm's returns equal the committed `final_policy.json` of every job (checked).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sweeps", nargs="+", type=Path)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    runs = load(args.sweeps)
+    for explorer, arms in runs.items():
+        if set(arms) != set(ARMS) or len({frozenset(r) for r in arms.values()}) != 1:
+            parser.error(f"{explorer}: every run needs both arms' re-evaluations ({', '.join(ARMS)})")
+    numbers = {"explorers": {e: {arm: arm_numbers(runs[e][arm]) for arm in ARMS} for e in sorted(runs)},
+               "verdict": verdict(runs["sde"])}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "reevaluation.json").write_text(json.dumps(numbers, indent=1) + "\n")
+    (args.out / "reevaluation.md").write_text(markdown(numbers))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
