@@ -191,4 +191,4 @@ def final_lines(summary: dict[str, Any]) -> list[str]:
     names = [name for _, name in LEVELS] + ["dropped"]
     counts = ", ".join(f"{levels.count(name)} {name}" for name in names)
     return [f"final evaluation per run (mean reward per step, no exploration): {runs}",
-            f"levels of the final evaluations: {counts} (of {len(evals)} runs)", training]
+            f"levels of the final evaluations: {counts} (of {len(evals)} run{'s' if len(evals) > 1 else ''})", training]
