@@ -38,11 +38,13 @@ import sys
 import traceback
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.utils import JobStatus
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
@@ -159,9 +161,70 @@ def log_file_suspended(out_dir: str) -> Iterator[None]:
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> dict[str, Any] | None:
     """Trains (or resumes) one job; a failure is recorded in ``error.txt`` and reported once
-    the run or sweep is over, so that one failed job does not stop a sweep."""
+    the run or sweep is over, so that one failed job does not stop a sweep.
+
+    Returns:
+        What the sweep's parent process reports for the job (:func:`job_report`): a launcher
+        that runs the job in another process (joblib, submitit, Ray) hands it back to the parent.
+    """
+    failures, finished = len(FAILURES), len(FINISHED)
+    job(cfg)
+    return job_report(FAILURES[failures:], FINISHED[finished:])
+
+
+def job_report(failures: list[JobFailure], finished: list[str]) -> dict[str, Any] | None:
+    """A job's failure and finished line as plain data, sent between processes.
+
+    Examples:
+        >>> job_report([JobFailure("runs/0", ["lr=1e38"], "NonFiniteError: ...", 1, True)], [])["failures"][0]["code"]
+        1
+    """
+    if not failures and not finished:
+        return None
+    return {"failures": [asdict(failure) for failure in failures], "finished": list(finished)}
+
+
+def gather_job_reports(sweep_returns: list[Any]) -> None:
+    """Adds to :data:`FAILURES` and :data:`FINISHED` what the sweep's jobs reported
+    (:func:`job_report`, their return values) and this process does not hold yet: the jobs a
+    launcher ran in other processes."""
+    seen = {(failure.out_dir, failure.message) for failure in FAILURES}
+    for batch in sweep_returns:
+        for job_return in batch:
+            report = job_return._return_value if job_return.status == JobStatus.COMPLETED else None
+            if not isinstance(report, dict):
+                continue
+            for failure in map(lambda fields: JobFailure(**fields), report.get("failures", [])):
+                if (failure.out_dir, failure.message) not in seen:
+                    seen.add((failure.out_dir, failure.message))
+                    FAILURES.append(failure)
+            FINISHED.extend(line for line in report.get("finished", []) if line not in FINISHED)
+
+
+@contextmanager
+def sweep_returns_kept(into: list[Any]) -> Iterator[None]:
+    """Keeps what a multirun's sweeper returns (each job's ``JobReturn``), which Hydra drops:
+    the one way a job run by another process (joblib, submitit, Ray) reports back."""
+    from hydra._internal.hydra import Hydra
+
+    multirun = Hydra.multirun
+
+    def keeping(self: Any, *args: Any, **kwargs: Any) -> Any:
+        returned = multirun(self, *args, **kwargs)
+        into.extend(returned or [])
+        return returned
+
+    Hydra.multirun = keeping
+    try:
+        yield
+    finally:
+        Hydra.multirun = multirun
+
+
+def job(cfg: DictConfig) -> None:
+    """One job (:func:`main`): its failure goes to :data:`FAILURES`, its finished line to :data:`FINISHED`."""
     hydra_cfg = HydraConfig.get()
     out_dir = hydra_cfg.runtime.output_dir
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
@@ -216,8 +279,10 @@ def cli() -> int:
     debug = DEBUG = debug_mode()
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # let errors through: one line from us, or the traceback
+    sweep_returns: list[Any] = []
     try:
-        main()
+        with sweep_returns_kept(sweep_returns):
+            main()
     except TrainingInterrupted as stop:
         sys.stderr.write(f"interrupted by {stop.signal_name}: checkpoint after update {stop.updates_done} in "
                          f"{stop.out_dir}; run the same command with hydra.run.dir={stop.out_dir} to resume\n")
@@ -234,6 +299,7 @@ def cli() -> int:
     finally:
         if previous is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
+    gather_job_reports(sweep_returns)
     for line in FINISHED:
         sys.stdout.write(f"{line}\n")
     if not FAILURES:
