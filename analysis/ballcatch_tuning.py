@@ -117,21 +117,25 @@ def final_evaluations(run_dir: Path) -> list[float] | None:
     return [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
 
 
-def select(results: dict[str, list[float] | None]) -> str | None:
-    """The chosen candidate: most final catches, then the higher mean final evaluation, then the
-    earlier candidate; a failed job counts as no catch (``None`` if no job has a summary).
+def select(results: dict[str, list[float] | None], good_catches: bool = False) -> str | None:
+    """The chosen candidate: most final catches, then (``good_catches``, round 3) the most final
+    good catches, then the higher mean final evaluation, then the earlier candidate; a failed job
+    counts as no catch (``None`` if no job has a summary).
 
     Examples:
         >>> select({"C1": [-1.0, -2.0], "C2": [-1.2, -1.5], "C3": None})
         'C1'
         >>> select({"C1": [-1.2, -2.0], "C2": [-1.5, -1.6]})
         'C2'
+        >>> select({"C7": [-1.05, -1.3], "C10": [-0.99, -1.9]}, good_catches=True)
+        'C10'
     """
     def key(item: tuple[int, tuple[str, list[float] | None]]) -> tuple:
         index, (_, finals) = item
         if finals is None:
-            return (-1, float("-inf"), -index)
-        return (sum(value >= CATCH for value in finals), sum(finals) / len(finals), -index)
+            return (-1, -1, float("-inf"), -index)
+        good = sum(value >= GOOD_CATCH for value in finals) if good_catches else 0
+        return (sum(value >= CATCH for value in finals), good, sum(finals) / len(finals), -index)
 
     ran = [(i, item) for i, item in enumerate(results.items()) if item[1] is not None]
     return max(ran, key=key)[1][0] if ran else None
@@ -144,7 +148,7 @@ def report(tuning: Path, out: Path) -> dict:
     counted as no catch; a missing one has not run)."""
     numbers: dict = {"seed": SEED, "runs": RUNS, "methods": {}}
     for method, (label, _, alpha, _) in METHODS.items():
-        results = {c: final_evaluations(tuning / method / c) for c in CANDIDATES}
+        results = {c: final_evaluations(tuning / method / c) for c in ROUNDS[2]}
         if all(r is None for r in results.values()):
             continue
 
@@ -152,14 +156,59 @@ def report(tuning: Path, out: Path) -> dict:
                   if all((tuning / method / c).is_dir() for c in ROUNDS[r]) else None for r in (1, 2)]
         numbers["methods"][method] = {
             "label": label, "alpha0": alpha, "chosen": chosen[0], "chosen_round2": chosen[1],
-            "candidates": {c: None if r is None else {
-                "catches": sum(v >= CATCH for v in r), "good_catches": sum(v >= GOOD_CATCH for v in r),
-                "mean_final": sum(r) / len(r), "finals": r} for c, r in results.items()},
+            "candidates": {c: candidate_numbers(r) for c, r in results.items()},
         }
+    numbers["round3"] = round3_numbers(tuning / ROUND_JOBS[3][2])
     out.mkdir(parents=True, exist_ok=True)
     (out / "tuning.json").write_text(json.dumps(numbers, indent=1) + "\n")
     (out / "tuning.md").write_text(markdown(numbers))
     return numbers
+
+
+def candidate_numbers(finals: list[float] | None) -> dict | None:
+    """A job's final catches, good catches and mean final evaluation (``None``: not run or failed)."""
+    if finals is None:
+        return None
+    return {"catches": sum(v >= CATCH for v in finals), "good_catches": sum(v >= GOOD_CATCH for v in finals),
+            "mean_final": sum(finals) / len(finals), "finals": finals}
+
+
+def round3_numbers(folder: Path) -> dict:
+    """Round 3's jobs under ``folder`` (``<method>/<candidate>``) and each method's choice, made
+    once all its candidates have run (more catches, then good catches, then the mean)."""
+    seed, runs, _ = ROUND_JOBS[3]
+    methods = {}
+    for method, (label, *_) in METHODS.items():
+        results = {c: final_evaluations(folder / method / c) for c in ROUNDS[3]}
+        if all(r is None for r in results.values()):
+            continue
+        complete = all((folder / method / c).is_dir() for c in ROUNDS[3])
+        methods[method] = {"label": label, "chosen": select(results, good_catches=True) if complete else None,
+                           "candidates": {c: candidate_numbers(r) for c, r in results.items()}}
+    return {"seed": seed, "runs": runs, "methods": methods}
+
+
+def round3_markdown(numbers: dict) -> list[str]:
+    """Round 3's table: one row per candidate, one column per method that ran any of its jobs."""
+    methods = numbers["methods"]
+    if not methods:
+        return []
+    lines = ["", f"## Round 3 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
+             "The same cells; ‡: the method's choice in round 3 (most final catches, then good catches, then the "
+             "mean), made once all five of its candidates have run.", "",
+             "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
+             "| --- |" + " --- |" * len(methods)]
+    for candidate in ROUNDS[3]:
+        cells = []
+        for m in methods.values():
+            c = m["candidates"][candidate]
+            cell = "-" if c is None else f"{c['catches']} / {c['good_catches']}, {c['mean_final']:.2f}"
+            cells.append(f"{cell} ‡" if m["chosen"] == candidate else cell)
+        lines.append(f"| {candidate}: {CANDIDATES[candidate][0]} | " + " | ".join(cells) + " |")
+    waiting = [m["label"] for m in methods.values() if m["chosen"] is None]
+    if waiting:
+        lines += ["", f"Not chosen yet in round 3, its candidates not all run: {', '.join(waiting)}."]
+    return lines
 
 
 def markdown(numbers: dict) -> str:
@@ -178,7 +227,8 @@ def markdown(numbers: dict) -> str:
         "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
         "| --- |" + " --- |" * len(methods),
     ]
-    for candidate, (description, _) in CANDIDATES.items():
+    for candidate in ROUNDS[2]:
+        description = CANDIDATES[candidate][0]
         cells = []
         for m in methods.values():
             c = m["candidates"][candidate]
@@ -194,8 +244,9 @@ def markdown(numbers: dict) -> str:
                if m["chosen_round2"] is not None and m["chosen_round2"] != m["chosen"]]
     if all(m["chosen_round2"] is not None for m in methods.values()):
         lines += ["", "Round 2 changes the choice of: " + (", ".join(changed) if changed else "no method") + "."]
-    lines += ["", "α₀: " + ", ".join(f"{m['label']} {m['alpha0']:g}" for m in methods.values()) + ".", ""]
-    return "\n".join(lines)
+    lines += ["", "α₀: " + ", ".join(f"{m['label']} {m['alpha0']:g}" for m in methods.values()) + "."]
+    lines += round3_markdown(numbers.get("round3", {"methods": {}}))
+    return "\n".join([*lines, ""])
 
 
 def main(argv: list[str] | None = None) -> int:
