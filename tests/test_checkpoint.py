@@ -213,3 +213,16 @@ def test_sigterm_without_periodic_checkpoints_loses_nothing(tmp_path):
         assert reference.result().returncode == 0
     assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
     assert summary_without_wall(run_dir) == summary_without_wall(tmp_path / "ref")
+
+
+def test_the_previous_checkpoint_is_a_copy_never_a_hard_link(tmp_path):
+    """A job killed between keeping the previous checkpoint and renaming the new one in must not
+    leave both names on one file (issue 38 item 8): damaging one would damage both."""
+    from sde_torchrl.jobs.checkpoint import CHECKPOINT, PREVIOUS, keep_previous
+
+    build("updates=3").train(tmp_path, checkpoint_period=1)
+    path, previous = tmp_path / CHECKPOINT, tmp_path / PREVIOUS
+    keep_previous(path, previous)  # the moment of the kill: before the new checkpoint is renamed in
+    assert previous.read_bytes() == path.read_bytes() and path.stat().st_nlink == previous.stat().st_nlink == 1
+    path.write_bytes(b"damaged")
+    assert load_checkpoint(previous)["updates"] == 3

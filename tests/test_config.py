@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from importlib.util import find_spec
 
 import pytest
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
@@ -49,6 +50,19 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
                                    "logger writes into <run directory>/<exp_name>"),
     (("logger=tensorboard", "logger.exp_name=.."), "logger.exp_name=..: a plain folder name (no '/', not '.' or "
                                                    "'..'): the logger writes into <run directory>/<exp_name>"),
+    (("seed=18446744073709551616",), "seed=18446744073709551616: an integer >= 0 and below 2**64"),
+    (("explorer.init_param=-1e308",),
+     "explorer.init_param=-1e+308: a finite number within float32's range (|x| <= 3.4e+38)"),
+    (("explorer=pgpe", "estimator=pgpe", "explorer.init_param=1e39"),
+     "explorer.init_param=1e+39: a finite number within float32's range (|x| <= 3.4e+38)"),
+    (("logger.exp_name=checkpoint.pt",), "logger.exp_name=checkpoint.pt: a folder name other than the run "
+                                         "directory's own files (.hydra, .lock, job_config.json, metrics.csv, "
+                                         "summary.json, checkpoint.pt, checkpoint.prev.pt, error.txt, train.log, "
+                                         "final_policy.json)"),
+    (("logger.exp_name=summary.json.tmp",), "logger.exp_name=summary.json.tmp: a folder name other than the run "
+                                            "directory's own files (.hydra, .lock, job_config.json, metrics.csv, "
+                                            "summary.json, checkpoint.pt, checkpoint.prev.pt, error.txt, train.log, "
+                                            "final_policy.json)"),
 ])
 def test_bad_value_gives_one_line_naming_key_value_and_allowed(overrides, expected):
     assert config_error_line(*overrides) == expected
@@ -61,10 +75,17 @@ def test_unknown_gym_id_is_rejected_before_building():
 
 @pytest.mark.parametrize("overrides", [
     (), ("explorer=rex",), ("explorer=every_n",), ("explorer=sde_gauss",), ("estimator=enac",),
-    ("actor=mlp", "env.dim=2"), ("logger=tensorboard",), ("logger=wandb",), ("logger=none",),
+    ("actor=mlp", "env.dim=2"), ("logger=tensorboard",), ("logger=none",),
+    pytest.param(("logger=wandb",), marks=pytest.mark.skipif(find_spec("wandb") is None, reason="wandb not installed")),
 ])
 def test_shipped_options_validate(overrides):
     validate(compose_config("+experiment=minimize", *overrides))
+
+
+@pytest.mark.skipif(find_spec("wandb") is not None, reason="wandb is installed")
+def test_a_logger_whose_package_is_missing_is_a_config_error_with_the_install_hint():
+    assert config_error_line("logger=wandb") == ("logger=wandb: a logger whose package is installed: wandb is not "
+                                                 "(pip install wandb; or logger=csv or logger=none)")
 
 
 @pytest.mark.parametrize("overrides", [

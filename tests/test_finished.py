@@ -227,3 +227,11 @@ def test_every_committed_run_directory_reads_as_finished():
     assert len(directories) >= 78
     for directory in directories:
         assert read_finished_run(directory).summary["updates_done"] > 0, directory
+
+
+def test_a_logger_folder_cannot_take_the_name_of_a_file_the_job_writes():
+    from sde_torchrl.config.schemas import RUN_DIRECTORY_NAMES
+    from sde_torchrl.jobs.checkpoint import PREVIOUS
+    from sde_torchrl.jobs.run_dir import JOB_FILES
+
+    assert {*JOB_FILES, PREVIOUS, ".hydra", "train.log"} <= set(RUN_DIRECTORY_NAMES)

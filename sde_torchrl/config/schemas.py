@@ -12,6 +12,7 @@ allowed>``.
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, List, Optional
@@ -24,6 +25,7 @@ from sde_torchrl.trainers.settings import TrainingSettings
 from sde_torchrl.utils.checks import (
     ArgumentError,
     finite,
+    float32_number,
     fraction,
     is_finite_number,
     is_int,
@@ -301,9 +303,9 @@ class ExplorerConf:
         noise_schedule(self.schedule, self.every_n, "explorer.", rollout_steps=self.rollout_steps)
         one_of("explorer.sharing", self.sharing, SHARINGS)
         one_of("explorer.sigma_transform", self.sigma_transform, SIGMA_TRANSFORMS)
-        finite("explorer.init_param", self.init_param)
+        float32_number("explorer.init_param", self.init_param)
         if self.gaussian_init_param is not None:
-            finite("explorer.gaussian_init_param", self.gaussian_init_param)
+            float32_number("explorer.gaussian_init_param", self.gaussian_init_param)
 
 
 @dataclass
@@ -331,7 +333,7 @@ class PGPEExplorerConf:
     squash: bool = False
 
     def __post_init__(self) -> None:
-        finite("explorer.init_param", self.init_param)
+        float32_number("explorer.init_param", self.init_param)
 
 
 @dataclass
@@ -481,6 +483,10 @@ class TensorboardLoggerConf(LoggerConf):
 
     _target_: str = "torchrl.record.loggers.tensorboard.TensorboardLogger"
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_installed("tensorboard", "tensorboard")
+
 
 @dataclass
 class WandbLoggerConf(LoggerConf):
@@ -488,7 +494,7 @@ class WandbLoggerConf(LoggerConf):
     ``<run dir>/wandb``; ``wandb sync`` uploads them later).
 
     Examples:
-        >>> WandbLoggerConf().offline
+        >>> WandbLoggerConf.offline  # an instance needs wandb installed
         True
     """
 
@@ -496,12 +502,33 @@ class WandbLoggerConf(LoggerConf):
     project: str = "sde_torchrl"
     offline: bool = True
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_installed("wandb", "wandb")
+
+
+#: Names of the files a job writes into its run directory (``sde_torchrl.jobs.run_dir``): a
+#: logger's folder must not take one of them.
+RUN_DIRECTORY_NAMES = (".hydra", ".lock", "job_config.json", "metrics.csv", "summary.json", "checkpoint.pt",
+                       "checkpoint.prev.pt", "error.txt", "train.log", "final_policy.json")
+
 
 def _check_exp_name(name: str) -> None:
-    """A logger's folder name: it is created inside the run directory, and stays there."""
+    """A logger's folder name: it is created inside the run directory, and stays there, beside
+    the job's own files (:data:`RUN_DIRECTORY_NAMES`, and their temporary ``.tmp`` names)."""
     if not name or "/" in name or "\\" in name or name in (".", ".."):
         raise ArgumentError("logger.exp_name", name, "a plain folder name (no '/', not '.' or '..'): the logger "
                                                      "writes into <run directory>/<exp_name>")
+    if name.removesuffix(".tmp") in RUN_DIRECTORY_NAMES:
+        raise ArgumentError("logger.exp_name", name, "a folder name other than the run directory's own files "
+                                                     f"({', '.join(RUN_DIRECTORY_NAMES)})")
+
+
+def _check_installed(module: str, package: str) -> None:
+    """The logger's package can be imported (found, not imported: it may be slow to import)."""
+    if importlib.util.find_spec(module) is None:
+        raise ArgumentError("logger", module, f"a logger whose package is installed: {module} is not (pip install "
+                                              f"{package}; or logger=csv or logger=none)")
 
 
 @dataclass
@@ -577,6 +604,8 @@ class TrainConf:
             positive_int(name, getattr(self, name))
         for name in ("seed", "checkpoint_period"):
             non_negative_int(name, getattr(self, name))
+        if self.seed >= 2**64:  # torch seeds its generators with 64 bits
+            raise ArgumentError("seed", self.seed, "an integer >= 0 and below 2**64")
         finite("lr", self.lr, minimum=0, strict=True)
         loop_settings(self)  # the training loop's own fields: TrainingSettings checks them
         if self.max_memory_gb is not None:

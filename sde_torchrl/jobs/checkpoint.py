@@ -24,7 +24,7 @@ restores each component in place as it reads it, where a resume must first check
 directory tree or a zip of per-tensor files, not one file ``torch.load`` reads.
 :class:`~torchrl.checkpoint.CheckpointRotation` rotates such checkpoints only (named by step,
 newest chosen by manifest, so a damaged newest one is still chosen): :func:`keep_previous` keeps
-the one before, as a hard link.
+the one before, as a copy (never a hard link: damaging one file must not damage both).
 """
 
 from __future__ import annotations
@@ -265,7 +265,7 @@ def save_job(
         optimizer: the optimiser whose state dict is saved.
         streams: the job's per-run streams (:func:`job_streams`).
 
-    The checkpoint it replaces is kept as :data:`PREVIOUS` beside it (a hard link, or a copy).
+    The checkpoint it replaces is kept as :data:`PREVIOUS` beside it (a copy).
     """
     if path.exists():
         keep_previous(path, path.with_name(PREVIOUS))
@@ -282,19 +282,21 @@ def save_job(
 
 
 def keep_previous(path: Path, previous: Path) -> None:
-    """Makes ``previous`` a durable copy of ``path`` (a hard link where the filesystem allows),
-    replacing it atomically: at every moment one of the two is a complete checkpoint."""
-    tmp = previous.with_name(previous.name + ".tmp")
-    tmp.unlink(missing_ok=True)
-    try:
-        try:
-            os.link(path, tmp)
-        except OSError:  # no hard links here: copy
-            write_atomically(tmp, lambda f: f.write(path.read_bytes()))
-        os.replace(tmp, previous)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Makes ``previous`` a durable copy of ``path``, replacing it atomically: at every moment
+    one of the two is a complete checkpoint. A copy, not a hard link: a job killed between this
+    and the next checkpoint's rename would otherwise leave both names on one file, and damaging
+    one would damage both.
+
+    Examples:
+        >>> import tempfile
+        >>> folder = Path(tempfile.mkdtemp())
+        >>> _ = (folder / CHECKPOINT).write_bytes(b"state")
+        >>> keep_previous(folder / CHECKPOINT, folder / PREVIOUS)
+        >>> (folder / PREVIOUS).read_bytes(), (folder / PREVIOUS).stat().st_nlink
+        (b'state', 1)
+    """
+    data = path.read_bytes()
+    write_atomically(previous, lambda f: f.write(data))
 
 
 def _pointing_to_previous(error: DamagedFileError, previous: Path) -> DamagedFileError:

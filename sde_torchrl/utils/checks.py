@@ -125,6 +125,29 @@ def is_finite_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+#: The largest finite float32: a value stored in a float32 parameter must not exceed it.
+FLOAT32_MAX = 3.4028234663852886e38
+
+
+def float32_number(name: str, value: Any) -> float:
+    """Returns ``value`` if it is a finite number a float32 parameter can hold (``|value| <= 3.4e38``).
+
+    Raises:
+        ArgumentError: otherwise.
+
+    Examples:
+        >>> float32_number("explorer.init_param", -2.0)
+        -2.0
+        >>> float32_number("explorer.init_param", -1e308)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: explorer.init_param=-1e+308: a finite number within float32's range ...
+    """
+    if not is_finite_number(value) or abs(value) > FLOAT32_MAX:
+        raise ArgumentError(name, value, f"a finite number within float32's range (|x| <= {FLOAT32_MAX:.2g})")
+    return value
+
+
 def positive_int(name: str, value: Any) -> int:
     """Returns ``value`` if it is an integer >= 1.
 
