@@ -94,16 +94,40 @@ def one_line(error: BaseException) -> tuple[str, int]:
         return described, EXIT_CONFIG
     if _is_foreign_checkpoint(error):
         return str(error), EXIT_CONFIG
-    if isinstance(error, FileExistsError) and error.filename and Path(error.filename).is_file():
-        # Hydra makes the run directory before main(): a file of that name stops it there
-        return (f"{error.filename} is a file, not a run directory: give the job another hydra.run.dir "
-                "(hydra.sweep.dir for a sweep)"), EXIT_CONFIG
+    unusable = unusable_run_directory(error)
+    if unusable is not None:
+        return unusable, EXIT_CONFIG
     if isinstance(error, DiskFullError):
         return str(error), EXIT_FAILED
     if isinstance(error, (RunDirectoryInUse, DamagedFileError)):
         return str(error), EXIT_IN_USE if isinstance(error, RunDirectoryInUse) else EXIT_DAMAGED
     text = " ".join(str(error).split()) or type(error).__name__
     return (text if type(error).__name__ in text else f"{type(error).__name__}: {text}"), EXIT_FAILED
+
+
+def unusable_run_directory(error: BaseException) -> str | None:
+    """The one line for a run directory that cannot be made (Hydra makes it before :func:`main`):
+    a file of that name, a symbolic link to nothing (dangling, or a loop), or a path below a file.
+
+    Examples:
+        >>> import tempfile
+        >>> link = Path(tempfile.mkdtemp(), "run")
+        >>> link.symlink_to(link.with_name("gone"))
+        >>> unusable_run_directory(FileExistsError(17, "File exists", str(link)))  # doctest: +ELLIPSIS
+        '.../run is a symbolic link to nothing (dangling, or a loop): give the job another hydra.run.dir ...'
+    """
+    name = getattr(error, "filename", None)
+    if not isinstance(error, (FileExistsError, NotADirectoryError)) or not name:
+        return None
+    path, another = Path(name), "give the job another hydra.run.dir (hydra.sweep.dir for a sweep)"
+    if path.is_symlink() and not path.exists():
+        return f"{path} is a symbolic link to nothing (dangling, or a loop): {another}, or remove the link"
+    if path.is_file():
+        return f"{path} is a file, not a run directory: {another}"
+    above = next((parent for parent in path.parents if parent.is_file()), None)
+    if above is not None:
+        return f"{path} is below a file ({above}), not in a directory: {another}"
+    return None
 
 
 def _is_foreign_checkpoint(error: BaseException) -> bool:

@@ -235,3 +235,18 @@ def test_a_logger_folder_cannot_take_the_name_of_a_file_the_job_writes():
     from sde_torchrl.jobs.run_dir import JOB_FILES
 
     assert {*JOB_FILES, PREVIOUS, ".hydra", "train.log"} <= set(RUN_DIRECTORY_NAMES)
+
+
+@pytest.mark.parametrize("kind", ["dangling link", "link loop", "below a file"])
+def test_a_run_directory_that_cannot_be_made_is_a_config_error_in_one_line(tmp_path, kind):
+    """Issue 38 item 7: exit 2 and one line naming the path, instead of exit 1 with a raw OSError."""
+    (tmp_path / "file").write_text("x\n")
+    path = {"dangling link": tmp_path / "dangling", "link loop": tmp_path / "loop",
+            "below a file": tmp_path / "file" / "run"}[kind]
+    if kind != "below a file":
+        path.symlink_to(tmp_path / "nowhere" if kind == "dangling link" else path)
+    result = run_cli("+experiment=minimize", "updates=2", "logger=none", run_dir=path)
+    assert result.returncode == 2, result.stderr[-2000:]
+    says = ("below a file (" if kind == "below a file" else "is a symbolic link to nothing (dangling, or a loop)")
+    lines = own_stderr_lines(result.stderr)
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path} ") and says in lines[0], lines
