@@ -1,6 +1,7 @@
 """A finished run is final (issue 38): rerunning its command on its directory, with or without
 its checkpoint, changes nothing; the reader checks what the job checks; sweep readers find jobs by
-their job record and refuse a sweep with a job that is not finished."""
+their job record and refuse a sweep with a job that is not finished; and the issue's smaller
+items (run directories that cannot be made, a full disk while closing ``metrics.csv``)."""
 
 from __future__ import annotations
 
@@ -250,3 +251,28 @@ def test_a_run_directory_that_cannot_be_made_is_a_config_error_in_one_line(tmp_p
     says = ("below a file (" if kind == "below a file" else "is a symbolic link to nothing (dangling, or a loop)")
     lines = own_stderr_lines(result.stderr)
     assert len(lines) == 1 and lines[0].startswith(f"error: {path} ") and says in lines[0], lines
+
+
+def test_a_full_disk_while_closing_metrics_is_named_not_a_bare_os_error(tmp_path):
+    """Rows left in the buffer by a full disk fail again when the file is closed: that second
+    ENOSPC must not replace the named DiskFullError (issue 38 item 8)."""
+    import subprocess as sp
+
+    import torch
+
+    from sde_torchrl.jobs.run_dir import MetricsFile, csv_lines, metric_rows
+    from sde_torchrl.utils.files import DiskFullError
+
+    device = tmp_path / "device"
+    device.mkdir()
+    made = sp.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(device)], capture_output=True)
+    if made.returncode:
+        pytest.skip(f"cannot mount a tmpfs here: {made.stderr.decode().strip()}")
+    try:
+        (device / "ballast").write_bytes(bytes(1024 * 1000))
+        rows = metric_rows(0, 0, 5, torch.full((2000,), -1.5), None, torch.ones(2000), torch.ones(3, 2000))
+        with pytest.raises(DiskFullError, match=f"^{device / 'metrics.csv'} could not be written: no space left"):
+            with MetricsFile(device / "metrics.csv", csv_lines([])) as metrics:
+                metrics.write(rows)
+    finally:
+        sp.run(["umount", str(device)], check=True)

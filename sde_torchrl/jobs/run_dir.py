@@ -857,4 +857,11 @@ class MetricsFile:
             raise as_disk_full(self.path, error) from error
 
     def __exit__(self, *exc: Any) -> None:
-        self._file.close()
+        """Closes the file; a failure to close (rows still buffered after a full disk) never
+        replaces the error in flight, and is itself a :class:`DiskFullError` naming the file."""
+        try:
+            self._file.close()
+        except OSError as error:
+            if exc[0] is None:
+                raise as_disk_full(self.path, error) from error
+            # the error in flight (a DiskFullError naming this file) is re-raised as it is
