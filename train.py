@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import logging
 import os
+import shlex
 import sys
 import traceback
 from collections.abc import Iterator
@@ -75,6 +76,8 @@ class JobFailure:
 
 #: Failures of this process's jobs, reported once the (multi)run is over.
 FAILURES: list[JobFailure] = []
+#: The override that resumes this process's job (its run directory, or its sweep's), shell-quoted.
+RESUME: dict[str, str] = {}
 #: This process's jobs found finished in their directories: one line each, reported at the end
 #: (not logged: the log file is in the run directory, which is left as it was).
 FINISHED: list[str] = []
@@ -198,6 +201,19 @@ def main(cfg: DictConfig) -> dict[str, Any] | None:
     return job_report(FAILURES[failures:], FINISHED[finished:])
 
 
+def resume_override(directory: str, multirun: bool) -> str:
+    """The override that names the directory a job resumes in, quoted for the shell (a path with
+    spaces pastes back as one argument): the sweep's directory for a job of a multirun.
+
+    Examples:
+        >>> resume_override("runs/a b", multirun=False)
+        "'hydra.run.dir=runs/a b'"
+        >>> resume_override("runs/sweep", multirun=True)
+        'hydra.sweep.dir=runs/sweep'
+    """
+    return shlex.quote(f"hydra.{'sweep' if multirun else 'run'}.dir={directory}")
+
+
 def job_report(failures: list[JobFailure], finished: list[str]) -> dict[str, Any] | None:
     """A job's failure and finished line as plain data, sent between processes.
 
@@ -253,6 +269,7 @@ def job(cfg: DictConfig) -> None:
     out_dir = hydra_cfg.runtime.output_dir
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     overrides = list(hydra_cfg.overrides.task)
+    RESUME["override"] = resume_override(hydra_cfg.sweep.dir if multirun else out_dir, multirun)
     with ExitStack() as stack:
         try:
             stack.enter_context(hold_run_directory(out_dir))
@@ -308,8 +325,9 @@ def cli() -> int:
         with sweep_returns_kept(sweep_returns):
             main()
     except TrainingInterrupted as stop:
+        resume = RESUME.get("override") or resume_override(str(stop.out_dir), multirun=False)
         sys.stderr.write(f"interrupted by {stop.signal_name}: checkpoint after update {stop.updates_done} in "
-                         f"{stop.out_dir}; run the same command with hydra.run.dir={stop.out_dir} to resume\n")
+                         f"{shlex.quote(str(stop.out_dir))}; run the same command with {resume} to resume\n")
         return stop.exit_code
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")

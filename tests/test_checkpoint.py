@@ -226,3 +226,32 @@ def test_the_previous_checkpoint_is_a_copy_never_a_hard_link(tmp_path):
     assert previous.read_bytes() == path.read_bytes() and path.stat().st_nlink == previous.stat().st_nlink == 1
     path.write_bytes(b"damaged")
     assert load_checkpoint(previous)["updates"] == 3
+
+
+@pytest.mark.parametrize("multirun", [False, True])
+def test_the_resume_line_pastes_back_as_it_is_printed(tmp_path, multirun):
+    """Issue 38 item 8: a path with a space is quoted for the shell, and a job of a multirun names
+    its sweep's directory (hydra.sweep.dir), not its own; the printed override, pasted back into
+    the same command, resumes the job to its end."""
+    import shlex
+    import sys
+
+    where = tmp_path / "runs with spaces"
+    run_dir = where / "0" if multirun else where
+    cli = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=0", "logger=none")
+    proc = subprocess.Popen(train_command(*cli, run_dir=where, multirun=multirun), cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while rows_in(run_dir / "metrics.csv") < 40:
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()[-2000:] if proc.poll() else ""
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 143, stderr[-2000:]
+    line = next(line for line in own_stderr_lines(stderr) if line.startswith("interrupted by SIGTERM"))
+    override = shlex.quote(f"hydra.{'sweep' if multirun else 'run'}.dir={where}")
+    assert line.endswith(f"; run the same command with {override} to resume"), line
+    resumed = subprocess.run([sys.executable, "train.py", *(["-m"] if multirun else []), *cli, *shlex.split(override)],
+                             cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "resuming" in resumed.stdout and (run_dir / "summary.json").exists()
