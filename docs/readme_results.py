@@ -2,7 +2,7 @@
 
 The README holds a short table of the headline results between the lines ``<!-- results:start -->``
 and ``<!-- results:end -->``. This script writes that table from ``docs/table1/table1.json``,
-the ball-catching pages' JSON under ``docs/ballcatch/`` (``{fig5,fig6,methods}.json``,
+the ball-catching pages' JSON under ``docs/ballcatch/`` (``{fig5,fig6,methods,reevaluation}.json``,
 ``fig5_selected/fig5.json``, ``fig6_selected/fig6.json``, ``methods_selected/methods.json``,
 ``selected/fig5.json``), the quick start's run (``docs/ballcatch/runs/selected/seed0/summary.json``),
 ``docs/ppo/bench_ppo.json`` and ``docs/sac/bench_sac.json``, so that no figure in the README is typed by hand::
@@ -40,6 +40,11 @@ def _percent(explorer: dict, which: str = "best") -> str:
     return f"{round(100 * count / runs)} % [{round(100 * low)}, {round(100 * high)}]"
 
 
+def _held(arm: dict, key: str) -> str:
+    low, high = arm[f"{key}_interval"]
+    return f"{round(100 * arm[key] / arm['runs'])} % [{round(100 * low)}, {round(100 * high)}]"
+
+
 def summary() -> str:
     """The README's results table (Markdown), from the committed result files."""
     table1 = _load("table1/table1.json")["rows"]
@@ -51,6 +56,8 @@ def summary() -> str:
     selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
     fig5_selected = _load("ballcatch/fig5_selected/fig5.json")["explorers"]
     fig6_selected = _load("ballcatch/fig6_selected/fig6.json")["explorers"]
+    reevaluation = _load("ballcatch/reevaluation.json")["explorers"]
+    held = {explorer: arms["pybrain_held"] for explorer, arms in reevaluation.items()}
     methods_selected = _load("ballcatch/methods_selected/methods.json")["explorers"]
     gpomdp_selected, pgpe_selected = methods_selected["sde+gpomdp"], methods_selected["pgpe"]
     quick_start = _load("ballcatch/runs/selected/seed0/summary.json")["final_eval_return"][0]
@@ -86,6 +93,12 @@ def summary() -> str:
          f"SDE {_percent(fig5_selected['sde'], 'final_policy')}, REX {_percent(fig5_selected['rex'], 'final_policy')}; "
          f"SDE {_percent(fig5_selected['sde'])}, REX {_percent(fig5_selected['rex'])}",
          f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach one", "docs/reproduce/fig5_6.md"),
+        (f"Fig. 5's final policies at the selected learners with the arm held level (a diagnostic, 20 episodes "
+         f"each, {held['sde']['runs']} runs each): catching; making a good catch",
+         f"SDE {_held(held['sde'], 'catches')}, REX {_held(held['rex'], 'catches')}; "
+         f"SDE {_held(held['sde'], 'good_catches')}, REX {_held(held['rex'], 'good_catches')}",
+         f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach a catch, "
+         f"{fig5_selected['sde']['paper']['-1.0']} % a good one (in training)", "docs/reproduce/fig5_6.md"),
         (f"Fig. 6 at each explorer's selected learner (ENAC, σ̂ fixed), {fig6_selected['sde']['runs']} runs each: "
          "ending with a catch; the final policy catching on 20 episodes; reaching a catch",
          f"SDE {_percent(fig6_selected['sde'], 'final')}, REX {_percent(fig6_selected['rex'], 'final')}; "

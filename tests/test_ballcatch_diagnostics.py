@@ -42,3 +42,49 @@ def test_gravity_torques_agree_with_the_simulators_inverse_dynamics():
     by_hand = arm_start.weight_torques()
     for joint, simulated in zip(("shoulder", "elbow", "wrist"), torques[:3], strict=True):
         assert abs(simulated) == pytest.approx(by_hand[joint], rel=0.02), joint
+
+
+reevaluation = load_script("ballcatch_reevaluation")
+final = load_script("ballcatch_final")
+FIG5_SELECTED = DOCS / "runs" / "fig5_selected"
+
+
+def test_the_reevaluation_page_is_its_scripts_output_from_the_committed_files(tmp_path):
+    assert reevaluation.main([str(FIG5_SELECTED), "--out", str(tmp_path)]) == 0
+    for name in ("reevaluation.md", "reevaluation.json"):
+        assert (tmp_path / name).read_text() == (DOCS / name).read_text(), name
+
+
+def test_a_committed_reevaluation_is_what_the_code_gives(monkeypatch):
+    """The first run of the SDE sweep's first job, re-evaluated in the held arm now, gives the
+    committed returns and behaviours of its 20 episodes."""
+    from sde_torchrl.jobs.run_dir import finished_runs
+
+    job = finished_runs(FIG5_SELECTED / "sde" / "0")[0]
+    committed = json.loads((job.path / "reevaluation_pybrain_held.json").read_text())
+    monkeypatch.setitem(job.summary, "runs", 1)  # evaluate run 0 alone
+    result = final.evaluate_job(job, committed["episodes"], committed["seed"], chunk=1, model="pybrain_held")
+    assert result["final_policy_return"] == pytest.approx(committed["final_policy_return"][:1], abs=1e-6)
+    for key, values in result["per_episode"].items():
+        assert values[0] == pytest.approx(committed["per_episode"][key][0], abs=1e-5, nan_ok=True), key
+
+
+@pytest.mark.parametrize("change", [0.06, "level"])
+def test_the_reevaluation_refuses_a_shipped_arm_file_that_differs_from_final_policy(tmp_path, change):
+    """Beyond the tolerance, or at another of the paper's levels, the shipped arm's return is not
+    the committed one; within it, the difference is recorded."""
+    job = tmp_path / "sde" / "0"
+    job.mkdir(parents=True)
+    found = json.loads((FIG5_SELECTED / "sde" / "0" / "reevaluation_pybrain.json").read_text())
+    (job / "reevaluation_pybrain.json").write_text(json.dumps(found))
+    committed = json.loads((FIG5_SELECTED / "sde" / "0" / "final_policy.json").read_text())
+    returns = committed["final_policy_return"] = found["final_policy_return"][:]
+    returns[3] += 0.01
+    (job / "final_policy.json").write_text(json.dumps(committed))
+    assert reevaluation.load([tmp_path])[1] == {"sde": {3: pytest.approx(-0.01)}}
+    shipped = found["final_policy_return"][3]
+    assert -1.1 < shipped < -1.06  # a catch within the tolerance of the level below
+    returns[3] = -1.1001 if change == "level" else shipped + change
+    (job / "final_policy.json").write_text(json.dumps(committed))
+    with pytest.raises(SystemExit, match="does not reproduce"):
+        reevaluation.load([tmp_path])
