@@ -175,14 +175,16 @@ def candidate_numbers(finals: list[float] | None) -> dict | None:
 
 def round3_numbers(folder: Path) -> dict:
     """Round 3's jobs under ``folder`` (``<method>/<candidate>``) and each method's choice, made
-    once all its candidates have run (more catches, then good catches, then the mean)."""
+    once all its candidates have finished or failed (more catches, then good catches, then the
+    mean; a failed job counts as no catch)."""
     seed, runs, _ = ROUND_JOBS[3]
     methods = {}
     for method, (label, *_) in METHODS.items():
         results = {c: final_evaluations(folder / method / c) for c in ROUNDS[3]}
         if all(r is None for r in results.values()):
             continue
-        complete = all((folder / method / c).is_dir() for c in ROUNDS[3])
+        complete = all(any((folder / method / c / name).exists() for name in ("summary.json", "error.txt"))
+                       for c in ROUNDS[3])  # finished or failed; a running job has neither
         methods[method] = {"label": label, "chosen": select(results, good_catches=True) if complete else None,
                            "candidates": {c: candidate_numbers(r) for c, r in results.items()}}
     return {"seed": seed, "runs": runs, "methods": methods}
