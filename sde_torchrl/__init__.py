@@ -23,6 +23,7 @@ _LAZY = {
     **dict.fromkeys(("SDEActor", "action_bounds", "make_sde_actor"), "sde_torchrl.modules.sde_actor"),
     "BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
     "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched",
+    **dict.fromkeys(("catch_level", "catch_outcomes"), "sde_torchrl.envs.ballcatch.outcomes"),
 }
 
 
@@ -51,6 +52,8 @@ __all__ = [
     "SDEParams",
     "TanhSDENormal",
     "action_bounds",
+    "catch_level",
+    "catch_outcomes",
     "episode_returns",
     "episode_scores",
     "expln",
