@@ -158,7 +158,13 @@ def run_job(
     config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
     labels.update(seed=conf.seed, config=config)
-    trainer = build_trainer(conf, out_dir)
+    if conf.algorithm is not None:  # PPO: its own loop, the same run directory
+        from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
+
+        labels["algorithm"] = choices.get("algorithm")
+        trainer = build_onpolicy_trainer(conf, out_dir)
+    else:
+        trainer = build_trainer(conf, out_dir)
     try:
         return trainer.train(out_dir, labels, config=config, checkpoint_period=conf.checkpoint_period,
                              progress=progress)

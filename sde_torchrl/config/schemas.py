@@ -42,6 +42,7 @@ from sde_torchrl.utils.options import (
     LR_SCHEDULES,
     NORMALIZATIONS,
     REWARD_STATES,
+    ROLLOUT_SCHEDULES,
     SHARINGS,
     SIGMA_TRANSFORMS,
 )
@@ -337,6 +338,93 @@ class PGPEExplorerConf:
 
 
 @dataclass
+class GaussianExplorerConf:
+    """``explorer=gaussian``: the plain-Gaussian baseline of ``algorithm=ppo``: i.i.d. noise with
+    a learned state-independent standard deviation per action, ``σ = exp(init_param)`` at the
+    start (SB3's PPO and A2C without ``use_sde``; :mod:`sde_torchrl.modules.gaussian`).
+
+    Attributes:
+        init_param: the initial ``log σ`` (SB3's ``log_std_init``; ``-2``: ``σ ≈ 0.135``).
+        learn_sigma: learn ``σ`` (else it stays at its start value).
+        squash: tanh on the action (TorchRL's ``TanhNormal``).
+
+    Examples:
+        >>> GaussianExplorerConf().init_param
+        -2.0
+    """
+
+    _target_: str = "sde_torchrl.modules.gaussian.GaussianScale"
+    init_param: float = -2.0
+    learn_sigma: bool = True
+    squash: bool = False
+
+    def __post_init__(self) -> None:
+        float32_number("explorer.init_param", self.init_param)
+
+
+@dataclass
+class PPOConf:
+    """``algorithm=ppo``: Proximal Policy Optimization with TorchRL's ``ClipPPOLoss`` and ``GAE``
+    (:mod:`sde_torchrl.trainers.ppo`) on ``env=gym``, exploring with ``explorer=sde`` (or
+    ``gsde``, features from the actor's last hidden layer) or ``explorer=gaussian``. The
+    defaults are Stable-Baselines3's ``PPO`` defaults; ``lr`` and ``optimizer`` are the top
+    level's, ``updates`` counts iterations of ``n_envs × n_steps`` env steps.
+
+    Attributes:
+        n_envs: envs stepped side by side.
+        n_steps: steps per env and update (rollout length).
+        batch_size: steps per minibatch, at most ``n_envs × n_steps``.
+        n_epochs: passes over each rollout.
+        gamma: discount.
+        gae_lambda: GAE's ``λ``.
+        clip_range: PPO's clipping ``ε``.
+        ent_coef: weight of the entropy bonus.
+        vf_coef: weight of the critic's loss.
+        max_grad_norm: bound on the gradient norm; ``null``: not clipped.
+        normalize_advantage: standardise the advantages per minibatch.
+        normalize: SB3's ``VecNormalize``: running observation and reward normalisation
+            (:mod:`sde_torchrl.envs.normalize`).
+        critic_hidden: the critic's hidden layers; ``null``: the actor's (``actor.hidden``).
+
+    Examples:
+        >>> PPOConf().n_steps
+        2048
+    """
+
+    n_envs: int = 1
+    n_steps: int = 2048
+    batch_size: int = 64
+    n_epochs: int = 10
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: Optional[float] = 0.5
+    normalize_advantage: bool = True
+    normalize: bool = False
+    critic_hidden: Optional[List[int]] = None
+
+    def __post_init__(self) -> None:
+        for name in ("n_envs", "n_steps", "batch_size", "n_epochs"):
+            positive_int(f"algorithm.{name}", getattr(self, name))
+        if self.batch_size > self.n_envs * self.n_steps:
+            raise ArgumentError("algorithm.batch_size", self.batch_size,
+                                f"at most algorithm.n_envs × algorithm.n_steps = {self.n_envs * self.n_steps} "
+                                "(the steps of one rollout)")
+        for name in ("gamma", "gae_lambda"):
+            fraction(f"algorithm.{name}", getattr(self, name))
+        finite("algorithm.clip_range", self.clip_range, minimum=0, strict=True)
+        for name in ("ent_coef", "vf_coef"):
+            finite(f"algorithm.{name}", getattr(self, name), minimum=0)
+        if self.max_grad_norm is not None:
+            finite("algorithm.max_grad_norm", self.max_grad_norm, minimum=0, strict=True)
+        if self.critic_hidden is not None and not all(is_int(size) and size >= 1 for size in self.critic_hidden):
+            raise ArgumentError("algorithm.critic_hidden", self.critic_hidden,
+                                "null (the actor's hidden layers) or a list of positive integers")
+
+
+@dataclass
 class EstimatorConf:
     """``estimator=reinforce|enac|gpomdp|pgpe``: episodic REINFORCE with the optimal per-parameter
     baseline, the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``), GPOMDP (each
@@ -542,6 +630,11 @@ class TrainConf:
         estimator: the ``estimator`` group's schema.
         optimizer: the ``optimizer`` group's schema (``sgd``: eq. 1).
         logger: the ``logger`` group's schema; empty or ``null`` for none.
+        algorithm: ``null``, the paper's episodic estimators (the ``estimator`` group), or the
+            ``algorithm`` group's schema (``ppo``: :class:`PPOConf`), which trains one learner on
+            ``env=gym`` with ``actor=mlp`` and ``estimator`` null; of the top-level keys it reads
+            ``seed``, ``updates``, ``lr``, ``eval_period``, ``eval_episodes``, ``checkpoint_period``,
+            ``progress`` and ``threads``.
         seed: job seed; run ``r``'s streams derive from ``(seed, first_run + r)``.
         runs: independent learners trained side by side in this process.
         first_run: global index of the first run (shards of a sweep).
@@ -580,6 +673,7 @@ class TrainConf:
     estimator: Any = None
     optimizer: Any = None
     logger: Any = None
+    algorithm: Any = None
     seed: int = 0
     runs: int = 1
     first_run: int = 0
@@ -610,6 +704,15 @@ class TrainConf:
         loop_settings(self)  # the training loop's own fields: TrainingSettings checks them
         if self.max_memory_gb is not None:
             finite("max_memory_gb", self.max_memory_gb, minimum=0, strict=True)
+        if self.algorithm is not None:
+            _check_onpolicy(self)
+            return
+        if isinstance(self.explorer, GaussianExplorerConf):
+            raise ArgumentError("explorer", "gaussian", "an SDE or PGPE explorer for the episodic estimators "
+                                                        "(explorer=gaussian is the baseline of algorithm=ppo)")
+        if self.estimator is None and self.env is not None:
+            raise ArgumentError("estimator", None, "an estimator (reinforce, enac, gpomdp, pgpe) unless "
+                                                   "algorithm=ppo")
         _check_can_learn(self)
         _check_pgpe(self)
         if self.env is not None and self.estimator is not None:
@@ -627,6 +730,43 @@ def loop_settings(conf: TrainConf) -> TrainingSettings:
     """
     values = {**vars(conf), "episode_length": getattr(conf.env, "episode_length", 1)}
     return TrainingSettings(**{f.name: values[f.name] for f in fields(TrainingSettings)})
+
+
+def _check_onpolicy(conf: TrainConf) -> None:
+    """What ``algorithm=ppo`` trains on: one learner, a gymnasium env, an MLP actor, an SDE or
+    Gaussian explorer, no episodic estimator; the SB3-style noise counts over its rollouts."""
+    name = "ppo"
+    if conf.runs != 1:
+        raise ArgumentError("runs", conf.runs, f"1 with algorithm={name} (one learner per job; sweep over seed "
+                                               "for more)")
+    if conf.device != "cpu":
+        raise ArgumentError("device", conf.device, f"cpu with algorithm={name}")
+    if conf.estimator is not None:
+        target = str(getattr(conf.estimator, "_target_", "")).rsplit(".", 1)[-1]
+        raise ArgumentError("estimator", target, f"null with algorithm={name} (its loss is the algorithm's): "
+                                                 "estimator=null")
+    if not isinstance(conf.env, GymEnvConf):
+        target = str(getattr(conf.env, "_target_", "")).rsplit(".", 1)[-1]
+        raise ArgumentError("env", target, f"env=gym with algorithm={name} (a gymnasium env such as "
+                                           "env.id=Pendulum-v1)")
+    if conf.env.normalize_obs is not None or conf.env.constant_feature:
+        key = "env.normalize_obs" if conf.env.normalize_obs is not None else "env.constant_feature"
+        raise ArgumentError(key, getattr(conf.env, key.split(".")[1]),
+                            f"null (false) with algorithm={name}: it normalises with running statistics "
+                            "(algorithm.normalize) and SDE sees the actor's last hidden layer")
+    if not isinstance(conf.actor, MLPActorConf) or not conf.actor.bias:
+        key, value = ("actor", str(getattr(conf.actor, "_target_", "")).rsplit(".", 1)[-1]) \
+            if not isinstance(conf.actor, MLPActorConf) else ("actor.bias", False)
+        raise ArgumentError(key, value, f"actor=mlp with bias with algorithm={name} (SDE's features are its "
+                                        "last hidden layer)")
+    if isinstance(conf.explorer, PGPEExplorerConf):
+        raise ArgumentError("explorer", "pgpe", f"an SDE explorer (sde, gsde, ...) or gaussian with algorithm={name}")
+    if isinstance(conf.explorer, ExplorerConf):
+        if conf.explorer.schedule in ROLLOUT_SCHEDULES and conf.explorer.rollout_steps not in (
+                None, conf.algorithm.n_steps):
+            raise ArgumentError("explorer.rollout_steps", conf.explorer.rollout_steps,
+                                f"null or algorithm.n_steps ({conf.algorithm.n_steps}) with algorithm={name}: "
+                                "SB3 counts the noise's steps over each rollout")
 
 
 def _check_pgpe(conf: TrainConf) -> None:
@@ -685,6 +825,8 @@ SCHEMAS: dict[str, type] = {
     "actor/mlp": MLPActorConf,
     "explorer/sde": ExplorerConf,
     "explorer/pgpe": PGPEExplorerConf,
+    "explorer/gaussian": GaussianExplorerConf,
+    "algorithm/ppo": PPOConf,
     "estimator/episodic": EstimatorConf,
     "optimizer/sgd": SGDOptimizerConf,
     "optimizer/adam": AdamOptimizerConf,

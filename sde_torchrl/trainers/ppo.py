@@ -1,0 +1,85 @@
+"""PPO's update of a rollout: epochs of shuffled minibatches through TorchRL's ``ClipPPOLoss``.
+
+As Stable-Baselines3's ``PPO.train``: ``n_epochs`` passes over the rollout, each in a fresh random
+order cut into minibatches of ``batch_size`` (the last one shorter if the rollout does not
+divide), one optimiser step per minibatch on the clipped surrogate, the critic's loss and the
+entropy bonus, the gradient's norm clipped to ``max_grad_norm``. The SDE policy is one of
+TorchRL's probabilistic modules: ``ClipPPOLoss`` rebuilds its distribution from the stored
+observation and scores the stored action (eq. 20), with no noise matrix needed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.objectives import ClipPPOLoss
+
+from sde_torchrl.utils.checks import positive_int
+
+#: What ``ClipPPOLoss`` reads of a minibatch: not the SDE noise ``ξ``, which the likelihood
+#: (eq. 20) does not read (an ``A × S`` matrix per step, gathered ``n_epochs`` times for nothing).
+MINIBATCH_KEYS = ("observation", "action", "action_sample", "action_log_prob", "advantage", "value_target",
+                  "state_value")
+
+
+def make_ppo_loss(policy: nn.Module, critic: nn.Module, *, clip_range: float, ent_coef: float, vf_coef: float,
+                  normalize_advantage: bool = True) -> ClipPPOLoss:
+    """TorchRL's ``ClipPPOLoss`` with SB3's PPO terms: clipped surrogate, squared-error critic
+    loss weighted by ``vf_coef``, entropy bonus weighted by ``ent_coef`` (none at 0), advantages
+    standardised per minibatch.
+
+    Examples:
+        >>> from torchrl.modules import MLP, ValueOperator
+        >>> from sde_torchrl import MLPActor
+        >>> from sde_torchrl.modules.gaussian import make_gaussian_actor
+        >>> policy = make_gaussian_actor(MLPActor(3, 1, [8], activation="relu"), 1)
+        >>> critic = ValueOperator(MLP(in_features=3, out_features=1, num_cells=[8]), in_keys=["observation"])
+        >>> type(make_ppo_loss(policy, critic, clip_range=0.2, ent_coef=0.0, vf_coef=0.5)).__name__
+        'ClipPPOLoss'
+    """
+    return ClipPPOLoss(policy, critic, clip_epsilon=clip_range, entropy_bonus=ent_coef > 0, entropy_coeff=ent_coef,
+                       critic_coeff=vf_coef, loss_critic_type="l2", normalize_advantage=normalize_advantage)
+
+
+class PPOUpdate:
+    """One PPO update of a rollout (with ``advantage`` and ``value_target`` written).
+
+    Args:
+        loss: the PPO loss (:func:`make_ppo_loss`).
+        optimizer: over ``loss.parameters()``.
+        n_epochs: passes over the rollout.
+        batch_size: steps per minibatch.
+        max_grad_norm: bound on the gradient's norm (``None``: not clipped).
+
+    Returns (when called):
+        The mean gradient norm before clipping over the update's optimiser steps.
+
+    Examples:
+        See :func:`sde_torchrl.config.build_onpolicy.build_onpolicy_trainer`.
+    """
+
+    def __init__(self, loss: ClipPPOLoss, optimizer: torch.optim.Optimizer, *, n_epochs: int, batch_size: int,
+                 max_grad_norm: float | None) -> None:
+        self.loss, self.optimizer = loss, optimizer
+        self.n_epochs, self.batch_size = positive_int("n_epochs", n_epochs), positive_int("batch_size", batch_size)
+        self.max_grad_norm = math.inf if max_grad_norm is None else max_grad_norm
+        self.parameters = [p for group in optimizer.param_groups for p in group["params"]]
+
+    def __call__(self, batch: TensorDictBase) -> float:
+        flat = batch.reshape(-1).select(*MINIBATCH_KEYS, strict=False).contiguous()
+        norms = []
+        for _ in range(self.n_epochs):
+            for idx in torch.randperm(flat.numel()).split(self.batch_size):
+                out = self.loss(flat[idx])
+                objective = sum(value for key, value in out.items() if key.startswith("loss_"))
+                self.optimizer.zero_grad()
+                objective.backward()
+                norms.append(torch.nn.utils.clip_grad_norm_(self.parameters, self.max_grad_norm))
+                self.optimizer.step()
+        return float(torch.stack(norms).mean())
+
+
+__all__ = ["MINIBATCH_KEYS", "PPOUpdate", "make_ppo_loss"]
