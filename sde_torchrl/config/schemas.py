@@ -767,6 +767,7 @@ def _check_onpolicy(conf: TrainConf) -> None:
             raise ArgumentError("explorer.rollout_steps", conf.explorer.rollout_steps,
                                 f"null or algorithm.n_steps ({conf.algorithm.n_steps}) with algorithm={name}: "
                                 "SB3 counts the noise's steps over each rollout")
+    check_memory(conf)
 
 
 def _check_pgpe(conf: TrainConf) -> None:
