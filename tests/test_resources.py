@@ -26,7 +26,7 @@ def test_absurd_sizes_are_refused_at_once_in_one_line(tmp_path, override, key):
     assert result.returncode == 2, result.stderr[-2000:]
     lines = own_stderr_lines(result.stderr)
     assert len(lines) == 1 and lines[0].startswith(f"error: {override}: the job would hold about "), lines
-    assert "GB this machine has available; lower runs" in lines[0]
+    assert f"GB this machine has available; lower {key} (the largest part, " in lines[0]
     assert elapsed < 4, f"{elapsed:.1f} s"  # the check itself is arithmetic; the rest is Python starting up
     assert not (tmp_path / "run" / "metrics.csv").exists()
 
@@ -79,3 +79,94 @@ def test_the_guides_memory_figures_are_the_estimates_and_the_measurements():
     request = launcher_request(validate(compose_config("+experiment=ballcatch", "runs=50", "max_memory_gb=1000")))
     shard = re.search(r"a 50-run ball-catching shard: (\d+) GB, (\d+) min", text)
     assert shard and (int(shard[1]), int(shard[2])) == (request["mem_gb"], request["timeout_min"])
+
+
+# ------------------------------------------------ issue 38, item 6: the actor and every size setting
+
+#: Max RSS (``/usr/bin/time -f %M``) of ``+experiment=minimize actor=mlp ... updates=2 eval_period=0``
+#: on this machine, GB.
+MEASURED_MLP_GB = {
+    ("actor.hidden=[2000]", "runs=200"): 1.44,
+    ("actor.hidden=[4000]", "runs=200"): 2.30,
+    ("actor.hidden=[1000,1000]", "runs=10"): 2.56,
+    ("actor.hidden=[500,500]", "runs=10"): 0.97,
+    ("actor.hidden=[500,500]", "runs=10", "estimator=enac"): 1.11,
+    ("actor.hidden=[500,500]", "runs=10", "estimator=gpomdp"): 8.29,
+    ("actor.hidden=[500,500]", "runs=10", "explorer=pgpe", "estimator=pgpe"): 11.59,
+}
+
+
+@pytest.mark.parametrize("overrides, measured_gb", MEASURED_MLP_GB.items())
+def test_mlp_actors_are_estimated_from_their_parameters_and_activations(overrides, measured_gb):
+    """The estimate covers what an MLP job was measured to hold, by at most 35 % more."""
+    conf = validate(compose_config("+experiment=minimize", "actor=mlp", *overrides, "updates=2", "eval_period=0",
+                                   "max_memory_gb=1000"))
+    assert measured_gb <= estimate_memory(conf).total / GB <= 1.35 * measured_gb
+
+
+@pytest.mark.parametrize("overrides, key, part", [
+    # estimated at 0.4 GB before: died on a 16 GB allocation
+    (("actor=mlp", "actor.hidden=[1000000000]"), "actor.hidden", "the actor's parameters and activations"),
+    (("actor=mlp", "actor.hidden=[30000, 30000]"), "actor.hidden", "the estimator's per-episode scores"),
+    # blamed on runs=4 before
+    (("+experiment=minimize", "eval_episodes=1000000000"), "eval_episodes", "the episodes' steps"),
+    (("+experiment=minimize", "episode_queue=100000000"), "episode_queue", "the episodes' steps"),
+    (("+experiment=minimize", "env.dim=3000"), "env.dim", "the episodes' steps"),
+    (("+experiment=minimize", "updates=10000000000"), "updates", "the per-update records"),
+    (("+experiment=ballcatch", "runs=2000"), "runs", "the simulator worlds"),
+])
+def test_the_setting_that_dominates_is_named(overrides, key, part):
+    with pytest.raises(Exception) as info:
+        validate(compose_config(*overrides, "max_memory_gb=16"))
+    line = describe_error(info.value)
+    assert line.startswith(f"{key}="), line
+    assert "more than max_memory_gb=16; lower " + key + " (the largest part, " in line and f"GB, is {part})" in line
+
+
+def test_a_limit_below_any_job_names_max_memory_gb():
+    """``max_memory_gb=0.01`` was blamed on ``runs=4``: no setting but the limit helps."""
+    with pytest.raises(Exception) as info:
+        validate(compose_config("+experiment=minimize", "max_memory_gb=0.01"))
+    assert describe_error(info.value) == (
+        "max_memory_gb=0.01: the job would hold about 0.40 GB (estimate), and about 0.40 GB with every size "
+        "setting at its smallest (Python with torch and TorchRL loaded: 0.40 GB): a limit of at least 0.5, or null "
+        "(the memory available)")
+
+
+def test_a_wide_actor_over_many_runs_is_refused_before_anything_is_written(tmp_path):
+    """``actor.hidden=[20000] runs=1000`` passed the estimate, started metrics.csv and died after
+    28 s on a 12 GB allocation (its activations: 1000 runs × 10 episodes × 15 steps × 20000)."""
+    start = time.monotonic()
+    result = run_cli("actor=mlp", "actor.hidden=[20000]", "runs=1000", "max_memory_gb=16", run_dir=tmp_path / "run")
+    assert result.returncode == 2, result.stderr[-2000:]
+    lines = own_stderr_lines(result.stderr)
+    assert len(lines) == 1 and lines[0].startswith("error: runs=1000: the job would hold about "), lines
+    assert "the actor's parameters and activations), or actor.hidden" in lines[0]
+    assert time.monotonic() - start < 6
+    assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+def test_a_job_says_what_it_does_within_seconds(monkeypatch, caplog):
+    """``+experiment=pendulum runs=3000 updates=1`` passed the estimate and said nothing for
+    minutes: 45,000 gymnasium envs take about 3 ms each to make, then its first update steps them.
+    Now a slow build says so after 5 s and counts the envs every 10 s, and a slow first update
+    says so after 10 s."""
+    from sde_torchrl.config import build as build_module
+    from sde_torchrl.config.build import build_trainer
+    from sde_torchrl.envs import gym as gym_module
+
+    assert build_module.BUILD_NOTICE_S <= 5 and gym_module.MAKE_PROGRESS_S <= 10
+    assert trainer_module.FIRST_UPDATE_NOTICE_S <= 10
+    monkeypatch.setattr(build_module, "BUILD_NOTICE_S", 0.0)
+    monkeypatch.setattr(gym_module, "MAKE_PROGRESS_S", 0.0)
+    made = gym_module.GymEnv
+    monkeypatch.setattr(gym_module, "GymEnv", lambda *args, **kwargs: (time.sleep(0.05), made(*args, **kwargs))[1])
+    with caplog.at_level(logging.INFO):
+        build_trainer(compose_config("+experiment=pendulum", "runs=2", "episodes_per_update=2", "eval_episodes=1",
+                                     "logger=none"))
+    lines = [r.getMessage() for r in caplog.records]
+    assert ("still making the envs after 0 s: 2 runs × (2 training + 1 evaluation) episodes side by side, one env "
+            "(Pendulum-v1) each; training starts once they are made") in lines
+    counts = [line for line in lines if line.startswith("making ")]
+    assert counts[0].startswith("making 4 Pendulum-v1 envs (2 runs × 2 training episodes): 1 made after ")
+    assert counts[-1].startswith("making 2 Pendulum-v1 envs (2 runs × 1 evaluation episodes): 1 made after ")

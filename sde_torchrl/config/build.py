@@ -9,6 +9,7 @@ off the env, per-run random streams) and wires the pieces.
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import asdict
 from typing import Any
 
@@ -33,6 +34,24 @@ log = logging.getLogger(__name__)
 
 #: Config groups whose chosen option labels a run's summary.
 LABELLED_GROUPS = ("experiment", "env", "actor", "explorer", "estimator", "optimizer")
+#: Making the envs takes longer than this: the job says what it is doing (then the trainer's
+#: notice, :data:`~sde_torchrl.trainers.trainer.FIRST_UPDATE_NOTICE_S`, covers the first update).
+BUILD_NOTICE_S = 5.0
+
+
+def building_notice(conf: TrainConf) -> str:
+    """What a job whose envs take a while to make is doing.
+
+    Examples:
+        >>> from types import SimpleNamespace as Conf
+        >>> building_notice(Conf(runs=3000, episodes_per_update=10, eval_episodes=5, env=Conf(id="Pendulum-v1")))
+        ... # doctest: +ELLIPSIS
+        'still making the envs after 5 s: 3000 runs × (10 training + 5 evaluation) episodes side by side, ...'
+    """
+    name = getattr(conf.env, "id", None) or str(getattr(conf.env, "_target_", "")).rsplit(".", 1)[-1]
+    return (f"still making the envs after {BUILD_NOTICE_S:g} s: {conf.runs} runs × ({conf.episodes_per_update} "
+            f"training + {conf.eval_episodes} evaluation) episodes side by side, one env ({name}) each; training "
+            "starts once they are made")
 
 
 def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
@@ -65,8 +84,14 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     conf = cfg if isinstance(cfg, TrainConf) else validate(cfg)
     device = training_device(conf.device)  # device=cuda without CUDA: one line, exit 2, before any env
     torch.manual_seed(conf.seed)
-    env = build_env(conf, conf.episodes_per_update, "env")
-    eval_env = build_env(conf, conf.eval_episodes, "eval_env")
+    notice = threading.Timer(BUILD_NOTICE_S, log.info, [building_notice(conf)])
+    notice.daemon = True
+    notice.start()
+    try:
+        env = build_env(conf, conf.episodes_per_update, "env")
+        eval_env = build_env(conf, conf.eval_episodes, "eval_env")
+    finally:
+        notice.cancel()
     obs_dim = env.observation_spec["observation"].shape[-1]
     act_dim = env.action_spec.shape[-1]
     # The explorer's features: the observation, or what the env writes for it (a constant

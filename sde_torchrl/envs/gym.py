@@ -26,6 +26,8 @@ Two options matter for SDE, whose exploration ``Θ̂ x`` scales with the feature
 
 from __future__ import annotations
 
+import logging
+import time
 from typing import Any
 
 import numpy as np
@@ -40,8 +42,13 @@ from sde_torchrl.utils.checks import positive_int
 from sde_torchrl.utils.options import NORMALIZATIONS
 from sde_torchrl.utils.rng import RunStreams
 
+log = logging.getLogger(__name__)
+
 #: Key of the explorer's features when ``constant_feature`` is set.
 FEATURES_KEY = "sde_features"
+#: Making the envs of a batch takes longer than this (about 3 ms each): their count is logged,
+#: then again every :data:`MAKE_PROGRESS_S`.
+MAKE_PROGRESS_S = 10.0
 
 
 class GymRunsEnv(EnvBase):
@@ -82,7 +89,8 @@ class GymRunsEnv(EnvBase):
         super().__init__(batch_size=batch, device=device)
         self.env_id, self.runs, self.first_run, self.stream = env_id, runs, first_run, stream
         self.reset_options = dict(reset_options) if reset_options else None
-        self.envs = [GymEnv(env_id, **(gym_kwargs or {})) for _ in range(runs * episodes)]
+        use = "evaluation" if stream == "eval_env" else "training"
+        self.envs = make_envs(env_id, runs * episodes, gym_kwargs or {}, f"{runs} runs × {episodes} {use} episodes")
         proto = self.envs[0]
         check_spaces(env_id, proto._env.action_space, proto._env.observation_space)
         self.max_episode_steps = getattr(proto._env.spec, "max_episode_steps", None)
@@ -139,6 +147,26 @@ class GymRunsEnv(EnvBase):
         for env in self.envs:
             env.close()
         super().close(raise_if_closed=raise_if_closed)
+
+
+def make_envs(env_id: str, count: int, gym_kwargs: dict[str, Any], what: str) -> list[GymEnv]:
+    """``count`` TorchRL ``GymEnv`` of ``env_id``, logging how many are made when that takes a while
+    (after :data:`MAKE_PROGRESS_S`, then as often: tens of thousands take minutes).
+
+    Examples:
+        >>> len(make_envs("Pendulum-v1", 2, {}, "1 run × 2 training episodes"))
+        2
+    """
+    envs: list[GymEnv] = []
+    start = time.monotonic()
+    due = start + MAKE_PROGRESS_S
+    for _ in range(count):
+        envs.append(GymEnv(env_id, **gym_kwargs))
+        now = time.monotonic()
+        if now >= due and len(envs) < count:
+            log.info("making %d %s envs (%s): %d made after %.0f s", count, env_id, what, len(envs), now - start)
+            due = now + MAKE_PROGRESS_S
+    return envs
 
 
 class ConstantFeature(Transform):

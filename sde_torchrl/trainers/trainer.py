@@ -40,8 +40,9 @@ from sde_torchrl.trainers.settings import TrainingSettings
 from sde_torchrl.trainers.summary import LoopState, exploration_state, per_step_factor, summarize
 
 log = logging.getLogger(__name__)
-#: A session whose first update takes longer than this says what it is doing.
-FIRST_UPDATE_NOTICE_S = 60.0
+#: A session whose first update takes longer than this says what it is doing (a job is silent
+#: until its first update ends: a large one would otherwise say nothing for minutes).
+FIRST_UPDATE_NOTICE_S = 10.0
 
 
 class Trainer:
