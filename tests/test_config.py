@@ -23,7 +23,8 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
 
 
 @pytest.mark.parametrize("overrides, expected", [
-    (("explorer=nonsense",), "explorer=nonsense: expected one of every_n, gaussian, gsde, pgpe, rex, sde, sde_gauss"),
+    (("explorer=nonsense",),
+     "explorer=nonsense: expected one of every_n, gaussian, gsde, gsde_freq4, pgpe, rex, sde, sde_gauss"),
     (("logger=nope",), "logger=nope: expected one of csv, none, tensorboard, wandb"),
     (("env.episode_length=-3",), "env.episode_length=-3: a positive integer"),
     (("env.episode_length=ten",), "env.episode_length=ten: an integer"),

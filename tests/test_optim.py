@@ -136,7 +136,8 @@ def test_the_default_is_plain_ascent():
 
 
 @pytest.mark.parametrize("overrides, expected", [
-    (("optimizer=rmsprop",), "optimizer=rmsprop: expected one of adam, momentum, sgd"),
+    (("optimizer=lbfgs",), "optimizer=lbfgs: expected one of adam, momentum, rmsprop, sgd"),
+    (("optimizer=rmsprop", "optimizer.alpha=1"), "optimizer.alpha=1.0: a number in [0, 1)"),
     (("optimizer.momentum=1.0",), "optimizer.momentum=1.0: a number in [0, 1)"),
     (("optimizer.momentum=-0.5",), "optimizer.momentum=-0.5: a number in [0, 1)"),
     (("optimizer.nesterov=true",), "optimizer.nesterov=true: false unless optimizer.momentum > 0"),

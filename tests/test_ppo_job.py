@@ -1,6 +1,6 @@
-"""PPO from the command line (``algorithm=ppo``): the experiment composes, a short job writes its
-run directory, a SIGTERM then the same command equals an uninterrupted job, bad values are one
-line and exit 2 naming the key (issue 39, item 1)."""
+"""PPO and A2C from the command line (``algorithm=ppo|a2c``): the experiments compose, a short job
+writes its run directory, a SIGTERM then the same command equals an uninterrupted job, bad values
+are one line and exit 2 naming the key (issue 39, item 1)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,15 @@ from _helpers import compose_config, own_stderr_lines, read_rows, run_cli, summa
 from tensordict import TensorDict
 from test_checkpoint import rows_in, start_and_signal
 
-from sde_torchrl.config.schemas import ExplorerConf, GaussianExplorerConf, PPOConf, describe_error, validate
+from sde_torchrl.config.schemas import (
+    A2CConf,
+    ExplorerConf,
+    GaussianExplorerConf,
+    PPOConf,
+    RMSpropOptimizerConf,
+    describe_error,
+    validate,
+)
 from sde_torchrl.jobs.checkpoint import load_checkpoint
 from sde_torchrl.jobs.run_dir import read_finished_run
 
@@ -22,6 +30,11 @@ from sde_torchrl.jobs.run_dir import read_finished_run
 TINY = ("algorithm=ppo", "env=gym", "env.episode_length=50", "algorithm.n_envs=2", "algorithm.n_steps=32",
         "algorithm.batch_size=16", "algorithm.n_epochs=2", "algorithm.normalize=true", "eval_period=7",
         "eval_episodes=2", "actor.hidden=[16,16]", "actor.activation=relu", "actor.init=null", "lr=1e-3")
+#: An A2C job of a few seconds on Pendulum-v1: 2 envs × 8 steps per update, the time feature, a
+#: linearly decaying rate, one noise matrix per rollout.
+TINY_A2C = ("algorithm=a2c", "env=gym", "env.episode_length=50", "algorithm.n_envs=2", "algorithm.n_steps=8",
+            "algorithm.normalize=true", "algorithm.time_feature=true", "optimizer.lr_schedule=linear", "eval_period=50",
+            "eval_episodes=2", "actor.hidden=[16,16]", "actor.init=null", "lr=1e-3")
 
 
 def test_the_halfcheetah_experiment_composes_with_the_zoo_settings():
@@ -42,6 +55,24 @@ def test_the_halfcheetah_experiment_composes_with_the_zoo_settings():
     assert isinstance(gaussian, GaussianExplorerConf) and gaussian.init_param == -2.0
 
 
+def test_the_a2c_experiment_composes_with_the_zoo_settings():
+    conf = validate(compose_config("+experiment=a2c_halfcheetah_bullet"))
+    alg = conf.algorithm
+    assert isinstance(alg, A2CConf) and conf.estimator is None
+    assert (alg.n_envs, alg.n_steps, alg.gamma, alg.gae_lambda, alg.ent_coef, alg.vf_coef, alg.max_grad_norm,
+            alg.normalize_advantage, alg.normalize, alg.time_feature) == (
+        4, 8, 0.99, 0.9, 0.0, 0.4, 0.5, False, True, True)
+    assert conf.updates * alg.n_envs * alg.n_steps == 2_000_000
+    assert isinstance(conf.optimizer, RMSpropOptimizerConf)  # SB3's use_rms_prop, lin_0.00096
+    assert (conf.lr, conf.optimizer.alpha, conf.optimizer.eps, conf.optimizer.lr_schedule) == (
+        9.6e-4, 0.99, 1e-5, "linear")
+    assert (conf.actor.hidden, conf.actor.activation, conf.actor.init) == ([64, 64], "tanh", None)
+    sde = conf.explorer  # SB3's default sde_sample_freq=-1: one matrix per rollout
+    assert (sde.schedule, sde.every_n, sde.sigma_transform, sde.init_param) == ("rollout", None, "exp", -2.0)
+    assert isinstance(validate(compose_config("+experiment=a2c_halfcheetah_bullet", "explorer=gaussian")).explorer,
+                      GaussianExplorerConf)
+
+
 def test_a_short_job_writes_its_run_directory(tmp_path):
     result = run_cli(*TINY, "updates=5", "explorer=gsde", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -59,22 +90,23 @@ def test_a_short_job_writes_its_run_directory(tmp_path):
     assert again.returncode == 0 and "holds a finished job" in again.stdout
 
 
-@pytest.mark.parametrize("explorer", ["gsde", "gaussian"])
-def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, explorer):
+@pytest.mark.parametrize(("job", "explorer", "updates"), [
+    (TINY, "gsde_freq4", 40), (TINY, "gaussian", 40), (TINY_A2C, "gsde", 150)])
+def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, job, explorer, updates):
     """The envs are mid-episode at the checkpoint: the resumed job replays their episodes."""
-    cli = (*TINY, "updates=40", "checkpoint_period=0", f"explorer={explorer}")
+    cli = (*job, f"updates={updates}", "checkpoint_period=0", f"explorer={explorer}")
     with ThreadPoolExecutor(max_workers=1) as pool:
         reference = pool.submit(run_cli, *cli, run_dir=tmp_path / "ref")
         run_dir = tmp_path / "terminated"
-        stopped = start_and_signal(run_dir, signal.SIGTERM, after_rows=8, cli=cli)
+        stopped = start_and_signal(run_dir, signal.SIGTERM, after_rows=updates // 5, cli=cli)
         assert stopped.returncode == 143, stopped.stderr[-2000:]
         lines = own_stderr_lines(stopped.stderr)
         assert len(lines) == 1 and lines[0].startswith("interrupted by SIGTERM: checkpoint after update "), lines
         done = load_checkpoint(run_dir / "checkpoint.pt")["updates"]
-        assert rows_in(run_dir / "metrics.csv") == done < 40
+        assert rows_in(run_dir / "metrics.csv") == done < updates
         finished = run_cli(*cli, run_dir=run_dir)
         assert finished.returncode == 0, finished.stderr[-2000:]
-        assert f"resuming {run_dir} after update {done} of 40" in finished.stdout
+        assert f"resuming {run_dir} after update {done} of {updates}" in finished.stdout
         assert reference.result().returncode == 0
     assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
     assert summary_without_wall(run_dir) == summary_without_wall(tmp_path / "ref")
@@ -103,6 +135,21 @@ BAD = [
 def test_bad_values_are_one_line_naming_the_key(overrides, expected):
     with pytest.raises(Exception) as info:
         validate(compose_config(*TINY, *overrides))
+    assert describe_error(info.value).startswith(expected), describe_error(info.value)
+
+
+BAD_A2C = [
+    (("algorithm.batch_size=4",), "algorithm.batch_size: unknown key"),  # PPO's, not A2C's
+    (("runs=3",), "runs=3: 1 with algorithm=a2c"),
+    (("algorithm.gae_lambda=-0.1",), "algorithm.gae_lambda=-0.1:"),
+    (("optimizer.alpha=1.5",), "optimizer.alpha=1.5: a number in [0, 1)"),
+]
+
+
+@pytest.mark.parametrize(("overrides", "expected"), BAD_A2C)
+def test_bad_a2c_values_are_one_line_naming_the_key(overrides, expected):
+    with pytest.raises(Exception) as info:
+        validate(compose_config(*TINY_A2C, *overrides))
     assert describe_error(info.value).startswith(expected), describe_error(info.value)
 
 

@@ -1,4 +1,4 @@
-"""From a config with ``algorithm=ppo`` to a ready :class:`~sde_torchrl.trainers.onpolicy.OnPolicyTrainer`.
+"""From a config with ``algorithm=ppo`` (or ``a2c``) to a ready :class:`~sde_torchrl.trainers.onpolicy.OnPolicyTrainer`.
 
 The pieces, as ``analysis/bench_ppo.py`` measured them against Stable-Baselines3:
 
@@ -11,8 +11,8 @@ The pieces, as ``analysis/bench_ppo.py`` measured them against Stable-Baselines3
   noise its features (gSDE's ``learn_features=False``); with ``explorer=gaussian``,
   :func:`~sde_torchrl.modules.gaussian.make_gaussian_actor` over an
   :class:`~sde_torchrl.modules.actors.MLPActor`; the critic an MLP of the same shape;
-- TorchRL's ``GAE`` and ``ClipPPOLoss`` (:mod:`sde_torchrl.trainers.ppo`), one optimiser over
-  policy and critic.
+- TorchRL's ``GAE`` and ``ClipPPOLoss`` (:mod:`sde_torchrl.trainers.ppo`) or ``A2CLoss``
+  (:mod:`sde_torchrl.trainers.a2c`), one optimiser over policy and critic.
 """
 
 from __future__ import annotations
@@ -28,13 +28,14 @@ from torchrl.modules import MLP, ValueOperator
 from torchrl.objectives.value import GAE
 
 from sde_torchrl.collectors.steps import StepCollector
-from sde_torchrl.config.schemas import ExplorerConf, GaussianExplorerConf, TrainConf
+from sde_torchrl.config.schemas import A2CConf, ExplorerConf, GaussianExplorerConf, TrainConf
 from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.envs.vector import GymVectorEnv
 from sde_torchrl.modules.actors import LatentMLPActor, MLPActor
 from sde_torchrl.modules.gaussian import make_gaussian_actor
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import make_sde_actor
+from sde_torchrl.trainers.a2c import A2CUpdate, make_a2c_loss
 from sde_torchrl.trainers.onpolicy import OnPolicySettings, OnPolicyTrainer
 from sde_torchrl.trainers.optim import make_optimizer
 from sde_torchrl.trainers.ppo import PPOUpdate, make_ppo_loss
@@ -49,7 +50,8 @@ def make_env(conf: TrainConf, n_envs: int, stream: str) -> GymVectorEnv:
     """``n_envs`` envs of ``conf.env`` (``env=gym``) with the job's seed on ``stream``."""
     env = conf.env
     return GymVectorEnv(env.id, n_envs, env.episode_length, stream=stream, seed=conf.seed,
-                        gym_kwargs=dict(env.gym_kwargs or {}), reset_options=env.reset_options)
+                        gym_kwargs=dict(env.gym_kwargs or {}), reset_options=env.reset_options,
+                        time_feature=conf.algorithm.time_feature)
 
 
 def make_policy(conf: TrainConf, obs_dim: int, act_dim: int) -> tuple[nn.Module, SDEParams | None]:
@@ -77,7 +79,7 @@ def make_critic(conf: TrainConf, obs_dim: int) -> ValueOperator:
 
 
 def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPolicyTrainer:
-    """Builds envs, policy, critic, loss, optimiser and logger of an ``algorithm=ppo`` job.
+    """Builds envs, policy, critic, loss, optimiser and logger of an ``algorithm=ppo`` or ``a2c`` job.
 
     Args:
         conf: the checked config (:func:`~sde_torchrl.config.schemas.validate`).
@@ -109,13 +111,21 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
     eval_transforms = [t for t in (eval_normalizer, sde.make_tensordict_primer() if sde else None) if t is not None]
     eval_env = TransformedEnv(eval_base, Compose(*eval_transforms))
 
-    loss = make_ppo_loss(policy, critic, clip_range=alg.clip_range, ent_coef=alg.ent_coef, vf_coef=alg.vf_coef,
-                         normalize_advantage=alg.normalize_advantage)
+    a2c = isinstance(alg, A2CConf)
+    if a2c:
+        loss = make_a2c_loss(policy, critic, ent_coef=alg.ent_coef, vf_coef=alg.vf_coef)
+    else:
+        loss = make_ppo_loss(policy, critic, clip_range=alg.clip_range, ent_coef=alg.ent_coef, vf_coef=alg.vf_coef,
+                             normalize_advantage=alg.normalize_advantage)
     advantage = GAE(gamma=alg.gamma, lmbda=alg.gae_lambda, value_network=critic, average_gae=False)
     optimizer, lr_schedule = make_optimizer(loss.parameters(), conf.lr, asdict(conf.optimizer), conf.updates)
-    update = PPOUpdate(loss, optimizer, n_epochs=alg.n_epochs, batch_size=alg.batch_size,
-                       max_grad_norm=alg.max_grad_norm)
-    settings = OnPolicySettings("ppo", updates=conf.updates, n_envs=alg.n_envs, n_steps=alg.n_steps,
+    if a2c:
+        update: Any = A2CUpdate(loss, optimizer, max_grad_norm=alg.max_grad_norm,
+                                normalize_advantage=alg.normalize_advantage)
+    else:
+        update = PPOUpdate(loss, optimizer, n_epochs=alg.n_epochs, batch_size=alg.batch_size,
+                           max_grad_norm=alg.max_grad_norm)
+    settings = OnPolicySettings("a2c" if a2c else "ppo", updates=conf.updates, n_envs=alg.n_envs, n_steps=alg.n_steps,
                                 eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
                                 episode_length=base.episode_length, first_run=conf.first_run)
     logger: Any = None

@@ -339,7 +339,7 @@ class PGPEExplorerConf:
 
 @dataclass
 class GaussianExplorerConf:
-    """``explorer=gaussian``: the plain-Gaussian baseline of ``algorithm=ppo``: i.i.d. noise with
+    """``explorer=gaussian``: the plain-Gaussian baseline of ``algorithm=ppo|a2c``: i.i.d. noise with
     a learned state-independent standard deviation per action, ``σ = exp(init_param)`` at the
     start (SB3's PPO and A2C without ``use_sde``; :mod:`sde_torchrl.modules.gaussian`).
 
@@ -363,58 +363,50 @@ class GaussianExplorerConf:
 
 
 @dataclass
-class PPOConf:
-    """``algorithm=ppo``: Proximal Policy Optimization with TorchRL's ``ClipPPOLoss`` and ``GAE``
-    (:mod:`sde_torchrl.trainers.ppo`) on ``env=gym``, exploring with ``explorer=sde`` (or
-    ``gsde``, features from the actor's last hidden layer) or ``explorer=gaussian``. The
-    defaults are Stable-Baselines3's ``PPO`` defaults; ``lr`` and ``optimizer`` are the top
-    level's, ``updates`` counts iterations of ``n_envs × n_steps`` env steps.
+class OnPolicyConf:
+    """What ``algorithm=ppo`` and ``algorithm=a2c`` share: actor-critic training on ``env=gym``
+    (:mod:`sde_torchrl.trainers.onpolicy`), exploring with an SDE explorer (``sde``, ``gsde``,
+    ...; features from the actor's last hidden layer) or ``explorer=gaussian``. ``lr`` and
+    ``optimizer`` are the top level's; ``updates`` counts iterations of ``n_envs × n_steps`` env
+    steps.
 
     Attributes:
         n_envs: envs stepped side by side.
         n_steps: steps per env and update (rollout length).
-        batch_size: steps per minibatch, at most ``n_envs × n_steps``.
-        n_epochs: passes over each rollout.
         gamma: discount.
         gae_lambda: GAE's ``λ``.
-        clip_range: PPO's clipping ``ε``.
         ent_coef: weight of the entropy bonus.
         vf_coef: weight of the critic's loss.
         max_grad_norm: bound on the gradient norm; ``null``: not clipped.
-        normalize_advantage: standardise the advantages per minibatch.
+        normalize_advantage: standardise the advantages (per minibatch).
         normalize: SB3's ``VecNormalize``: running observation and reward normalisation
             (:mod:`sde_torchrl.envs.normalize`).
+        time_feature: append ``1 - t / episode_length`` to the observation (sb3-contrib's
+            ``TimeFeatureWrapper``, which rl-zoo puts around the Bullet envs for A2C).
         critic_hidden: the critic's hidden layers; ``null``: the actor's (``actor.hidden``).
 
     Examples:
-        >>> PPOConf().n_steps
-        2048
+        >>> OnPolicyConf().n_envs
+        1
     """
 
     n_envs: int = 1
     n_steps: int = 2048
-    batch_size: int = 64
-    n_epochs: int = 10
     gamma: float = 0.99
     gae_lambda: float = 0.95
-    clip_range: float = 0.2
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: Optional[float] = 0.5
     normalize_advantage: bool = True
     normalize: bool = False
+    time_feature: bool = False
     critic_hidden: Optional[List[int]] = None
 
     def __post_init__(self) -> None:
-        for name in ("n_envs", "n_steps", "batch_size", "n_epochs"):
+        for name in ("n_envs", "n_steps"):
             positive_int(f"algorithm.{name}", getattr(self, name))
-        if self.batch_size > self.n_envs * self.n_steps:
-            raise ArgumentError("algorithm.batch_size", self.batch_size,
-                                f"at most algorithm.n_envs × algorithm.n_steps = {self.n_envs * self.n_steps} "
-                                "(the steps of one rollout)")
         for name in ("gamma", "gae_lambda"):
             fraction(f"algorithm.{name}", getattr(self, name))
-        finite("algorithm.clip_range", self.clip_range, minimum=0, strict=True)
         for name in ("ent_coef", "vf_coef"):
             finite(f"algorithm.{name}", getattr(self, name), minimum=0)
         if self.max_grad_norm is not None:
@@ -422,6 +414,54 @@ class PPOConf:
         if self.critic_hidden is not None and not all(is_int(size) and size >= 1 for size in self.critic_hidden):
             raise ArgumentError("algorithm.critic_hidden", self.critic_hidden,
                                 "null (the actor's hidden layers) or a list of positive integers")
+
+
+@dataclass
+class PPOConf(OnPolicyConf):
+    """``algorithm=ppo``: Proximal Policy Optimization with TorchRL's ``ClipPPOLoss`` and ``GAE``
+    (:mod:`sde_torchrl.trainers.ppo`); the defaults are Stable-Baselines3's ``PPO`` defaults. The
+    shared options: :class:`OnPolicyConf`.
+
+    Attributes:
+        batch_size: steps per minibatch, at most ``n_envs × n_steps``.
+        n_epochs: passes over each rollout.
+        clip_range: PPO's clipping ``ε``.
+
+    Examples:
+        >>> PPOConf().n_steps, PPOConf().batch_size
+        (2048, 64)
+    """
+
+    batch_size: int = 64
+    n_epochs: int = 10
+    clip_range: float = 0.2
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("batch_size", "n_epochs"):
+            positive_int(f"algorithm.{name}", getattr(self, name))
+        if self.batch_size > self.n_envs * self.n_steps:
+            raise ArgumentError("algorithm.batch_size", self.batch_size,
+                                f"at most algorithm.n_envs × algorithm.n_steps = {self.n_envs * self.n_steps} "
+                                "(the steps of one rollout)")
+        finite("algorithm.clip_range", self.clip_range, minimum=0, strict=True)
+
+
+@dataclass
+class A2CConf(OnPolicyConf):
+    """``algorithm=a2c``: Advantage Actor-Critic with TorchRL's ``A2CLoss`` and ``GAE``
+    (:mod:`sde_torchrl.trainers.a2c`): one gradient step per rollout; the defaults are
+    Stable-Baselines3's ``A2C`` defaults (with ``optimizer=rmsprop`` its optimiser). The shared
+    options: :class:`OnPolicyConf`.
+
+    Examples:
+        >>> A2CConf().n_steps, A2CConf().gae_lambda, A2CConf().normalize_advantage
+        (5, 1.0, False)
+    """
+
+    n_steps: int = 5
+    gae_lambda: float = 1.0
+    normalize_advantage: bool = False
 
 
 @dataclass
@@ -520,6 +560,34 @@ class AdamOptimizerConf:
             raise ArgumentError("optimizer.betas", list(self.betas), "two numbers in [0, 1)")
         for beta in self.betas:
             fraction("optimizer.betas", beta, below_one=True)
+        finite("optimizer.eps", self.eps, minimum=0, strict=True)
+        _check_schedule(self)
+
+
+@dataclass
+class RMSpropOptimizerConf:
+    """``optimizer=rmsprop``: ``torch.optim.RMSprop`` with ``α = lr`` (torch's defaults; SB3's
+    A2C takes it with ``eps=1e-5``).
+
+    Attributes:
+        alpha: the decay rate of the squared-gradient average, in ``[0, 1)``.
+        eps: added to its root, ``> 0``.
+        lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay.
+        final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
+
+    Examples:
+        >>> RMSpropOptimizerConf().alpha
+        0.99
+    """
+
+    _target_: str = "torch.optim.RMSprop"
+    alpha: float = 0.99
+    eps: float = 1e-8
+    lr_schedule: str = "constant"
+    final_lr_fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        fraction("optimizer.alpha", self.alpha, below_one=True)
         finite("optimizer.eps", self.eps, minimum=0, strict=True)
         _check_schedule(self)
 
@@ -631,7 +699,8 @@ class TrainConf:
         optimizer: the ``optimizer`` group's schema (``sgd``: eq. 1).
         logger: the ``logger`` group's schema; empty or ``null`` for none.
         algorithm: ``null``, the paper's episodic estimators (the ``estimator`` group), or the
-            ``algorithm`` group's schema (``ppo``: :class:`PPOConf`), which trains one learner on
+            ``algorithm`` group's schema (``ppo``: :class:`PPOConf`, ``a2c``: :class:`A2CConf`),
+            which trains one learner on
             ``env=gym`` with ``actor=mlp`` and ``estimator`` null; of the top-level keys it reads
             ``seed``, ``updates``, ``lr``, ``eval_period``, ``eval_episodes``, ``checkpoint_period``,
             ``progress`` and ``threads``.
@@ -709,10 +778,10 @@ class TrainConf:
             return
         if isinstance(self.explorer, GaussianExplorerConf):
             raise ArgumentError("explorer", "gaussian", "an SDE or PGPE explorer for the episodic estimators "
-                                                        "(explorer=gaussian is the baseline of algorithm=ppo)")
+                                                        "(explorer=gaussian is the baseline of algorithm=ppo and a2c)")
         if self.estimator is None and self.env is not None:
             raise ArgumentError("estimator", None, "an estimator (reinforce, enac, gpomdp, pgpe) unless "
-                                                   "algorithm=ppo")
+                                                   "algorithm=ppo or a2c")
         _check_can_learn(self)
         _check_pgpe(self)
         if self.env is not None and self.estimator is not None:
@@ -735,7 +804,7 @@ def loop_settings(conf: TrainConf) -> TrainingSettings:
 def _check_onpolicy(conf: TrainConf) -> None:
     """What ``algorithm=ppo`` trains on: one learner, a gymnasium env, an MLP actor, an SDE or
     Gaussian explorer, no episodic estimator; the SB3-style noise counts over its rollouts."""
-    name = "ppo"
+    name = "a2c" if isinstance(conf.algorithm, A2CConf) else "ppo"
     if conf.runs != 1:
         raise ArgumentError("runs", conf.runs, f"1 with algorithm={name} (one learner per job; sweep over seed "
                                                "for more)")
@@ -828,9 +897,11 @@ SCHEMAS: dict[str, type] = {
     "explorer/pgpe": PGPEExplorerConf,
     "explorer/gaussian": GaussianExplorerConf,
     "algorithm/ppo": PPOConf,
+    "algorithm/a2c": A2CConf,
     "estimator/episodic": EstimatorConf,
     "optimizer/sgd": SGDOptimizerConf,
     "optimizer/adam": AdamOptimizerConf,
+    "optimizer/rmsprop": RMSpropOptimizerConf,
     "logger/csv": CSVLoggerConf,
     "logger/tensorboard": TensorboardLoggerConf,
     "logger/wandb": WandbLoggerConf,

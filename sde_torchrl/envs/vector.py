@@ -9,7 +9,8 @@ limit or at ``episode_length`` steps) and the caller resets the done envs alone,
 Two choices follow Stable-Baselines3: the env steps with the action clipped to its bounds while
 the batch keeps the sampled one (pybullet's locomotion envs charge their costs on the action
 they are given), and each episode starts from a seed, drawn from the job's ``env`` stream
-(:class:`~sde_torchrl.utils.rng.RunStreams`) at every reset.
+(:class:`~sde_torchrl.utils.rng.RunStreams`) at every reset. With ``time_feature`` the
+observation ends with ``1 - t / episode_length`` (sb3-contrib's ``TimeFeatureWrapper``).
 
 A simulator's state mid-episode cannot in general be saved; what determines it can:
 :meth:`GymVectorEnv.replay_state` holds, per env, its episode's seed and the actions stepped
@@ -52,6 +53,8 @@ class GymVectorEnv(EnvBase):
         seed: job seed (:meth:`set_seed` changes it).
         gym_kwargs: passed to ``gymnasium.make``.
         reset_options: passed to every ``reset`` (``options=``).
+        time_feature: append ``1 - t / episode_length`` to the observation, ``t`` the steps since
+            the reset (needs an ``episode_length`` or a time limit).
 
     Raises:
         ArgumentError: for spaces SDE cannot use, or an ``episode_length`` beyond the env's time limit.
@@ -61,11 +64,15 @@ class GymVectorEnv(EnvBase):
         >>> td = env.rollout(12, break_when_any_done=False)
         >>> td.batch_size, int(td["next", "truncated"].sum())
         (torch.Size([3, 12]), 6)
+        >>> timed = GymVectorEnv("Pendulum-v1", n_envs=1, episode_length=4, time_feature=True)
+        >>> timed.rollout(3)["next", "observation"][0, :, -1].tolist()
+        [0.75, 0.5, 0.25]
     """
 
     def __init__(
         self, env_id: str, n_envs: int = 1, episode_length: int | None = None, *, stream: str = "env",
         seed: int = 0, gym_kwargs: dict[str, Any] | None = None, reset_options: dict[str, Any] | None = None,
+        time_feature: bool = False,
     ) -> None:
         positive_int("n_envs", n_envs)
         super().__init__(batch_size=torch.Size([n_envs]))
@@ -78,8 +85,11 @@ class GymVectorEnv(EnvBase):
         self.episode_length = episode_length if episode_length is not None else limit
         if self.episode_length is not None:
             check_time_limit(env_id, self.episode_length, limit)
+        if time_feature and self.episode_length is None:
+            raise ValueError(f"{env_id}: time_feature needs an episode_length (the env has no time limit)")
+        self.time_feature = time_feature
         self.low, self.high = proto.action_space.low, proto.action_space.high
-        obs_dim, act_dim = proto.observation_space.shape[0], proto.action_space.shape[0]
+        obs_dim, act_dim = proto.observation_space.shape[0] + int(time_feature), proto.action_space.shape[0]
         self.observation_spec = Composite(observation=Unbounded((n_envs, obs_dim), dtype=torch.float32),
                                           shape=(n_envs,))
         self.action_spec = Bounded(torch.as_tensor(self.low, dtype=torch.float32).expand(n_envs, act_dim),
@@ -110,8 +120,14 @@ class GymVectorEnv(EnvBase):
             mask = tensordict.get("_reset").reshape(len(self.envs), -1).any(-1).tolist()
         for i, reset in enumerate(mask):
             if reset:
-                self._last_obs[i] = self._start(i, seeds[i])
+                self._last_obs[i] = self._observe(i, self._start(i, seeds[i]))
         return TensorDict({"observation": torch.as_tensor(self._last_obs.copy())}, batch_size=self.batch_size)
+
+    def _observe(self, i: int, obs: np.ndarray) -> np.ndarray:
+        """Env ``i``'s observation, with the time feature if asked."""
+        if not self.time_feature:
+            return obs
+        return np.append(obs, np.float32(1.0 - len(self._actions[i]) / self.episode_length))
 
     def _start(self, i: int, seed: int) -> np.ndarray:
         self._seeds[i], self._actions[i] = seed, []
@@ -124,8 +140,9 @@ class GymVectorEnv(EnvBase):
         reward = np.zeros((n, 1), dtype=np.float32)
         terminated, truncated = np.zeros((n, 1), dtype=bool), np.zeros((n, 1), dtype=bool)
         for i, env in enumerate(self.envs):
-            self._last_obs[i], reward[i], terminated[i], truncated[i], _ = env.step(actions[i])
+            obs, reward[i], terminated[i], truncated[i], _ = env.step(actions[i])
             self._actions[i].append(actions[i])
+            self._last_obs[i] = self._observe(i, obs)
             if self.episode_length is not None and len(self._actions[i]) >= self.episode_length:
                 truncated[i] = True
         return TensorDict({
@@ -170,7 +187,7 @@ class GymVectorEnv(EnvBase):
             for action in actions.numpy():
                 obs = self.envs[i].step(action)[0]
                 self._actions[i].append(action)
-            self._last_obs[i] = obs
+            self._last_obs[i] = self._observe(i, obs)
         if not np.array_equal(self._last_obs, state["observation"].numpy()):
             bad = int(np.flatnonzero((self._last_obs != state["observation"].numpy()).any(-1))[0])
             raise ReplayMismatchError(

@@ -3,10 +3,10 @@ update, evaluate; with the run directory, checkpoints and resume of every job.
 
 Each update (an *iteration* in SB3's words) collects ``n_steps`` steps of each of ``n_envs``
 envs through episode boundaries (:class:`~sde_torchrl.collectors.steps.StepCollector`), computes
-the advantages (TorchRL's ``GAE``) and hands the batch to the algorithm's update (for PPO
-:class:`~sde_torchrl.trainers.ppo.PPOUpdate`). Every ``eval_period`` updates (and after the last)
-the policy is evaluated without exploration on ``eval_episodes`` fresh episodes, with the
-observation statistics frozen and raw rewards.
+the advantages (TorchRL's ``GAE``) and hands the batch to the algorithm's update
+(:class:`~sde_torchrl.trainers.ppo.PPOUpdate`, :class:`~sde_torchrl.trainers.a2c.A2CUpdate`).
+Every ``eval_period`` updates (and after the last) the policy is evaluated without exploration on
+``eval_episodes`` fresh episodes, with the observation statistics frozen and raw rewards.
 
 The run directory is the episodic jobs' (:mod:`sde_torchrl.jobs.run_dir`): one ``metrics.csv``
 row per update, with

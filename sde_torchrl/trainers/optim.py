@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # torch is imported when an optimiser is made: the config sch
 #: Config keys of the ``optimizer`` group that describe the schedule, not the optimiser.
 SCHEDULE_KEYS = ("lr_schedule", "final_lr_fraction")
 #: ``_target_`` values the ``optimizer`` group may name.
-OPTIMIZER_TARGETS = ("torch.optim.SGD", "torch.optim.Adam")
+OPTIMIZER_TARGETS = ("torch.optim.SGD", "torch.optim.Adam", "torch.optim.RMSprop")
 
 
 def lr_factor(schedule: str, update: int, updates: int, final_fraction: float) -> float:
