@@ -73,6 +73,46 @@ def test_the_a2c_experiment_composes_with_the_zoo_settings():
                       GaussianExplorerConf)
 
 
+EXPERIMENTS = [f"{algorithm}_{env}_bullet" for algorithm in ("ppo", "a2c")
+               for env in ("halfcheetah", "ant", "hopper", "walker2d")]
+
+
+@pytest.mark.parametrize("explorer", [None, "gaussian"])
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_bullet_experiment_composes(experiment, explorer):
+    """The zoo's entries: Ant's log σ₀ is -1, Hopper's and Walker2D's PPO clip range decays
+    (lin_0.4); A2C has one entry for the four envs."""
+    conf = validate(compose_config(f"+experiment={experiment}", *([f"explorer={explorer}"] if explorer else [])))
+    algorithm, env, _ = experiment.split("_")
+    assert type(conf.algorithm) is {"ppo": PPOConf, "a2c": A2CConf}[algorithm]
+    assert conf.env.id.lower().startswith(f"pybullet_envs_gymnasium:{env}bulletenv")
+    assert conf.env.episode_length == 1000 and conf.algorithm.normalize
+    assert isinstance(conf.explorer, GaussianExplorerConf if explorer else ExplorerConf)
+    assert conf.explorer.init_param == (-1.0 if experiment == "ppo_ant_bullet" else -2.0)
+    if algorithm == "ppo":
+        assert conf.algorithm.clip_range_schedule == ("linear" if env in ("hopper", "walker2d") else "constant")
+
+
+def test_one_update_of_a_bullet_experiment_with_tiny_sizes():
+    """The experiment as it builds: the PyBullet env through its module id, the linear clip
+    range (0.4 at the first update, 0.2 halfway)."""
+    pytest.importorskip("pybullet_envs_gymnasium")
+    from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
+
+    conf = validate(compose_config("+experiment=ppo_hopper_bullet", "algorithm.n_envs=2", "algorithm.n_steps=16",
+                                   "algorithm.batch_size=16", "algorithm.n_epochs=1", "actor.hidden=[8]",
+                                   "updates=2", "eval_episodes=1", "logger=none"))
+    trainer = build_onpolicy_trainer(conf)
+    try:
+        assert trainer.update(0)["return_mean"].isfinite().all()
+        assert float(trainer.update_step.loss.clip_epsilon) == pytest.approx(0.4)
+        trainer.update(1)
+        assert float(trainer.update_step.loss.clip_epsilon) == pytest.approx(0.2)
+        assert trainer.evaluate().shape == (1,)
+    finally:
+        trainer.close()
+
+
 def test_a_short_job_writes_its_run_directory(tmp_path):
     result = run_cli(*TINY, "updates=5", "explorer=gsde", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -127,6 +167,7 @@ BAD = [
     (("explorer=gsde", "explorer.rollout_steps=7"), "explorer.rollout_steps=7: null or algorithm.n_steps (32)"),
     (("env.normalize_obs=stats",), "env.normalize_obs=stats: null (false) with algorithm=ppo"),
     (("algorithm.bogus=1",), "algorithm.bogus: unknown key"),
+    (("algorithm.clip_range_schedule=cosine",), "algorithm.clip_range_schedule=cosine: one of constant, linear"),
     (("algorithm.n_steps=1000000", "max_memory_gb=4"), "algorithm.n_steps=1000000: the job would hold about"),
 ]
 

@@ -124,7 +124,8 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
                                 normalize_advantage=alg.normalize_advantage)
     else:
         update = PPOUpdate(loss, optimizer, n_epochs=alg.n_epochs, batch_size=alg.batch_size,
-                           max_grad_norm=alg.max_grad_norm)
+                           max_grad_norm=alg.max_grad_norm, clip_range_schedule=alg.clip_range_schedule,
+                           updates=conf.updates)
     settings = OnPolicySettings("a2c" if a2c else "ppo", updates=conf.updates, n_envs=alg.n_envs, n_steps=alg.n_steps,
                                 eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
                                 episode_length=base.episode_length, first_run=conf.first_run)

@@ -426,6 +426,8 @@ class PPOConf(OnPolicyConf):
         batch_size: steps per minibatch, at most ``n_envs × n_steps``.
         n_epochs: passes over each rollout.
         clip_range: PPO's clipping ``ε``.
+        clip_range_schedule: ``ε`` over updates, as ``optimizer.lr_schedule`` the rate:
+            ``constant``, or ``linear`` decay to 0 (rl-zoo's ``lin_0.4``).
 
     Examples:
         >>> PPOConf().n_steps, PPOConf().batch_size
@@ -435,9 +437,11 @@ class PPOConf(OnPolicyConf):
     batch_size: int = 64
     n_epochs: int = 10
     clip_range: float = 0.2
+    clip_range_schedule: str = "constant"
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        one_of("algorithm.clip_range_schedule", self.clip_range_schedule, ("constant", "linear"))
         for name in ("batch_size", "n_epochs"):
             positive_int(f"algorithm.{name}", getattr(self, name))
         if self.batch_size > self.n_envs * self.n_steps:

@@ -47,7 +47,7 @@ class A2CUpdate:
         max_grad_norm: bound on the gradient's norm (``None``: not clipped).
         normalize_advantage: standardise the advantages over the rollout first.
 
-    Returns (when called):
+    Returns (when called with the rollout and the update's index):
         The gradient norm before clipping.
 
     Examples:
@@ -60,7 +60,7 @@ class A2CUpdate:
         self.max_grad_norm = math.inf if max_grad_norm is None else max_grad_norm
         self.parameters = [p for group in optimizer.param_groups for p in group["params"]]
 
-    def __call__(self, batch: TensorDictBase) -> float:
+    def __call__(self, batch: TensorDictBase, update: int) -> float:
         flat = batch.reshape(-1).select(*ROLLOUT_KEYS, strict=False)
         if self.normalize_advantage:
             advantage = flat.get("advantage")

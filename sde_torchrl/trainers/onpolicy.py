@@ -131,8 +131,8 @@ class OnPolicyTrainer:
         policy: the exploring policy (the SDE or the Gaussian policy).
         critic: the value network.
         advantage: writes ``advantage`` and ``value_target`` into a rollout (TorchRL's ``GAE``).
-        update: the algorithm's update of a rollout with advantages; returns the mean gradient
-            norm of its optimiser steps.
+        update: the algorithm's update of a rollout with advantages, given the update's index;
+            returns the mean gradient norm of its optimiser steps.
         optimizer: the optimiser of policy and critic.
         settings: the job's :class:`OnPolicySettings`.
         normalizer: the training env's running normalisation (``None``: none).
@@ -146,7 +146,7 @@ class OnPolicyTrainer:
 
     def __init__(
         self, collector: StepCollector, eval_env: EnvBase, policy: nn.Module, critic: nn.Module,
-        advantage: Callable[[TensorDictBase], Any], update: Callable[[TensorDictBase], float],
+        advantage: Callable[[TensorDictBase], Any], update: Callable[[TensorDictBase, int], float],
         optimizer: torch.optim.Optimizer, settings: OnPolicySettings, *, normalizer: RunningNormalize | None = None,
         eval_normalizer: RunningNormalize | None = None, logger: Any = None,
         lr_schedule: LearningRateSchedule | None = None,
@@ -183,7 +183,7 @@ class OnPolicyTrainer:
             self.advantage(batch)
         if self.lr_schedule is not None:
             self.lr_schedule.apply(k)
-        grad_norm = torch.tensor([self.update_step(batch)])
+        grad_norm = torch.tensor([self.update_step(batch, k)])
         self._check(k, "gradient", grad_norm)
         for name, value in self.modules.state_dict().items():
             self._check(k, "parameter", value, name)
