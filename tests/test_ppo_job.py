@@ -154,6 +154,23 @@ def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, job
     assert scalars.read_bytes() == (tmp_path / "ref" / scalars.relative_to(run_dir)).read_bytes()
 
 
+def test_a_kill_between_checkpoints_then_the_same_command_redoes_the_lost_updates(tmp_path):
+    """SIGKILL: the rows after the last periodic checkpoint are cut back and done again, the same."""
+    cli = (*TINY, "updates=40", "checkpoint_period=5", "explorer=gsde_freq4")
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        reference = pool.submit(run_cli, *cli, run_dir=tmp_path / "ref")
+        run_dir = tmp_path / "killed"
+        killed = start_and_signal(run_dir, signal.SIGKILL, after_rows=17, cli=cli)
+        assert killed.returncode == -signal.SIGKILL
+        done = load_checkpoint(run_dir / "checkpoint.pt")["updates"]
+        assert done % 5 == 0 and rows_in(run_dir / "metrics.csv") >= done
+        finished = run_cli(*cli, run_dir=run_dir)
+        assert finished.returncode == 0, finished.stderr[-2000:]
+        assert reference.result().returncode == 0
+    assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "ref" / "metrics.csv").read_bytes()
+    assert summary_without_wall(run_dir) == summary_without_wall(tmp_path / "ref")
+
+
 BAD = [
     (("runs=2",), "runs=2: 1 with algorithm=ppo"),
     (("algorithm.batch_size=100",), "algorithm.batch_size=100: at most algorithm.n_envs × algorithm.n_steps = 64"),
