@@ -35,6 +35,7 @@ from __future__ import annotations
 import logging
 import os
 import shlex
+import signal
 import sys
 import traceback
 from collections.abc import Iterator
@@ -52,7 +53,8 @@ from omegaconf import DictConfig, OmegaConf
 # Light imports only (no torch): a job locks its run directory before importing torch.
 from sde_torchrl.config.schemas import describe_error, register_resolvers, validate
 from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
-from sde_torchrl.trainers.interrupt import TrainingInterrupted
+from sde_torchrl.jobs.sweep_stop import handle_in_parent, in_worker, job_started
+from sde_torchrl.trainers.interrupt import TrainingInterrupted, stop_requested
 from sde_torchrl.trainers.progress import progress_wanted
 from sde_torchrl.utils.files import DamagedFileError, DiskFullError, write_atomically
 
@@ -81,6 +83,8 @@ RESUME: dict[str, str] = {}
 #: This process's jobs found finished in their directories: one line each, reported at the end
 #: (not logged: the log file is in the run directory, which is left as it was).
 FINISHED: list[str] = []
+#: Jobs of this process stopped by a signal with a checkpoint (in a sweep's worker: reported to the parent).
+INTERRUPTED: list[dict[str, Any]] = []
 #: Full tracebacks wanted: read once at start-up (``cli`` then sets ``HYDRA_FULL_ERROR`` itself).
 DEBUG = False
 
@@ -196,9 +200,14 @@ def main(cfg: DictConfig) -> dict[str, Any] | None:
         What the sweep's parent process reports for the job (:func:`job_report`): a launcher
         that runs the job in another process (joblib, submitit, Ray) hands it back to the parent.
     """
-    failures, finished = len(FAILURES), len(FINISHED)
-    job(cfg)
-    return job_report(FAILURES[failures:], FINISHED[finished:])
+    failures, finished, interrupted = len(FAILURES), len(FINISHED), len(INTERRUPTED)
+    try:
+        job(cfg)
+    except TrainingInterrupted as stop:
+        if not in_worker():  # this process reports it (train.py's cli)
+            raise
+        INTERRUPTED.append(interrupted_job(stop))  # a sweep's worker: reported to the parent
+    return job_report(FAILURES[failures:], FINISHED[finished:], INTERRUPTED[interrupted:])
 
 
 def resume_override(directory: str, multirun: bool) -> str:
@@ -214,16 +223,42 @@ def resume_override(directory: str, multirun: bool) -> str:
     return shlex.quote(f"hydra.{'sweep' if multirun else 'run'}.dir={directory}")
 
 
-def job_report(failures: list[JobFailure], finished: list[str]) -> dict[str, Any] | None:
-    """A job's failure and finished line as plain data, sent between processes.
+def job_report(failures: list[JobFailure], finished: list[str],
+               interrupted: list[dict[str, Any]] | None = None) -> dict[str, Any] | None:
+    """A job's failure, finished line and interruption as plain data, sent between processes.
 
     Examples:
         >>> job_report([JobFailure("runs/0", ["lr=1e38"], "NonFiniteError: ...", 1, True)], [])["failures"][0]["code"]
         1
     """
-    if not failures and not finished:
+    if not failures and not finished and not interrupted:
         return None
-    return {"failures": [asdict(failure) for failure in failures], "finished": list(finished)}
+    return {"failures": [asdict(failure) for failure in failures], "finished": list(finished),
+            "interrupted": list(interrupted or [])}
+
+
+def interrupted_job(stop: TrainingInterrupted) -> dict[str, Any]:
+    """What the sweep's parent reports for a job a signal stopped in a worker (:func:`interrupted_line`).
+
+    Examples:
+        >>> import signal
+        >>> interrupted_job(TrainingInterrupted(3, Path("runs/0"), signal.SIGTERM))["updates_done"]
+        3
+    """
+    return {"signal": stop.signal_name, "code": stop.exit_code, "updates_done": stop.updates_done,
+            "out_dir": str(stop.out_dir), "resume": RESUME.get("override") or resume_override(str(stop.out_dir), False)}
+
+
+def interrupted_line(entry: dict[str, Any]) -> str:
+    """The line for a job stopped by a signal, with the override that resumes it.
+
+    Examples:
+        >>> interrupted_line({"signal": "SIGTERM", "updates_done": 3, "out_dir": "runs/0",
+        ...                   "resume": "hydra.sweep.dir=runs"})  # doctest: +ELLIPSIS
+        'interrupted by SIGTERM: checkpoint after update 3 in runs/0; run the same command with hydra.sweep.dir=...'
+    """
+    return (f"interrupted by {entry['signal']}: checkpoint after update {entry['updates_done']} in "
+            f"{shlex.quote(entry['out_dir'])}; run the same command with {entry['resume']} to resume")
 
 
 def gather_job_reports(sweep_returns: list[Any]) -> None:
@@ -241,6 +276,7 @@ def gather_job_reports(sweep_returns: list[Any]) -> None:
                     seen.add((failure.out_dir, failure.message))
                     FAILURES.append(failure)
             FINISHED.extend(line for line in report.get("finished", []) if line not in FINISHED)
+            INTERRUPTED.extend(entry for entry in report.get("interrupted", []) if entry not in INTERRUPTED)
 
 
 @contextmanager
@@ -254,6 +290,8 @@ def sweep_returns_kept(into: list[Any]) -> Iterator[None]:
     def keeping(self: Any, *args: Any, **kwargs: Any) -> Any:
         returned = multirun(self, *args, **kwargs)
         into.extend(returned or [])
+        if HydraConfig.initialized():  # the sweep's directory, for the resume line of a stopped sweep
+            RESUME.setdefault("sweep", resume_override(HydraConfig.get().sweep.dir, multirun=True))
         return returned
 
     Hydra.multirun = keeping
@@ -270,6 +308,9 @@ def job(cfg: DictConfig) -> None:
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     overrides = list(hydra_cfg.overrides.task)
     RESUME["override"] = resume_override(hydra_cfg.sweep.dir if multirun else out_dir, multirun)
+    job_started()  # in a joblib worker: a stop signal checkpoints the job and starts no other
+    if stop_requested() is not None:  # the sweep was stopped before this job: it does not start
+        return
     with ExitStack() as stack:
         try:
             stack.enter_context(hold_run_directory(out_dir))
@@ -321,6 +362,8 @@ def cli() -> int:
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # let errors through: one line from us, or the traceback
     sweep_returns: list[Any] = []
+    if {"-m", "--multirun"} & set(sys.argv[1:]):
+        handle_in_parent()  # a stop signal reaches the jobs joblib runs in other processes
     try:
         with sweep_returns_kept(sweep_returns):
             main()
@@ -344,6 +387,9 @@ def cli() -> int:
     gather_job_reports(sweep_returns)
     for line in FINISHED:
         sys.stdout.write(f"{line}\n")
+    stopped = stop_requested()
+    if INTERRUPTED or stopped is not None:
+        return report_stopped(stopped)
     if not FAILURES:
         return 0
     for failure in FAILURES:
@@ -352,6 +398,22 @@ def cli() -> int:
         sys.stderr.write(f"error: {failure.message}{where}\n")
     codes = {failure.code for failure in FAILURES}
     return codes.pop() if len(codes) == 1 else EXIT_FAILED
+
+
+def report_stopped(signum: int | None) -> int:
+    """Reports a sweep stopped by a signal: each failure, each stopped job's line (its checkpoint and
+    the resume override), and returns the signal's exit code (143 for SIGTERM)."""
+    for failure in FAILURES:
+        sys.stderr.write(f"error: {failure.message} (job {' '.join(failure.overrides)})\n")
+    for entry in INTERRUPTED:
+        sys.stderr.write(f"{interrupted_line(entry)}\n")
+    name = signal.Signals(signum).name if signum is not None else INTERRUPTED[0]["signal"]
+    if not INTERRUPTED:
+        resume = RESUME.get("sweep") or RESUME.get("override")
+        how = f"run the same command with {resume}" if resume else "run the same command"
+        sys.stderr.write(f"interrupted by {name} while no job was training: the jobs not started did not start; "
+                         f"{how} to run them\n")
+    return 128 + (signum if signum is not None else INTERRUPTED[0]["code"] - 128)
 
 
 if __name__ == "__main__":

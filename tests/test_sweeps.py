@@ -54,3 +54,92 @@ def test_a_joblib_sweep_reports_each_job_s_failure_and_exits_non_zero(tmp_path):
     assert errors[1].startswith(f"error: {tmp_path / '2'} is in use by another process (pid ")
     assert errors[1].endswith("lr=0.003)")
     assert f"{tmp_path / '1'} holds a finished job (2 updates of 2 runs): nothing was changed" in result.stdout
+
+
+def _children(pid: int) -> list[int]:
+    """The live child processes of ``pid`` (``/proc``)."""
+    children = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines() if ":\t" in line)
+        except OSError:
+            continue
+        if fields.get("PPid", "").strip() == str(pid):
+            children.append(int(status.parent.name))
+    return children
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/status").read_text().split("State:", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+def test_sigterm_to_a_joblib_sweep_checkpoints_its_jobs_and_leaves_no_orphan(tmp_path):
+    """Issue 38 item 5: SIGTERM to the parent of a real joblib sweep (two workers, three jobs)
+    reaches the running jobs, which checkpoint (a job that had not started does not start; one
+    that was being built checkpoints after its first update); the parent exits 143 with each
+    stopped job's resume line; no worker lives on or holds a run directory; the same command
+    then resumes to the uninterrupted sweep's result, byte for byte."""
+    import os
+    import re
+    import signal
+    import time
+
+    from _helpers import own_stderr_lines, summary_without_wall, train_command
+
+    from sde_torchrl.jobs.lock import held_by
+
+    sweep = ("+experiment=minimize", "seed=0,1,2", "updates=120", "runs=2", "eval_period=20", "checkpoint_period=0",
+             "logger=none", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
+    command = train_command(*sweep, run_dir=tmp_path / "sweep", multirun=True)
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as stderr_file:  # a file, not a pipe: the workers write to it too
+        parent = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=stderr_file, text=True)
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 120
+        while not all(len((tmp_path / "sweep" / job / "metrics.csv").read_text().splitlines()) > 1
+                      if (tmp_path / "sweep" / job / "metrics.csv").exists() else False for job in "01"):
+            assert parent.poll() is None and time.monotonic() < deadline, log.read_text()[-3000:]
+            time.sleep(0.05)
+        workers = _children(parent.pid)
+        parent.send_signal(signal.SIGTERM)
+        parent.wait(timeout=120)
+        deadline = time.monotonic() + 30  # loky's workers end once the parent has gone
+        while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        orphans = [pid for pid in workers if _alive(pid)]
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+        for pid in workers:  # whatever happens, no orphan outlives the test
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+    stderr = log.read_text()
+    assert parent.returncode == 143, stderr[-3000:]
+    assert not orphans, stderr[-3000:]
+    lines = own_stderr_lines(stderr)
+    lines = lines[lines.index(next(line for line in lines if line.startswith("interrupted by"))):]
+    stopped = [job for job in "012" if (tmp_path / "sweep" / job / "checkpoint.pt").exists()
+               and not (tmp_path / "sweep" / job / "summary.json").exists()]
+    assert "1" in stopped and len(lines) == len(stopped), stderr[-3000:]  # job 1 was training
+    for line, job in zip(lines, stopped, strict=True):
+        assert re.fullmatch(f"interrupted by SIGTERM: checkpoint after update [0-9]+ in {tmp_path / 'sweep' / job}; "
+                            f"run the same command with hydra.sweep.dir={tmp_path / 'sweep'} to resume", line), line
+    assert all(held_by(tmp_path / "sweep" / job) is None for job in "012")
+    for job in set("012") - set(stopped):  # finished before the signal, or not started
+        assert (tmp_path / "sweep" / job / "summary.json").exists() or \
+            not (tmp_path / "sweep" / job / "metrics.csv").exists()
+
+    resumed = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    whole = subprocess.run(train_command(*sweep, run_dir=tmp_path / "whole", multirun=True), cwd=ROOT,
+                           capture_output=True, text=True, timeout=300)
+    assert whole.returncode == 0, whole.stderr[-3000:]
+    for job in "012":
+        assert (tmp_path / "sweep" / job / "metrics.csv").read_bytes() == \
+            (tmp_path / "whole" / job / "metrics.csv").read_bytes()
+        assert summary_without_wall(tmp_path / "sweep" / job) == summary_without_wall(tmp_path / "whole" / job)

@@ -7,6 +7,11 @@ SIGUSR2, which exits the process; submitit's logging of SIGTERM, which returns) 
 it, and training goes on if it returns; a signal that would have ended the process (Ctrl-C, or a
 default SIGTERM / SIGUSR2) raises :class:`TrainingInterrupted`, whose ``exit_code`` is the
 shell's: 130 for Ctrl-C, ``128 + signal number`` otherwise (143 for SIGTERM).
+
+A process that runs several jobs (a sweep's parent, joblib's workers: :mod:`sde_torchrl.jobs.sweep_stop`)
+handles the stop signals between trainings with :func:`stop_jobs`: the signal is kept
+(:data:`PENDING`), the next training checkpoints after its first update and stops, and a job that
+has not started yet does not start; such a handler is never passed a signal to "go on" after.
 """
 
 from __future__ import annotations
@@ -21,6 +26,35 @@ log = logging.getLogger(__name__)
 
 #: The signals that stop a job cleanly.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR2)
+#: The stop signal this process received outside training (:func:`stop_jobs`), under ``"signum"``.
+PENDING: dict[str, int] = {}
+
+
+def stop_jobs(signum: int, frame: Any) -> None:
+    """Handler of a process that runs jobs one after another: keeps the stop signal, so that
+    training stops after its next update (with a checkpoint) and no further job starts.
+
+    Examples:
+        >>> stop_jobs.stops_jobs
+        True
+    """
+    if "signum" not in PENDING:
+        PENDING["signum"] = signum
+        log.warning("%s: the running job checkpoints after its update and stops; no further job starts",
+                    signal.Signals(signum).name)
+
+
+stop_jobs.stops_jobs = True  # DeferredInterrupt raises after its checkpoint instead of going on
+
+
+def stop_requested() -> int | None:
+    """The stop signal this process received outside training (:func:`stop_jobs`), if any.
+
+    Examples:
+        >>> stop_requested() is None
+        True
+    """
+    return PENDING.get("signum")
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -90,7 +124,9 @@ class DeferredInterrupt:
         signum, self.signum = self.signum, None
         previous = self._previous.get(signum)
         log.warning("%s: checkpoint after update %d saved in %s", signal.Signals(signum).name, updates_done, out_dir)
-        if callable(previous) and previous is not signal.default_int_handler:
+        if getattr(previous, "stops_jobs", False):  # a sweep's process: no further job either
+            previous(signum, None)
+        elif callable(previous) and previous is not signal.default_int_handler:
             previous(signum, None)
             return
         if previous is signal.SIG_IGN:
@@ -100,6 +136,11 @@ class DeferredInterrupt:
     def __enter__(self) -> DeferredInterrupt:
         if threading.current_thread() is threading.main_thread():
             self._previous = {signum: signal.signal(signum, self._handle) for signum in STOP_SIGNALS}
+            pending = stop_requested()
+            if pending is not None and getattr(self._previous.get(pending), "stops_jobs", False):
+                self.signum = pending  # it arrived before training: stop after the first update
+                log.warning("%s arrived before training: a checkpoint after its first update",
+                            signal.Signals(pending).name)
         return self
 
     def __exit__(self, *exc: Any) -> None:
