@@ -87,7 +87,8 @@ def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment):
     assert resolved(f"+experiment={experiment}") == resolved(*job)
 
 
-@pytest.mark.parametrize("method, experiment", [("reinforce_sde", "ballcatch_sigma3_sweep")])
+@pytest.mark.parametrize("method, experiment", [("reinforce_sde", "ballcatch_sigma3_sweep"),
+                                                ("reinforce_rex", "ballcatch_rex_scaled_sweep")])
 def test_the_rerun_sweep_is_round_three_s_choice_on_the_rules_seed(method, experiment):
     """The reported rerun at a method's round-3 choice: that candidate's job but on seed 3, in
     2 shards of 50 runs (learner_selection.md, round 3, "What follows")."""
