@@ -26,18 +26,19 @@ def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[
     directory.mkdir(parents=True)
     fields = ["run", "update", "episodes", "return_mean", "eval_return"]
     with open(directory / "metrics.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields + (["sigma_min", "sigma_max"] if sigmas else []))
+        writer = csv.DictWriter(f, fieldnames=fields + (["grad_norm", "sigma_min", "sigma_max"] if sigmas else []))
         writer.writeheader()
-        for offset, curve in enumerate(evals):
-            last = 20 * len(curve) - 1
-            for i, value in enumerate(curve):
-                for update in range(20 * i, 20 * i + 20):
-                    row = {"run": first_run + offset, "update": update, "episodes": update + 20,
-                           "return_mean": -2.0, "eval_return": factor * value if update == 20 * i + 19 else ""}
-                    if sigmas:
-                        row["sigma_min"], row["sigma_max"] = (0.135 * (end / 0.135) ** (update / last)
-                                                              for end in sigmas[offset])
-                    writer.writerow(row)
+        last = 20 * len(evals[0]) - 1
+        for update in range(last + 1):  # the job's order: every run's row of an update, update by update
+            i = update // 20
+            for offset, curve in enumerate(evals):
+                row = {"run": first_run + offset, "update": update, "episodes": update + 20,
+                       "return_mean": -2.0, "eval_return": factor * curve[i] if update == 20 * i + 19 else ""}
+                if sigmas:  # the columns in the job's order (grad_norm comes before them)
+                    row["grad_norm"] = ""
+                    row["sigma_min"], row["sigma_max"] = (0.135 * (end / 0.135) ** (update / last)
+                                                          for end in sigmas[offset])
+                writer.writerow(row)
     summary = {"estimator": estimator, "explorer": explorer, "first_run": first_run, "runs": len(evals),
                "updates_done": 20 * len(evals[0]), "final_eval_return": [factor * curve[-1] for curve in evals]}
     if summed_over:
