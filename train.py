@@ -53,9 +53,9 @@ from omegaconf import DictConfig, OmegaConf
 # Light imports only (no torch): a job locks its run directory before importing torch.
 from sde_torchrl.config.schemas import describe_error, register_resolvers, validate
 from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
-from sde_torchrl.jobs.sweep_stop import handle_in_parent, in_worker, job_started
 from sde_torchrl.trainers.interrupt import TrainingInterrupted, stop_requested
 from sde_torchrl.trainers.progress import progress_wanted
+from sde_torchrl.trainers.sweep_stop import handle_in_parent, in_worker, job_started
 from sde_torchrl.utils.files import DamagedFileError, DiskFullError, write_atomically
 
 log = logging.getLogger("train")

@@ -8,7 +8,7 @@ it, and training goes on if it returns; a signal that would have ended the proce
 default SIGTERM / SIGUSR2) raises :class:`TrainingInterrupted`, whose ``exit_code`` is the
 shell's: 130 for Ctrl-C, ``128 + signal number`` otherwise (143 for SIGTERM).
 
-A process that runs several jobs (a sweep's parent, joblib's workers: :mod:`sde_torchrl.jobs.sweep_stop`)
+A process that runs several jobs (a sweep's parent, joblib's workers: :mod:`sde_torchrl.trainers.sweep_stop`)
 handles the stop signals between trainings with :func:`stop_jobs`: the signal is kept
 (:data:`PENDING`), the next training checkpoints after its first update and stops, and a job that
 has not started yet does not start; such a handler is never passed a signal to "go on" after.
