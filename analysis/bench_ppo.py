@@ -48,6 +48,7 @@ import numpy as np
 import torch
 from figures import binned_curve, ratio_of_means, saved_figure
 
+from sde_torchrl.envs.normalize import running_update
 from sde_torchrl.utils.intervals import bootstrap_interval
 
 ENV_ID = "HalfCheetahBulletEnv-v0"
@@ -100,16 +101,6 @@ def _gym_make():
 
 
 # ----------------------------------------------------------------------------------- TorchRL side
-def _running_update(mean, var, count, batch):
-    """Parallel mean/variance update of SB3's ``RunningMeanStd`` (batch over the leading dims)."""
-    batch = batch.reshape(-1, *mean.shape).to(mean.dtype)
-    b_mean, b_var, b_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
-    delta, total = b_mean - mean, count + b_count
-    new_mean = mean + delta * b_count / total
-    m2 = var * count + b_var * b_count + delta.square() * count * b_count / total
-    return new_mean, m2 / total, total
-
-
 def make_normalizer(obs_dim: int, gamma: float):
     """SB3 ``VecNormalize``'s rule as a TorchRL transform (observations and discounted-return scale)."""
     from torchrl.envs import Transform
@@ -136,7 +127,7 @@ def make_normalizer(obs_dim: int, gamma: float):
         def _step(self, tensordict, next_tensordict):
             obs, reward = next_tensordict.get("observation"), next_tensordict.get("reward")
             if self.training_stats:
-                self.obs_mean, self.obs_var, self.obs_count = _running_update(
+                self.obs_mean, self.obs_var, self.obs_count = running_update(
                     self.obs_mean, self.obs_var, self.obs_count, obs)
             next_tensordict.set("observation", self._norm(obs))
             if self.normalize_reward:
@@ -144,7 +135,7 @@ def make_normalizer(obs_dim: int, gamma: float):
                     self.returns = torch.zeros_like(reward, dtype=torch.float64)
                 self.returns = self.returns * gamma + reward.double()
                 if self.training_stats:
-                    self.ret_mean, self.ret_var, self.ret_count = _running_update(
+                    self.ret_mean, self.ret_var, self.ret_count = running_update(
                         self.ret_mean, self.ret_var, self.ret_count, self.returns)
                 scaled = (reward.double() / (self.ret_var + EPS).sqrt()).clamp(-CLIP, CLIP)
                 next_tensordict.set("reward", scaled.to(reward.dtype))

@@ -11,6 +11,8 @@ import pytest
 import torch
 from _helpers import REPO, load_script
 
+from sde_torchrl.envs.normalize import running_update
+
 bench = load_script("bench_ppo")
 
 
@@ -22,7 +24,7 @@ def test_running_statistics_match_stable_baselines3():
     for _ in range(5):
         batch = rng.normal(2.0, 3.0, size=(16, 3))
         reference.update(batch)
-        mean, var, count = bench._running_update(mean, var, count.double(), torch.from_numpy(batch))
+        mean, var, count = running_update(mean, var, count.double(), torch.from_numpy(batch))
     np.testing.assert_allclose(mean.numpy(), reference.mean, rtol=1e-12)
     np.testing.assert_allclose(var.numpy(), reference.var, rtol=1e-12)
 
