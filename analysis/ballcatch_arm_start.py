@@ -142,6 +142,11 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "arm_start.json").write_text(json.dumps(numbers, indent=1) + "\n")
     (args.out / "arm_start.md").write_text(markdown(numbers))
+    last = numbers["measured"][-1]
+    print(f"the shipped arm {'keeps' if numbers['decision'] == 'keep' else 'changes'} its start: gravity's torques "
+          + ", ".join(f"{joint} {value:.1f}" for joint, value in torques.items())
+          + f" against FMax {FMAX}; the palm at {last['time']:g} s: height {last['height']:.3f}, pitch "
+          f"{last['pitch']:.3f} rad; wrote {args.out / 'arm_start.md'}")
     return 0
 
 

@@ -155,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
             continue
         result = evaluate_job(job, args.episodes, args.seed, args.chunk, args.model)
         out.write_text(json.dumps(result, indent=1))
+        catches = sum(value >= -1.1 for value in result["final_policy_return"])
+        log.info("%s: %d of %d final policies catch (R >= -1.1 over %d episodes); wrote %s", job.path, catches,
+                 len(result["final_policy_return"]), args.episodes, out)
     return 0
 
 
