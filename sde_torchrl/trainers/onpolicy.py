@@ -44,14 +44,14 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl.collectors.steps import StepCollector
 from sde_torchrl.envs.normalize import RunningNormalize
-from sde_torchrl.jobs.checkpoint import job_streams, restore_job, result_config, save_job
+from sde_torchrl.jobs.checkpoint import job_streams, restore_job, save_job
 from sde_torchrl.jobs.run_dir import RunDirectory, metric_rows
 from sde_torchrl.trainers.guard import NonFiniteError
 from sde_torchrl.trainers.interrupt import DeferredInterrupt
 from sde_torchrl.trainers.optim import LearningRateSchedule
-from sde_torchrl.trainers.report import Reporter, close_logger
+from sde_torchrl.trainers.report import Reporter
 from sde_torchrl.trainers.summary import LoopState, exploration_state
-from sde_torchrl.trainers.trainer import finished_line
+from sde_torchrl.trainers.trainer import train_in_directory
 
 log = logging.getLogger(__name__)
 
@@ -220,22 +220,7 @@ class OnPolicyTrainer:
         Returns:
             The summary (also written to ``summary.json``).
         """
-        run_dir = RunDirectory(out_dir)
-        config = result_config(config)
-        with run_dir.lock():
-            done = run_dir.finished_job(config)
-            if done is not None:
-                log.info("%s", finished_line(done))
-                return done.summary
-            state = self._resume(run_dir, config)
-            try:
-                if not state.finished:
-                    self._loop(run_dir, state, config, checkpoint_period, progress)
-            finally:
-                close_logger(self.logger)
-            summary = run_dir.write_summary({**(labels or {}), **self._summary(state)})
-        log.info("results in %s", run_dir.path.resolve())
-        return summary
+        return train_in_directory(self, out_dir, labels, config, checkpoint_period, progress)
 
     def _loop(self, run_dir: RunDirectory, state: LoopState, config: dict | None, period: int,
               progress: bool) -> None:

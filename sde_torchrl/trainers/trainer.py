@@ -167,24 +167,12 @@ class Trainer:
                 or the files of a finished job without a checkpoint disagree
                 (:class:`~sde_torchrl.jobs.run_dir.UnfinishedRunError`; nothing is changed).
         """
-        run_dir = RunDirectory(out_dir)
-        config = result_config(config)
-        with run_dir.lock():
-            done = run_dir.finished_job(config)
-            if done is not None:
-                log.info("%s", finished_line(done))
-                return done.summary
-            state = self._resume(run_dir, config)
-            try:
-                if not state.finished:
-                    self._loop(run_dir, state, config, checkpoint_period, progress)
-            finally:
-                close_logger(self.logger)
-            summary = {**(labels or {}), **summarize(state, self.settings, self.policy, self.episodes_after),
-                       "episode_return": self.estimator.episode_return}
-            summary = run_dir.write_summary(summary)
-        log.info("results in %s", run_dir.path.resolve())
-        return summary
+        return train_in_directory(self, out_dir, labels, config, checkpoint_period, progress)
+
+    def _summary(self, state: LoopState) -> dict[str, Any]:
+        """The job's summary (:func:`~sde_torchrl.trainers.summary.summarize`) and its return definition."""
+        return {**summarize(state, self.settings, self.policy, self.episodes_after),
+                "episode_return": self.estimator.episode_return}
 
     def _loop(self, run_dir: RunDirectory, state: LoopState, config: dict | None, period: int,
               progress: bool) -> None:
@@ -277,6 +265,40 @@ class Trainer:
             log.info("%s holds a finished job whose summary.json is missing or disagrees with its checkpoint: "
                      "rewritten from it", run_dir.path)
         return state
+
+
+def train_in_directory(
+    trainer: Any, out_dir: str | os.PathLike, labels: dict[str, Any] | None, config: dict[str, Any] | None,
+    checkpoint_period: int, progress: bool,
+) -> dict[str, Any]:
+    """A trainer's job in its run directory, the one way every trainer runs (:meth:`Trainer.train`
+    says what it guarantees): the directory held, a finished job left as it is, a checkpoint
+    resumed, the loop run, the logger closed, the summary written.
+
+    Args:
+        trainer: has ``_resume(run_dir, config)``, ``_loop(run_dir, state, config, period,
+            progress)``, ``_summary(state)`` and ``logger``.
+        out_dir, labels, config, checkpoint_period, progress: as :meth:`Trainer.train` takes them.
+
+    Returns:
+        The summary (also written to ``summary.json``).
+    """
+    run_dir = RunDirectory(out_dir)
+    config = result_config(config)
+    with run_dir.lock():
+        done = run_dir.finished_job(config)
+        if done is not None:
+            log.info("%s", finished_line(done))
+            return done.summary
+        state = trainer._resume(run_dir, config)
+        try:
+            if not state.finished:
+                trainer._loop(run_dir, state, config, checkpoint_period, progress)
+        finally:
+            close_logger(trainer.logger)
+        summary = run_dir.write_summary({**(labels or {}), **trainer._summary(state)})
+    log.info("results in %s", run_dir.path.resolve())
+    return summary
 
 
 def finished_line(job: FinishedRun) -> str:
