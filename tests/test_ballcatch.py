@@ -344,6 +344,24 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     assert len(worlds) == 4 and not any(w.is_connected() for w in worlds)
 
 
+def test_a_job_records_each_runs_level_in_its_summary(tmp_path):
+    """summary.json says what each run reached: the final evaluation per step and its level."""
+    import json
+
+    from _helpers import compose_config
+
+    from sde_torchrl.config import build
+    from sde_torchrl.envs.ballcatch.outcomes import catch_level
+
+    cfg = compose_config("+experiment=ballcatch_paper", "runs=2", "updates=1", "episode_queue=2",
+                         "env.episode_length=5", "eval_episodes=1", "logger=none")
+    build.run_job(cfg, str(tmp_path), {"env": "ballcatch"})
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    per_step = [value / 5 for value in summary["final_eval_return"]]  # the paper's learner sums rewards
+    assert summary["final_eval_mean_reward"] == pytest.approx(per_step)
+    assert summary["final_eval_level"] == [catch_level(value) for value in per_step]
+
+
 @pytest.mark.parametrize("model", ["cup", "pybrain"])
 def test_benchmark_prints_one_json_line_with_its_figures(model):
     root = Path(__file__).resolve().parents[1]

@@ -161,12 +161,31 @@ def mean_reward_factor(summary: dict[str, Any]) -> float:
     return per_step_factor("sum", summary["settings"]["episode_length"])
 
 
+def final_levels(summary: dict[str, Any]) -> dict[str, Any]:
+    """What a ball-catching job reached, for ``summary.json``: each run's final deterministic
+    evaluation as the paper's mean reward per step and its level (section 4.2,
+    :func:`~sde_torchrl.envs.ballcatch.outcomes.catch_level`); nothing for other tasks.
+
+    Examples:
+        >>> final_levels({"env": "ballcatch", "final_eval_return": [-1.05, -2.5]})
+        {'final_eval_mean_reward': [-1.05, -2.5], 'final_eval_level': ['catch', 'dropped']}
+        >>> final_levels({"env": "minimize", "final_eval_return": [-1.0]})
+        {}
+    """
+    if summary.get("env") != "ballcatch":
+        return {}
+    from sde_torchrl.envs.ballcatch.outcomes import catch_level
+
+    evals = [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
+    return {"final_eval_mean_reward": evals, "final_eval_level": [catch_level(value) for value in evals]}
+
+
 def final_lines(summary: dict[str, Any]) -> list[str]:
     """The lines that end a job's log: each run's final deterministic evaluation (the result),
     then the last training return (exploratory episodes, which a learner that explores widely
     keeps below its evaluation), both in the estimator's return definition. Ball catching gives
     the evaluation as the paper's mean reward per step, with each run's level and the count of
-    runs per level.
+    runs per level (:func:`final_levels`).
 
     Examples:
         >>> final_lines({"env": "minimize", "final_eval_return": [-1.23456], "final_return": [-2.0]})
@@ -178,13 +197,13 @@ def final_lines(summary: dict[str, Any]) -> list[str]:
         'levels of the final evaluations: 0 good catch, 1 catch, 0 on the hand, 0 slowed, 1 dropped (of 2 runs)'
     """
     training = f"last training return per run: {[round(value, 3) for value in summary['final_return']]}"
-    if summary.get("env") != "ballcatch":
+    reached = final_levels(summary)
+    if not reached:
         evals = [round(value, 3) for value in summary["final_eval_return"]]
         return [f"final evaluation per run (no exploration): {evals}", training]
-    evals = [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
-    from sde_torchrl.envs.ballcatch.outcomes import LEVELS, catch_level
+    from sde_torchrl.envs.ballcatch.outcomes import LEVELS
 
-    levels = [catch_level(value) for value in evals]
+    evals, levels = reached["final_eval_mean_reward"], reached["final_eval_level"]
     first = summary.get("first_run", 0)
     runs = ", ".join(f"run {first + i} {value:.3f} {level}"
                      for i, (value, level) in enumerate(zip(evals, levels, strict=True)))

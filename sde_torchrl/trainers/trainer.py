@@ -37,7 +37,7 @@ from sde_torchrl.trainers.interrupt import DeferredInterrupt
 from sde_torchrl.trainers.optim import LearningRateSchedule
 from sde_torchrl.trainers.report import Reporter, close_logger
 from sde_torchrl.trainers.settings import TrainingSettings
-from sde_torchrl.trainers.summary import LoopState, exploration_state, per_step_factor, summarize
+from sde_torchrl.trainers.summary import LoopState, exploration_state, final_levels, per_step_factor, summarize
 
 log = logging.getLogger(__name__)
 #: A session whose first update takes longer than this says what it is doing (a job is silent
@@ -296,7 +296,8 @@ def train_in_directory(
                 trainer._loop(run_dir, state, config, checkpoint_period, progress)
         finally:
             close_logger(trainer.logger)
-        summary = run_dir.write_summary({**(labels or {}), **trainer._summary(state)})
+        summary = {**(labels or {}), **trainer._summary(state)}
+        summary = run_dir.write_summary({**summary, **final_levels(summary)})
     log.info("results in %s", run_dir.path.resolve())
     return summary
 
