@@ -106,7 +106,7 @@ def test_latent_features_pass_the_sde_gradient_only_when_learned(learn_features)
     policy = make_sde_actor(actor, SDEParams(2, 4, feature_key="sde_features"))
     td = TensorDict({"observation": torch.randn(6, 3), "sde_noise": torch.randn(6, 2, 4)}, [6])
     dist = policy.get_dist(td)
-    variance = (policy.module[0].module[1].sde_sigma.square() * td["sde_features"].square().unsqueeze(-2)).sum(-1)
+    variance = (policy.sde.sde_sigma.square() * td["sde_features"].square().unsqueeze(-2)).sum(-1)
     torch.testing.assert_close(dist.scale.square(), variance)  # eq. (20) with x = h
     dist.scale.sum().backward()  # the scale depends on the mean's layers only through h
     first_layer_grad = actor.net.layers[0].weight.grad

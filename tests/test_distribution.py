@@ -400,7 +400,7 @@ def test_action_bounds_come_from_the_env_spec():
     torch.testing.assert_close((low, high), (torch.tensor([-2.0]), torch.tensor([2.0])))
     policy = make_sde_actor(_linear_actor(), sde, squash=True, action_spec=env.action_spec)
     with torch.no_grad():
-        policy.module[0].module[0].bias.fill_(30.0)  # saturate: the bound is 2, not tanh's 1
+        policy.actor_modules[0].bias.fill_(30.0)  # saturate: the bound is 2, not tanh's 1
     td = env.rollout(5, policy)
     assert (td["action"] <= 2).all() and (td["action"] > 1.99).all()
     with pytest.raises(ValueError, match="has no bounds"):
@@ -433,7 +433,7 @@ def _policy_and_env(squash, **sde_kwargs):
 
 
 def _assert_grads(policy, sde):
-    actor_weight = policy.module[0].module[0].weight
+    actor_weight = policy.actor_modules[0].weight
     assert actor_weight.grad is not None and actor_weight.grad.abs().sum() > 0  # θ
     assert sde.sigma_param.grad is not None and sde.sigma_param.grad.abs().sum() > 0  # σ̂
 

@@ -306,7 +306,7 @@ def _squashed_twin(policy):
     twin = SDEParams(sde.action_dim, sde.feature_dim, sharing=sde.sharing,
                      gaussian_init_param=-1.0 if sde.has_gaussian else None)
     twin.load_state_dict(sde.state_dict())
-    return make_sde_actor(policy.module[0].module[0], twin, squash=True, low=-1.0, high=1.0)
+    return make_sde_actor(policy.actor_modules[0], twin, squash=True, low=-1.0, high=1.0)
 
 
 @pytest.mark.parametrize("estimator_cls", [ReinforceEstimator, ENACEstimator, GPOMDPEstimator])

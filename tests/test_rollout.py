@@ -74,7 +74,7 @@ def test_tensor_rollout_is_deterministic_under_deterministic_exploration():
 def test_envs_or_policies_it_cannot_reproduce_fall_back():
     env, policy = _setup("episode")
     assert tensor_step_env(env, policy.actor) is None  # not an SDE policy
-    other = make_sde_actor(TensorDictModule(policy.actor.module[0].module, ["observation"], ["loc"]),
+    other = make_sde_actor(TensorDictModule(policy.actor_modules[0].module, ["observation"], ["loc"]),
                            SDEParams(2, 2, runs=2, noise_key="other_noise"))
     assert tensor_step_env(env, other) is None  # the env's primer draws another key
     env.append_transform(RewardScaling(loc=0.0, scale=2.0))  # a transform that must run
@@ -226,7 +226,7 @@ def test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_the_primer(sche
     runs, steps = 2, 5
     env, policy = _catching_setup(schedule, runs=runs, worlds=3, steps=steps)
     sde, primer = policy.sde, noise_primer(env)
-    weight = policy.actor.module[0].module.weight.detach()
+    weight = policy.actor_modules[0].module.weight.detach()
     matrix, noise = episode_matrix(primer, sde, weight, torch.Size([runs, 3]), steps)
     after_matrix = sde.streams.normal((runs, 7))
 

@@ -170,10 +170,9 @@ def tensor_step_env(env: EnvBase, policy: object) -> TensorStepEnv | None:
     base = _untransformed(env)
     if not isinstance(base, TensorStepEnv) or not isinstance(policy, SDEActor):
         return None
-    modules = list(policy.module[0].module)
-    if len(modules) != 2:
+    if len(policy.actor_modules) != 1:
         return None
-    actor, sde = modules
+    (actor,), sde = policy.actor_modules, policy.sde
     primer = noise_primer(env)
     supported = (isinstance(actor, TensorDictModule) and isinstance(sde, SDEParams)
                  and sde.feature_key == OBSERVATION_KEY
@@ -205,7 +204,7 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
     Returns:
         TensorDict ``[*batch, T]`` with the keys listed in the module docstring.
     """
-    actor, sde = policy.module[0].module
+    (actor,), sde = policy.actor_modules, policy.sde
     batch = env.batch_size
     x = env.initial_state()
     explore = not deterministic_exploration()
@@ -249,7 +248,7 @@ def linear_episode_env(env: EnvBase, policy: object) -> LinearEpisodeEnv | None:
     base = tensor_step_env(env, policy)
     if not isinstance(base, LinearEpisodeEnv):
         return None
-    actor, sde = policy.module[0].module
+    (actor,), sde = policy.actor_modules, policy.sde
     linear = isinstance(actor.module, BatchedLinear) and actor.module.bias is None
     known_maps = noise_primer(env).schedule in LINEAR_SCHEDULES and not sde.has_gaussian
     unit_bounds = not policy.squash or all(bool((bound.abs() == 1).all()) for bound in _bounds(policy))
@@ -277,7 +276,7 @@ def linear_episode_rollout(
     Returns:
         TensorDict ``[*batch, T]`` with the keys of :func:`tensor_rollout`.
     """
-    actor, sde = policy.module[0].module
+    (actor,), sde = policy.actor_modules, policy.sde
     batch = env.batch_size
     matrices, noise = episode_matrix(primer, sde, actor.module.weight, batch, steps)
     observations, sample, reward = env.linear_episodes(matrices, steps, policy.squash)

@@ -96,9 +96,14 @@ class SDEActor(ProbabilisticActor):
         return self.module[0].module[-1]
 
     @property
+    def actor_modules(self) -> tuple[TensorDictModuleBase, ...]:
+        """The modules before ``SDEParams``, in order: they write the controller's mean."""
+        return tuple(self.module[0].module[:-1])
+
+    @property
     def actor(self) -> TensorDictSequential:
-        """The modules before ``SDEParams``: they write the controller's mean."""
-        return TensorDictSequential(*self.module[0].module[:-1])
+        """The modules before ``SDEParams`` (:attr:`actor_modules`) chained."""
+        return TensorDictSequential(*self.actor_modules)
 
     def forward(self, tensordict: TensorDictBase, tensordict_out: TensorDictBase | None = None,
                 **kwargs) -> TensorDictBase:

@@ -75,11 +75,11 @@ def policy_parts(policy: object) -> PolicyParts:
     """
     if not isinstance(policy, SDEActor):
         raise TypeError(f"policy: got {type(policy).__name__}; expected {POLICY_FORM}")
-    inner = list(policy.module[0].module)
-    if len(inner) < 2 or not isinstance(inner[-1], SDEParams):
+    if not policy.actor_modules or not isinstance(policy.sde, SDEParams):
+        inner = (*policy.actor_modules, policy.sde)
         raise TypeError(f"policy: an SDEActor over TensorDictSequential({', '.join(type(m).__name__ for m in inner)}); "
                         "expected an actor, then SDEParams: build it with make_sde_actor(actor, sde)")
-    return PolicyParts(TensorDictSequential(*inner[:-1]), inner[-1], policy.sample_key, IS_INIT_KEY)
+    return PolicyParts(policy.actor, policy.sde, policy.sample_key, IS_INIT_KEY)
 
 
 def check_policy(policy: object) -> None:
