@@ -25,8 +25,11 @@ reparameterised SAC gradient needs ``a = μ(s) + (σ̂ ⊙ ξ) x(s)`` with ``ξ 
 ``s``; a stored ``ξ`` is not: it is the noise that steered the episode into ``s`` (held for
 ``train_freq`` steps), so ``ξ | s`` is not standard normal and the stored noise would bias the
 actor's gradient and its entropy estimate (and each transition would be scored with one and the
-same ``ξ`` at every replay). :func:`fresh_loss_noise` does it; ``--loss-noise stored`` keeps the
-buffer's ``ξ`` (the ablation row).
+same ``ξ`` at every replay). :func:`sde_torchrl.trainers.sac.fresh_loss_noise` does it;
+``--loss-noise stored`` keeps the buffer's ``ξ`` (the ablation row). The networks, the loss and the
+gradient step are the library's (:mod:`sde_torchrl.modules.sac_actor`, :mod:`sde_torchrl.trainers.sac`),
+which ``algorithm=sac`` trains with; the collection loop here is TorchRL's ``Collector``, as the
+committed runs were made.
 
 The update follows SB3's order per gradient step: critic loss and step, actor loss (with the
 updated critics) and step, entropy-coefficient step (``ent_coef: auto`` only; the critic and actor
@@ -90,6 +93,8 @@ import numpy as np
 import torch
 from figures import binned_curve
 
+from sde_torchrl.modules.sac_actor import make_sac_networks
+from sde_torchrl.trainers.sac import SACUpdate, make_sac_loss
 from sde_torchrl.utils.intervals import bootstrap_interval
 
 METHODS = ("sde", "plain", "sb3", "sb3_gauss")
@@ -113,8 +118,6 @@ ZOO = {
     },
 }
 ENVS = tuple(ZOO)
-CLIP_MEAN = 2.0  # SB3 SAC Actor's default with gSDE
-LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3 SAC Actor's clamp without gSDE
 #: What the losses read of a transition (the SDE policy's noise only with gSDE).
 BUFFER_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
                ("next", "terminated"), "sde_noise", ("next", "sde_noise"))
@@ -136,34 +139,10 @@ def _env_dims(env_id: str) -> tuple[int, int, int]:
 
 
 # ----------------------------------------------------------------------------------- TorchRL side
-class GaussianHeads(torch.nn.Module):
-    """SB3's SAC actor without gSDE: a ReLU MLP, then linear mean and log-std heads (log-std clamped).
-
-    Args:
-        obs_dim: observation size.
-        action_dim: action size.
-        hidden: hidden layer sizes.
-    """
-
-    def __init__(self, obs_dim: int, action_dim: int, hidden: list[int]) -> None:
-        super().__init__()
-        from torchrl.modules import MLP
-
-        self.latent = MLP(in_features=obs_dim, out_features=hidden[-1], num_cells=hidden[:-1],
-                          activation_class=torch.nn.ReLU, activate_last_layer=True)
-        self.mu, self.log_std = torch.nn.Linear(hidden[-1], action_dim), torch.nn.Linear(hidden[-1], action_dim)
-
-    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        latent = self.latent(observation)
-        return self.mu(latent), self.log_std(latent).clamp(LOG_STD_MIN, LOG_STD_MAX).exp()
-
-
 def make_torchrl_policy(method: str, obs_dim: int, action_spec, zoo: dict):
-    """The actor (``sde`` or ``plain``), the critic and the :class:`~sde_torchrl.SDEParams` (``None`` for plain).
-
-    Both actors and the critic are ReLU MLPs of ``zoo["net_arch"]`` with ``torch.nn.Linear``'s initial
-    distribution, as SB3's SAC; the critic reads ``[observation, action]`` (TorchRL ``SACLoss``
-    makes the two Q-networks from it).
+    """The actor (``sde`` or ``plain``), the critic and the :class:`~sde_torchrl.SDEParams` (``None`` for plain):
+    :func:`sde_torchrl.modules.sac_actor.make_sac_networks` with ``zoo["net_arch"]``, the SDE noise redrawn
+    every ``train_freq`` steps and at resets (``schedule="every_n"``), ``p`` initialised to ``log_std_init``.
 
     Args:
         method: ``"sde"`` or ``"plain"``.
@@ -171,96 +150,33 @@ def make_torchrl_policy(method: str, obs_dim: int, action_spec, zoo: dict):
         action_spec: the env's (bounded) action spec.
         zoo: the env's settings (:data:`ZOO`).
     """
-    from tensordict.nn import TensorDictModule, TensorDictSequential
-    from torch import nn
-    from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
-
-    from sde_torchrl import LatentMLPActor, SDEParams, action_bounds, make_sde_actor
-
-    action_dim, hidden = action_spec.shape[-1], zoo["net_arch"]
-    critic = ValueOperator(MLP(in_features=obs_dim + action_dim, out_features=1, num_cells=hidden,
-                               activation_class=nn.ReLU), in_keys=["observation", "action"])
-    if method == "plain":
-        low, high = action_bounds(action_spec)
-        heads = TensorDictModule(GaussianHeads(obs_dim, action_dim, hidden), in_keys=["observation"],
-                                 out_keys=["loc", "scale"])
-        policy = ProbabilisticActor(heads, in_keys=["loc", "scale"], distribution_class=TanhNormal,
-                                    distribution_kwargs={"low": low, "high": high}, return_log_prob=True)
-        return policy, critic, None
-    latent = LatentMLPActor(obs_dim, action_dim, hidden, activation="relu", learn_features=True,
-                            feature_key="sde_features")
-    clip = TensorDictModule(nn.Hardtanh(-CLIP_MEAN, CLIP_MEAN), in_keys=["loc"], out_keys=["loc"])
-    sde = SDEParams(action_dim, latent.feature_dim, schedule="every_n", every_n=zoo["train_freq"],
-                    init_param=zoo["log_std_init"], feature_key="sde_features")
-    return make_sde_actor(TensorDictSequential(latent, clip), sde, squash=True, action_spec=action_spec), critic, sde
-
-
-def fresh_loss_noise(batch, sde) -> None:
-    """Overwrite the stored ``ξ`` of a sampled minibatch with one fresh standard-normal matrix.
-
-    One ``[A, S]`` draw, shared by every row and by the next-state actions of the critic's
-    target, as SB3's ``actor.reset_noise()`` before each gradient step (its ``exploration_mat``).
-
-    Args:
-        batch: the sampled transitions (``[B]``), modified in place.
-        sde: the policy's :class:`~sde_torchrl.SDEParams`.
-    """
-    noise = torch.randn(sde.action_dim, sde.feature_dim).expand(*batch.shape, sde.action_dim, sde.feature_dim)
-    batch.set(sde.noise_key, noise)
-    batch.set(("next", sde.noise_key), noise)
+    options = None if method == "plain" else {"schedule": "every_n", "every_n": zoo["train_freq"],
+                                              "init_param": zoo["log_std_init"]}
+    return make_sac_networks(obs_dim, action_spec, zoo["net_arch"], sde_options=options)
 
 
 def make_loss(policy, critic, action_spec, zoo: dict):
-    """TorchRL's ``SACLoss`` with SB3's settings: two Q-nets, L2, fixed or learned entropy coefficient."""
-    from torchrl.objectives import SACLoss
-
-    auto = zoo["ent_coef"] == "auto"
-    loss = SACLoss(policy, critic, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0 if auto else zoo["ent_coef"],
-                   fixed_alpha=not auto, action_spec=action_spec, target_entropy="auto")
-    loss.make_value_estimator(gamma=zoo["gamma"])
-    return loss
+    """TorchRL's ``SACLoss`` with SB3's settings (:func:`sde_torchrl.trainers.sac.make_sac_loss`)."""
+    return make_sac_loss(policy, critic, action_spec.shape[-1], gamma=zoo["gamma"], ent_coef=zoo["ent_coef"])
 
 
 def make_update(loss, sde, zoo: dict, loss_noise: str = "fresh", compile_update: bool = False):
-    """One SAC gradient step on a sampled minibatch, in SB3's order (see the module docstring).
+    """One SAC gradient step on a sampled minibatch, in SB3's order (:class:`sde_torchrl.trainers.sac.SACUpdate`).
 
     Args:
         loss: the ``SACLoss``.
-        sde: the :class:`~sde_torchrl.SDEParams` (``None`` for the plain Gaussian).
+        sde: the :class:`~sde_torchrl.SDEParams` (``None`` for the Gaussian).
         zoo: the env's settings.
-        loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the buffer's ``ξ``).
+        loss_noise: ``"fresh"`` (:func:`~sde_torchrl.trainers.sac.fresh_loss_noise`) or ``"stored"`` (the
+            buffer's ``ξ``).
         compile_update: run the whole step through ``torch.compile`` (inductor, with
             :func:`recompute_boolean_masks`).
 
     Returns:
         ``update(batch)``.
     """
-    from torchrl.objectives import SoftUpdate
-
-    lr = zoo["learning_rate"]
-    actor_optim = torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=lr)
-    critic_optim = torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=lr)
-    alpha_optim = None if zoo["ent_coef"] != "auto" else torch.optim.Adam([loss.log_alpha], lr=lr)
-    target = SoftUpdate(loss, tau=zoo["tau"])
-
-    def update(batch) -> None:
-        if sde is not None and loss_noise == "fresh":
-            fresh_loss_noise(batch, sde)
-        critic_loss, _ = loss.qvalue_v2_loss(batch)
-        critic_optim.zero_grad()
-        (0.5 * critic_loss).backward()  # SB3: 0.5 * Σ_k MSE(Q_k, y); TorchRL: Σ_k (Q_k - y)²
-        critic_optim.step()
-        actor_loss, meta = loss.actor_loss(batch)
-        actor_optim.zero_grad()
-        actor_loss.backward()
-        actor_optim.step()
-        if alpha_optim is not None:
-            alpha_optim.zero_grad()
-            loss.alpha_loss(meta["log_prob"]).mean().backward()
-            alpha_optim.step()
-        target.step()
-
-    return torch.compile(update, backend=inductor_recomputing_boolean_masks) if compile_update else update
+    update = SACUpdate(loss, sde, lr=zoo["learning_rate"], tau=zoo["tau"], loss_noise=loss_noise)
+    return torch.compile(update.__call__, backend=inductor_recomputing_boolean_masks) if compile_update else update
 
 
 def inductor_recomputing_boolean_masks(graph, example_inputs):
@@ -506,7 +422,7 @@ PROFILE_PARTS = {
     "Adam steps": ("optim/adam.py", "step"),
     "target update (SoftUpdate.step)": ("objectives/utils.py", "step"),
     "replay buffer sample": ("replay_buffers/base.py", "sample"),
-    "fresh loss noise": ("bench_sac.py", "fresh_loss_noise"),
+    "fresh loss noise": ("trainers/sac.py", "fresh_loss_noise"),
 }
 
 

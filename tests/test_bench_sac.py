@@ -10,6 +10,9 @@ import torch
 from _helpers import REPO, load_script
 from tensordict import TensorDict
 
+from sde_torchrl.modules.sac_actor import CLIP_MEAN
+from sde_torchrl.trainers.sac import fresh_loss_noise
+
 bench = load_script("bench_sac")
 
 
@@ -106,8 +109,8 @@ def test_fresh_noise_is_one_matrix_per_gradient_step_shared_by_the_batch_and_the
     """SB3's ``actor.reset_noise()`` before each gradient step: one exploration matrix for every row."""
     _, sde, _ = _sde_setup("fresh")
     first, second = _transitions(8, torch.zeros(8, 1, 64)), _transitions(8, torch.zeros(8, 1, 64))
-    bench.fresh_loss_noise(first, sde)
-    bench.fresh_loss_noise(second, sde)
+    fresh_loss_noise(first, sde)
+    fresh_loss_noise(second, sde)
     noise = first["sde_noise"]
     assert noise.shape == (8, 1, 64) and torch.equal(noise, noise[:1].expand_as(noise))
     assert torch.equal(first["next", "sde_noise"], noise)
@@ -121,7 +124,7 @@ def test_the_sde_actor_is_sb3s_sac_gsde_actor():
     assert sde.schedule == "every_n" and sde.every_n == bench.ZOO["mountaincar"]["train_freq"]
     policy = bench.make_torchrl_policy("sde", 2, _action_spec(), bench.ZOO["mountaincar"])[0]
     td = policy(TensorDict({"observation": torch.full((4, 2), 1e4), "sde_noise": torch.zeros(4, 1, 64)}, [4]))
-    assert td["loc"].abs().max() <= bench.CLIP_MEAN
+    assert td["loc"].abs().max() <= CLIP_MEAN
     assert td["sde_features"].requires_grad  # gSDE's learn_features=True in SB3's SAC
 
 
