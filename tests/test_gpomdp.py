@@ -88,6 +88,24 @@ def test_step_scores_are_each_steps_autograd_score_and_sum_to_the_episode_score(
         torch.testing.assert_close(per_step[name][:, 1, 2], g, rtol=1e-5, atol=1e-6)
 
 
+def test_gpomdp_scores_each_step_once_and_its_episode_scores_are_their_sums(monkeypatch):
+    """One pass of autograd scores per estimate: the episode scores (the finite check, the
+    score norm, the guard's naming) are the per-step scores summed, not a second pass."""
+    torch.manual_seed(0)
+    policy, _ = sde_policy(LinearActor(2, 2, bias=True, runs=2), 2, 2, runs=2)
+    episodes = _rollout(policy, make_minimize_env(3, dim=2, episodes=4, runs=2, x0=2.0, x0_spread=1.0), 3)
+    loss = GPOMDPEstimator(policy)
+    expected = episode_scores(loss.log_likelihood, episodes)
+    calls = []
+    original = sde_torchrl.objectives.estimators.episode_scores
+    monkeypatch.setattr(sde_torchrl.objectives.estimators, "episode_scores",
+                        lambda *args: calls.append(args[1].batch_size) or original(*args))
+    loss(episodes)
+    assert calls == [torch.Size([2, 12, 1])]  # the 4 × 3 steps as one-step episodes, once
+    for name, score in loss.scores(episodes).items():
+        torch.testing.assert_close(score, expected[name], rtol=1e-5, atol=1e-5)
+
+
 def test_step_rewards_sum_to_the_episode_returns():
     rewards = TensorDict({"next": {"reward": torch.randn(2, 3, 5, 1)}}, [2, 3, 5])
     for kind in ("mean", "sum"):

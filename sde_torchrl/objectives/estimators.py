@@ -395,8 +395,16 @@ class EpisodicEstimator(GradientEstimator):
         """Gradient ``[*runs, K]`` and diagnostics from scores ``[*runs, N, K]``, returns ``[*runs, N]``."""
         raise NotImplementedError
 
+    def episode_and_step_scores(
+        self, episodes: TensorDictBase,
+    ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor] | None]:
+        """The episode scores (:meth:`scores`) and, for an estimator that needs them, the
+        per-step scores they sum (:func:`step_scores`; ``None`` here)."""
+        return self.scores(episodes), None
+
     def estimate_from_episodes(
         self, episodes: TensorDictBase, scores: torch.Tensor, returns: torch.Tensor,
+        per_step: dict[str, torch.Tensor] | None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Gradient and diagnostics for the checked ``episodes``; :meth:`estimate` unless the
         estimator needs more than the episode scores and returns (GPOMDP's per-step terms)."""
@@ -514,11 +522,11 @@ class EpisodicEstimator(GradientEstimator):
         self.check_episodes(episodes)
         returns = self.returns(episodes)
         run_dims = episodes.batch_dims - 2
-        per_parameter = episode_scores(self.log_likelihood, episodes)
+        per_parameter, per_step = self.episode_and_step_scores(episodes)
         scores = flatten_scores(per_parameter, run_dims)
         if not self.allow_nonfinite and not bool(torch.isfinite(scores).all()):
             self._check_finite("scores", per_parameter, run_dims, per_episode=True)
-        gradient, diagnostics = self.estimate_from_episodes(episodes, scores, returns)
+        gradient, diagnostics = self.estimate_from_episodes(episodes, scores, returns, per_step)
         if not self.allow_nonfinite and not bool(torch.isfinite(gradient).all()):
             sizes = [s[(0,) * (run_dims + 1)].numel() for s in per_parameter.values()]
             self._check_finite("gradient", dict(zip(per_parameter, gradient.split(sizes, -1), strict=True)),
@@ -674,9 +682,18 @@ class GPOMDPEstimator(EpisodicEstimator):
         >>> out["loss_objective"].backward()
     """
 
-    def estimate_from_episodes(self, episodes, scores, returns):
+    def scores(self, episodes):
+        """Each episode's score ``ψ_n``: the sum of its per-step scores (eq. 9, :func:`step_scores`)."""
+        return self.episode_and_step_scores(episodes)[0]
+
+    def episode_and_step_scores(self, episodes):
+        """The per-step scores, computed once, and the episode scores they sum to."""
+        per_step = step_scores(self.log_likelihood, episodes)
+        time_dim = episodes.batch_dims - 1
+        return {name: score.sum(time_dim) for name, score in per_step.items()}, per_step
+
+    def estimate_from_episodes(self, episodes, scores, returns, per_step):
         run_dims = episodes.batch_dims - 2
-        per_step = flatten_scores(step_scores(self.log_likelihood, episodes), run_dims + 1)
         rewards = step_rewards(episodes, self.tensor_keys.reward, self.episode_return)
-        gradient, baseline = gpomdp_gradient(per_step, rewards)
+        gradient, baseline = gpomdp_gradient(flatten_scores(per_step, run_dims + 1), rewards)
         return gradient, {"baseline": baseline}
