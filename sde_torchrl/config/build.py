@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import TransformedEnv
 
-from sde_torchrl.config.schemas import PGPEExplorerConf, TrainConf, loop_settings, validate
+from sde_torchrl.config.schemas import PGPEExplorerConf, SACConf, TrainConf, loop_settings, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.jobs.heap import fix_mmap_threshold
 from sde_torchrl.jobs.resources import keeps_step_scores
@@ -183,7 +183,12 @@ def run_job(
     config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
     labels.update(seed=conf.seed, config=config)
-    if conf.algorithm is not None:  # PPO: its own loop, the same run directory
+    if isinstance(conf.algorithm, SACConf):  # SAC: the off-policy loop, the same run directory
+        from sde_torchrl.config.build_sac import build_sac_trainer
+
+        labels["algorithm"] = choices.get("algorithm")
+        trainer = build_sac_trainer(conf, out_dir)
+    elif conf.algorithm is not None:  # PPO: its own loop, the same run directory
         from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
 
         labels["algorithm"] = choices.get("algorithm")

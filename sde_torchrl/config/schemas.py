@@ -469,6 +469,59 @@ class A2CConf(OnPolicyConf):
 
 
 @dataclass
+class SACConf:
+    """``algorithm=sac``: Soft Actor-Critic with TorchRL's ``SACLoss`` and ``ReplayBuffer`` on one
+    gymnasium env (:mod:`sde_torchrl.trainers.offpolicy`, :mod:`sde_torchrl.trainers.sac`); the
+    defaults are Stable-Baselines3's ``SAC`` defaults. ``lr`` and ``optimizer`` (Adam) are the top
+    level's; ``updates`` counts rows of ``metrics.csv``, each ``rounds_per_update × train_freq``
+    env steps. The actor is tanh-squashed (``explorer.squash`` must be true).
+
+    Attributes:
+        buffer_size: transitions the replay buffer keeps.
+        batch_size: transitions per minibatch.
+        learning_starts: env steps of uniform random actions before the first gradient step, a
+            multiple of ``train_freq``.
+        train_freq: env steps collected per round.
+        gradient_steps: gradient steps after each round.
+        gamma: discount.
+        tau: the target critics' Polyak coefficient.
+        ent_coef: the entropy coefficient: ``auto`` (learned, from 1, target entropy ``-dim(A)``)
+            or a fixed number > 0.
+        rounds_per_update: rounds per update (a row of ``metrics.csv``, a checkpoint boundary).
+        time_feature: append ``1 - t / episode_length`` to the observation (sb3-contrib's
+            ``TimeFeatureWrapper``).
+
+    Examples:
+        >>> SACConf().train_freq, SACConf().ent_coef
+        (1, 'auto')
+    """
+
+    buffer_size: int = 1_000_000
+    batch_size: int = 256
+    learning_starts: int = 100
+    train_freq: int = 1
+    gradient_steps: int = 1
+    gamma: float = 0.99
+    tau: float = 0.005
+    ent_coef: Any = "auto"
+    rounds_per_update: int = 1
+    time_feature: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("buffer_size", "batch_size", "train_freq", "gradient_steps", "rounds_per_update"):
+            positive_int(f"algorithm.{name}", getattr(self, name))
+        non_negative_int("algorithm.learning_starts", self.learning_starts)
+        if self.learning_starts % self.train_freq:
+            raise ArgumentError("algorithm.learning_starts", self.learning_starts,
+                                f"a multiple of algorithm.train_freq ({self.train_freq}): the warm-up ends with a "
+                                "round of collection")
+        fraction("algorithm.gamma", self.gamma)
+        fraction("algorithm.tau", self.tau)
+        if self.ent_coef != "auto" and not (is_finite_number(self.ent_coef) and self.ent_coef > 0):
+            raise ArgumentError("algorithm.ent_coef", self.ent_coef, "auto or a finite number > 0")
+
+
+@dataclass
 class EstimatorConf:
     """``estimator=reinforce|enac|gpomdp|pgpe``: episodic REINFORCE with the optimal per-parameter
     baseline, the Episodic Natural Actor-Critic (least squares on ``[ψ, 1]``), GPOMDP (each
@@ -703,8 +756,8 @@ class TrainConf:
         optimizer: the ``optimizer`` group's schema (``sgd``: eq. 1).
         logger: the ``logger`` group's schema; empty or ``null`` for none.
         algorithm: ``null``, the paper's episodic estimators (the ``estimator`` group), or the
-            ``algorithm`` group's schema (``ppo``: :class:`PPOConf`, ``a2c``: :class:`A2CConf`),
-            which trains one learner on
+            ``algorithm`` group's schema (``ppo``: :class:`PPOConf`, ``a2c``: :class:`A2CConf`,
+            ``sac``: :class:`SACConf`), which trains one learner on
             ``env=gym`` with ``actor=mlp`` and ``estimator`` null; of the top-level keys it reads
             ``seed``, ``updates``, ``lr``, ``eval_period``, ``eval_episodes``, ``checkpoint_period``,
             ``progress`` and ``threads``.
@@ -806,9 +859,10 @@ def loop_settings(conf: TrainConf) -> TrainingSettings:
 
 
 def _check_onpolicy(conf: TrainConf) -> None:
-    """What ``algorithm=ppo`` trains on: one learner, a gymnasium env, an MLP actor, an SDE or
-    Gaussian explorer, no episodic estimator; the SB3-style noise counts over its rollouts."""
-    name = "a2c" if isinstance(conf.algorithm, A2CConf) else "ppo"
+    """What ``algorithm=ppo`` (``a2c``, ``sac``) trains on: one learner, a gymnasium env, an MLP
+    actor, an SDE or Gaussian explorer, no episodic estimator; the SB3-style noise counts over its
+    rollouts (SAC's: its rounds of ``train_freq`` steps)."""
+    name = {A2CConf: "a2c", SACConf: "sac"}.get(type(conf.algorithm), "ppo")
     if conf.runs != 1:
         raise ArgumentError("runs", conf.runs, f"1 with algorithm={name} (one learner per job; sweep over seed "
                                                "for more)")
@@ -834,13 +888,24 @@ def _check_onpolicy(conf: TrainConf) -> None:
                                         "last hidden layer)")
     if isinstance(conf.explorer, PGPEExplorerConf):
         raise ArgumentError("explorer", "pgpe", f"an SDE explorer (sde, gsde, ...) or gaussian with algorithm={name}")
+    rollout, steps = ("train_freq", conf.algorithm.train_freq) if name == "sac" else ("n_steps", conf.algorithm.n_steps)
     if isinstance(conf.explorer, ExplorerConf):
-        if conf.explorer.schedule in ROLLOUT_SCHEDULES and conf.explorer.rollout_steps not in (
-                None, conf.algorithm.n_steps):
+        if conf.explorer.schedule in ROLLOUT_SCHEDULES and conf.explorer.rollout_steps not in (None, steps):
             raise ArgumentError("explorer.rollout_steps", conf.explorer.rollout_steps,
-                                f"null or algorithm.n_steps ({conf.algorithm.n_steps}) with algorithm={name}: "
+                                f"null or algorithm.{rollout} ({steps}) with algorithm={name}: "
                                 "SB3 counts the noise's steps over each rollout")
+    if name == "sac":
+        _check_sac_explorer(conf.explorer)
     check_memory(conf)
+
+
+def _check_sac_explorer(explorer: Any) -> None:
+    """SAC's actor is tanh-squashed; its Gaussian learns a state-dependent log-std (SB3's SAC)."""
+    if not explorer.squash:
+        raise ArgumentError("explorer.squash", False, "true with algorithm=sac (SAC's actor is tanh-squashed)")
+    if isinstance(explorer, GaussianExplorerConf) and not explorer.learn_sigma:
+        raise ArgumentError("explorer.learn_sigma", False, "true with algorithm=sac and explorer=gaussian (its "
+                                                           "log-std is a learned head of the actor)")
 
 
 def _check_pgpe(conf: TrainConf) -> None:
@@ -902,6 +967,7 @@ SCHEMAS: dict[str, type] = {
     "explorer/gaussian": GaussianExplorerConf,
     "algorithm/ppo": PPOConf,
     "algorithm/a2c": A2CConf,
+    "algorithm/sac": SACConf,
     "estimator/episodic": EstimatorConf,
     "optimizer/sgd": SGDOptimizerConf,
     "optimizer/adam": AdamOptimizerConf,

@@ -2,7 +2,7 @@
 built: the limit a job is checked against, and what the cluster launchers request per shard.
 
 A job holds, besides the interpreter, torch and pybullet (:data:`BASE_BYTES`) (an on-policy job,
-``algorithm=ppo``, otherwise: :func:`_onpolicy_memory`):
+``algorithm=ppo``, otherwise: :func:`_onpolicy_memory`; ``algorithm=sac``: :func:`_sac_memory`):
 
 - one simulator world per env slot: ``runs × (episodes_per_update + eval_episodes)`` worlds of
   ball catching (:data:`WORLD_BYTES` each), of gymnasium envs (:data:`GYM_ENV_BYTES`; a PyBullet
@@ -74,6 +74,10 @@ STEPS_PER_SECOND = {"ballcatch": 2000, "other": 20000}
 #: Env steps per second of an on-policy job (``algorithm=ppo``), collection and updates together:
 #: PPO on HalfCheetahBullet with the zoo's settings ran at 374 on a shared 2-core machine.
 ONPOLICY_STEPS_PER_SECOND = 300
+#: Env steps per second of a SAC job (``algorithm=sac``), one gradient step per env step: the
+#: zoo's HalfCheetahBullet settings ran at 26 on a shared 2-core machine (``docs/sac/bench_sac.md``);
+#: a little less is assumed.
+SAC_STEPS_PER_SECOND = 20
 #: Bytes per number of an on-policy rollout: its tensors, and what GAE and the minibatches copy
 #: (measured: 0.25 GB for 8,192 steps of 3,688 numbers).
 ONPOLICY_BYTES_PER_FLOAT = 8
@@ -207,7 +211,7 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
         6.38
     """
     if getattr(conf, "algorithm", None) is not None:
-        return _onpolicy_memory(conf)
+        return _sac_memory(conf) if hasattr(conf.algorithm, "buffer_size") else _onpolicy_memory(conf)
     observation, action, worlds = _dimensions(conf.env)
     counted, hidden = policy_sizes(conf)
     parameters = counted if parameters is None else parameters
@@ -255,6 +259,28 @@ def _onpolicy_memory(conf: Any) -> MemoryEstimate:
                           episodes=steps * floats * ONPOLICY_BYTES_PER_FLOAT)
 
 
+def _sac_memory(conf: Any) -> MemoryEstimate:
+    """A SAC job (``algorithm=sac``): one PyBullet world per env (one training env and the
+    evaluation envs, :data:`WORLD_BYTES`), and the replay buffer of ``min(buffer_size, env steps)``
+    transitions, each two observations, an action and three scalars of 4 bytes, held twice
+    while a checkpoint is written.
+
+    Examples:
+        >>> from types import SimpleNamespace as Conf
+        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0"),
+        ...            algorithm=Conf(buffer_size=300_000, train_freq=8, rounds_per_update=125), updates=1000,
+        ...            eval_episodes=10)
+        >>> estimate_memory(job).total_gb
+        0.83
+    """
+    observation, action, _ = _dimensions(conf.env)
+    alg = conf.algorithm
+    worlds = (1 + conf.eval_episodes) if "Bullet" in str(getattr(conf.env, "id", "")) else 0
+    transitions = min(alg.buffer_size, conf.updates * alg.rounds_per_update * alg.train_freq)
+    return MemoryEstimate(base=BASE_BYTES, worlds=worlds * WORLD_BYTES,
+                          episodes=2 * transitions * (2 * observation + action + 3) * 4)
+
+
 def estimate_minutes(conf: Any) -> float:
     """Minutes a job needs at :data:`STEPS_PER_SECOND`: every env step of its training episodes
     (the episode queue's first fill, then ``episodes_per_update`` per update) and evaluations.
@@ -269,9 +295,11 @@ def estimate_minutes(conf: Any) -> float:
     """
     evaluations = (conf.updates // conf.eval_period if conf.eval_period else 0) + 1
     if getattr(conf, "algorithm", None) is not None:
-        steps = conf.updates * conf.algorithm.n_envs * conf.algorithm.n_steps + \
-            evaluations * conf.eval_episodes * conf.env.episode_length
-        return steps / ONPOLICY_STEPS_PER_SECOND / 60
+        sac = hasattr(conf.algorithm, "buffer_size")
+        per_update = conf.algorithm.rounds_per_update * conf.algorithm.train_freq if sac else \
+            conf.algorithm.n_envs * conf.algorithm.n_steps
+        steps = conf.updates * per_update + evaluations * conf.eval_episodes * conf.env.episode_length
+        return steps / (SAC_STEPS_PER_SECOND if sac else ONPOLICY_STEPS_PER_SECOND) / 60
     episodes = max(conf.episode_queue - conf.episodes_per_update, 0) + conf.updates * conf.episodes_per_update \
         + evaluations * conf.eval_episodes
     rate = STEPS_PER_SECOND["ballcatch" if _dimensions(conf.env)[2] else "other"]
@@ -338,6 +366,10 @@ def check_memory(conf: Any) -> MemoryEstimate:
     if estimate.total > limit:
         where = f"max_memory_gb={limit_gb:g}" if limit_gb is not None else \
             f"the {limit / GB:.1f} GB this machine has available"
+        if hasattr(getattr(conf, "algorithm", None), "buffer_size"):
+            raise ArgumentError("algorithm.buffer_size", conf.algorithm.buffer_size,
+                                f"the job would hold about {estimate.total / GB:.1f} GB (estimate), more than {where}; "
+                                "lower algorithm.buffer_size")
         if getattr(conf, "algorithm", None) is not None:
             sizes = {"algorithm.n_envs": (conf.algorithm.n_envs, 16),
                      "algorithm.n_steps": (conf.algorithm.n_steps, 512)}

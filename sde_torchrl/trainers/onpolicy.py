@@ -172,12 +172,7 @@ class OnPolicyTrainer:
             NonFiniteError: a non-finite training return, gradient or (after the update) parameter.
         """
         batch = self.collector.rollout()
-        done = batch["next", "done"].squeeze(-1)
-        ended = batch["next", "episode_reward"].squeeze(-1)[done]
-        self.returns.add(ended)
-        mean = self.returns.mean()
-        if mean is None:  # no episode has ended yet: the returns so far of those under way
-            mean = float(batch["next", "episode_reward"][..., -1, :].mean())
+        mean = self._record_returns(batch)
         self._check(k, "return", torch.tensor([mean]))
         with torch.no_grad():
             self.advantage(batch)
@@ -189,6 +184,15 @@ class OnPolicyTrainer:
             self._check(k, "parameter", value, name)
         return {"return_mean": torch.tensor([mean]), "grad_norm": grad_norm,
                 "exploration": exploration_state(self.policy, 1)}
+
+    def _record_returns(self, batch: TensorDictBase) -> float:
+        """Adds the training episodes a rollout ended to :attr:`returns`; the row's ``return_mean``."""
+        done = batch["next", "done"].squeeze(-1)
+        self.returns.add(batch["next", "episode_reward"].squeeze(-1)[done])
+        mean = self.returns.mean()
+        if mean is None:  # no episode has ended yet: the returns so far of those under way
+            mean = float(batch["next", "episode_reward"][..., -1, :].mean())
+        return mean
 
     def _check(self, k: int, what: str, value: torch.Tensor, name: str | None = None) -> None:
         if value.is_floating_point() and not bool(torch.isfinite(value).all()):
@@ -268,10 +272,21 @@ class OnPolicyTrainer:
 
     def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
         loop = {**state.state_dict(), "episodes": torch.tensor(self.episodes, dtype=torch.int64),
-                "rollout": {"collector": self.collector.state_dict(), "env": self.env.base_env.replay_state(),
-                            "returns": self.returns.state_dict()}}
+                "rollout": self._rollout_state()}
         save_job(run_dir.checkpoint, config=config, loop=loop, policy=self.modules, optimizer=self.optimizer,
                  streams=self._streams())
+
+    def _rollout_state(self) -> dict[str, Any]:
+        """What the next rollout starts from: the collector's carried state, the envs' replay
+        record, the training returns."""
+        return {"collector": self.collector.state_dict(), "env": self.env.base_env.replay_state(),
+                "returns": self.returns.state_dict()}
+
+    def _restore_rollout(self, rollout: dict[str, Any]) -> None:
+        """Puts envs, collector and returns back where :meth:`_rollout_state` recorded them."""
+        self.env.base_env.restore_replay(rollout["env"])
+        self.collector.load_state_dict(rollout["collector"])
+        self.returns.load_state_dict(rollout["returns"])
 
     def _resume(self, run_dir: RunDirectory, config: dict | None) -> LoopState:
         if not run_dir.has_checkpoint():
@@ -284,9 +299,7 @@ class OnPolicyTrainer:
         run_dir.check_metrics(self._rows(vars(state)), state.finished)
         if not state.finished:
             run_dir.summary.unlink(missing_ok=True)
-            self.env.base_env.restore_replay(rollout["env"])
-            self.collector.load_state_dict(rollout["collector"])
-            self.returns.load_state_dict(rollout["returns"])
+            self._restore_rollout(rollout)
             run_dir.truncate_logger_csv(state.update * self.settings.steps_per_update)
             log.info("resuming %s after update %d of %d", run_dir.path, state.update, self.settings.updates)
         run_dir.clear_error()

@@ -1,0 +1,92 @@
+"""From a config with ``algorithm=sac`` to a ready :class:`~sde_torchrl.trainers.offpolicy.SACTrainer`.
+
+The pieces, as ``analysis/bench_sac.py`` measured them against Stable-Baselines3's ``SAC``:
+
+- the envs: one gymnasium env (:class:`~sde_torchrl.envs.vector.GymVectorEnv`), its training
+  returns summed (``RewardSum``), then the SDE noise primer; the evaluation envs likewise,
+  without the sums;
+- the networks (:func:`~sde_torchrl.modules.sac_actor.make_sac_networks`): with an SDE explorer
+  the SDE actor (the explorer's options, the features learned, the mean clipped, tanh-squashed),
+  with ``explorer=gaussian`` SB3's state-dependent tanh-Gaussian; the critic an MLP of the same
+  hidden layers;
+- TorchRL's ``SACLoss`` and SB3's order of gradient steps (:mod:`sde_torchrl.trainers.sac`), the
+  ``optimizer`` group (Adam) at ``lr`` for critic, actor and entropy coefficient.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from typing import Any
+
+import torch
+from hydra.utils import instantiate
+from torchrl.envs import Compose, RewardSum, TransformedEnv
+
+from sde_torchrl.collectors.steps import StepCollector
+from sde_torchrl.config.build_onpolicy import make_env
+from sde_torchrl.config.schemas import ExplorerConf, TrainConf
+from sde_torchrl.modules.sac_actor import make_sac_networks
+from sde_torchrl.modules.sde_actor import action_bounds
+from sde_torchrl.trainers.offpolicy import OffPolicySchedule, SACTrainer, UniformActions
+from sde_torchrl.trainers.onpolicy import OnPolicySettings
+from sde_torchrl.trainers.sac import SACUpdate, make_sac_loss
+
+
+def sde_options(explorer: Any) -> dict[str, Any] | None:
+    """``SDEParams``'s keyword arguments from an SDE explorer's config; ``None`` for the Gaussian.
+
+    Examples:
+        >>> sde_options(ExplorerConf(schedule="rollout", init_param=-3.0))["init_param"]
+        -3.0
+    """
+    if not isinstance(explorer, ExplorerConf):
+        return None
+    return {name: value for name, value in asdict(explorer).items() if name not in ("_target_", "squash")}
+
+
+def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer:
+    """Builds envs, networks, loss, optimisers, replay buffer and logger of an ``algorithm=sac`` job.
+
+    Args:
+        conf: the checked config (:func:`~sde_torchrl.config.schemas.validate`).
+        out_dir: where the TorchRL logger writes (the run directory).
+
+    Returns:
+        The trainer; call ``train(out_dir)``.
+
+    Examples:
+        >>> from sde_torchrl.config.compose import compose
+        >>> from sde_torchrl.config.schemas import validate
+        >>> conf = validate(compose(["algorithm=sac", "env=gym", "algorithm.learning_starts=4",
+        ...                          "algorithm.train_freq=4", "algorithm.batch_size=4", "updates=2",
+        ...                          "eval_episodes=1", "env.episode_length=10", "logger=none"]))
+        >>> trainer = build_sac_trainer(conf)
+        >>> trainer.update(0)["grad_norm"].tolist(), bool(trainer.update(1)["grad_norm"] > 0)
+        ([0.0], True)
+    """
+    alg = conf.algorithm
+    torch.manual_seed(conf.seed)
+    base, eval_base = make_env(conf, 1, "env"), make_env(conf, conf.eval_episodes, "eval_env")
+    obs_dim, action_spec = base.observation_spec["observation"].shape[-1], base.action_spec[0]
+    policy, critic, sde = make_sac_networks(obs_dim, action_spec, conf.actor.hidden,
+                                            sde_options=sde_options(conf.explorer), activation=conf.actor.activation)
+    primer = sde.make_tensordict_primer() if sde is not None else None
+    env = TransformedEnv(base, Compose(RewardSum(in_keys=["reward"], out_keys=["episode_reward"]),
+                                       *([primer] if primer is not None else [])))
+    eval_env = TransformedEnv(eval_base, Compose(*([sde.make_tensordict_primer()] if sde is not None else [])))
+    loss = make_sac_loss(policy, critic, action_spec.shape[-1], gamma=alg.gamma, ent_coef=alg.ent_coef)
+    schedule = OffPolicySchedule(alg.train_freq, alg.gradient_steps, alg.learning_starts, alg.rounds_per_update,
+                                 alg.batch_size, alg.buffer_size)
+    update = SACUpdate(loss, sde, lr=conf.lr, tau=alg.tau, optimizer=asdict(conf.optimizer),
+                       rounds=conf.updates * alg.rounds_per_update)
+    settings = OnPolicySettings("sac", updates=conf.updates, n_envs=1, n_steps=alg.train_freq * alg.rounds_per_update,
+                                eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
+                                episode_length=base.episode_length, first_run=conf.first_run)
+    logger: Any = None
+    if conf.logger and out_dir is not None:
+        logger = instantiate(conf.logger, log_dir=out_dir)
+    return SACTrainer(StepCollector(env, policy, alg.train_freq, primer), eval_env, policy, loss, update, settings,
+                      schedule, UniformActions(*action_bounds(action_spec)), logger=logger)
+
+
+__all__ = ["build_sac_trainer", "sde_options"]
