@@ -1,5 +1,5 @@
 """Why REINFORCE + SDE learns the ball-catching controller more slowly than ENAC + SDE and PGPE:
-the geometry of its scores (issue 22).
+the geometry of its scores.
 
 For a linear controller ``u = θ x`` with the SDE noise ``Θ̂ x`` drawn once per episode, the
 variance-weighted ("auto-alpha") score of row ``j`` of ``θ`` over an episode is

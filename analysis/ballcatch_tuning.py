@@ -1,4 +1,4 @@
-"""The learner selection for ball catching (issue 22), by the rule in
+"""The learner selection for ball catching: each method's learner chosen by the rule in
 ``docs/ballcatch/learner_selection.md``: the same candidates for every method (8 in round 1, a
 ninth in round 2), one job of 8 runs each on the tuning seed, the candidate with the most final
 catches chosen per method and round.

@@ -18,7 +18,7 @@ of one estimator, and writes into ``--out DIR``:
   and whether runs kept their level (:func:`kept`: the drop from the best mean of
   :data:`WINDOW` consecutive evaluations to the last such mean).
 
-With ``--estimator all`` it compares the methods of the REINFORCE sweeps (issue 16): SDE and
+With ``--estimator all`` it compares the methods of the REINFORCE sweeps, beyond the paper's two: SDE and
 REX with REINFORCE, SDE with GPOMDP (``sde+gpomdp``) and PGPE, written as ``methods.*``, with
 every method's difference from REINFORCE + SDE (and PGPE's from REX) in the same form.
 

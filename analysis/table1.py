@@ -5,7 +5,7 @@ Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_leng
 that ``analysis/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
 into ``DIR/runs``; a rerun skips the finished jobs and resumes the others), or reads finished run
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
-paper's, and the checks of issue 12), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
+paper's, and the checks of :func:`checks`), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
 Every count, speed-up and plateau time carries a 95 % percentile-bootstrap interval over runs
 (:func:`sde_torchrl.utils.intervals.bootstrap_interval`, 10,000 resamples, seed 0): a cell reads
@@ -13,7 +13,7 @@ Every count, speed-up and plateau time carries a 95 % percentile-bootstrap inter
 ratio of the two methods' mean counts excludes 1, and ours differs significantly from the paper's
 when the paper's count lies outside our interval (the paper gives no spread of its own).
 
-Added method (issue 16): **GPOMDP + SDE**, the SDE jobs of the two 1-D sweeps again with
+Added method, beyond the paper: **GPOMDP + SDE**, the SDE jobs of the two 1-D sweeps again with
 ``estimator=gpomdp``. Its learner, by the rule of ``analysis/learner_search.py``, which chooses
 ONE learner for all the methods compared and never tunes one method alone, is that learner
 unchanged (plain scores, per-run norm bound 100, N = 10, α = 0.002, summed return, the sweeps'
@@ -21,7 +21,7 @@ budget). Rerunning the search with GPOMDP among the methods would let GPOMDP's r
 and SDE's learner, and a search for GPOMDP alone is what the rule forbids. (Written down and
 committed before any Table 1 result of GPOMDP was seen.)
 
-Added method (issue 16): **PGPE** (``explorer=pgpe estimator=pgpe``, Sehnke et al. 2010), the SDE
+Added method, beyond the paper: **PGPE** (``explorer=pgpe estimator=pgpe``, Sehnke et al. 2010), the SDE
 jobs of the two 1-D sweeps again with PGPE's explorer and estimator. Its settings follow the same
 rule, written down and committed before any Table 1 result of PGPE was seen (none was run):
 
@@ -301,7 +301,7 @@ def _mlp_intervals(smoothed: dict, per_update: int, tail: int) -> dict:
 # ------------------------------------------------------------------------------- writing
 
 def checks(rows: list[dict], mlp: dict | None) -> dict:
-    """The done-when checks of issue 12 on the table: all runs converged, speed-up growing with
+    """The checks the reproduction of Table 1 and Figs. 2-3 is held to: all runs converged, speed-up growing with
     EL (EL 60 ≥ 3× EL 5) and noise (σ 1.5 > σ 0.5), counts within a factor 2 of the paper's,
     and the 2-D MLP's SDE reaching REX's plateau ≥ 5× sooner and ending higher."""
     def row(sweep, noise, length):
