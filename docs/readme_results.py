@@ -1,11 +1,14 @@
 """The README's results summary, written from the result files the analysis scripts commit.
 
 The README holds a short table of the headline results between the lines ``<!-- results:start -->``
-and ``<!-- results:end -->``. This script writes that table from ``docs/table1/table1.json``,
-the ball-catching pages' JSON under ``docs/ballcatch/`` (``{fig5,fig6,methods,reevaluation}.json``,
-``fig5_selected/fig5.json``, ``fig6_selected/fig6.json``, ``methods_selected/methods.json``,
-``selected/fig5.json``), the quick start's run (``docs/ballcatch/runs/selected/seed0/summary.json``),
-``docs/ppo/bench_ppo.json`` and ``docs/sac/bench_sac.json``, so that no figure in the README is typed by hand::
+and ``<!-- results:end -->``: one row per measure, one measure per cell (ours, the baseline's, the
+paper's where it states one), and a short legend under it. This script writes that block from
+``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
+(``{fig5,fig6,methods,reevaluation}.json``, ``fig5_selected/fig5.json``, ``fig6_selected/fig6.json``,
+``methods_selected/methods.json``, ``selected/fig5.json``), the quick start's run
+(``docs/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
+``docs/sac/bench_sac.json`` and ``docs/sac/zoo_budget/bench_sac.json``, so that no figure in the
+README is typed by hand::
 
     python docs/readme_results.py           # rewrite the README's table
     python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
@@ -25,9 +28,14 @@ DOCS = Path(__file__).resolve().parent
 README = DOCS.parent / "README.md"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
-PAGES = {"docs/reproduce/table1.md": "Table 1", "docs/reproduce/fig5_6.md": "Fig. 5 and 6",
-         "docs/reproduce/methods.md": "methods", "docs/reproduce/ppo.md": "PPO",
-         "docs/reproduce/sac.md": "SAC"}
+NONE = "—"  # no such number (the paper's, or a baseline's)
+LEGEND = (
+    "A catch: a mean reward per step of at least −1.1 (a good catch: −1.0). *Reaching* a catch: some "
+    "evaluation during training did; *ending* with one: the last evaluation did; *final policies catching "
+    "on 20 episodes*: the final policy's mean over 20 fresh episodes did. Percentages are of runs, with "
+    "their 95 % Wilson interval; ratios carry a 95 % bootstrap interval over seeds; ± is the standard "
+    "deviation over seeds, their number in parentheses. —: no such number."
+)
 
 
 def _load(path: str) -> dict:
@@ -46,7 +54,7 @@ def _held(arm: dict, key: str) -> str:
 
 
 def summary() -> str:
-    """The README's results table (Markdown), from the committed result files."""
+    """The README's results table (Markdown), one measure per cell, with its legend, from the committed result files."""
     table1 = _load("table1/table1.json")["rows"]
     ours = [row["speedup"] for row in table1]
     paper = [row["paper"]["speedup"] for row in table1]
@@ -62,85 +70,97 @@ def summary() -> str:
     gpomdp_selected, pgpe_selected = methods_selected["sde+gpomdp"], methods_selected["pgpe"]
     quick_start = _load("ballcatch/runs/selected/seed0/summary.json")["final_eval_return"][0]
     ppo = _load("ppo/bench_ppo.json")
-    ratio = ppo["sde_over_sb3"]
     sac = _load("sac/bench_sac.json")["mountaincar"]
-    sac_ratio, sac_compiled = sac["sde_over_sb3"], sac["sde_compiled_over_sb3"]
     zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]
     ours_zoo, zoo_ratio = zoo["sde_compiled_policy"], zoo["sde_compiled_policy_over_sb3"]
     zoo_final = _interval(zoo_ratio["final"]) if "final" in zoo_ratio else \
-        f"difference {zoo_ratio['final_difference']['estimate']:+.1f} [{zoo_ratio['final_difference']['low']:+.1f}, " \
-        f"{zoo_ratio['final_difference']['high']:+.1f}]"
+        f"{zoo_ratio['final_difference']['estimate']:+.1f} [{zoo_ratio['final_difference']['low']:+.1f}, " \
+        f"{zoo_ratio['final_difference']['high']:+.1f}] (difference)"
 
-    def ends_keeps_reaches(counts: dict) -> str:
-        return f"{_percent(counts, 'final')}; {_percent(counts, 'final_policy')}; {_percent(counts)}"
+    def paper_percent(explorer: dict, level: str = CATCH) -> str:
+        return f"{explorer['paper'][level]} %" if level in explorer.get("paper", {}) else NONE
 
     def mean_sd(values: list[float]) -> str:
-        return f"{statistics.mean(values):.0f} ± {statistics.stdev(values):.0f}"
+        return f"{statistics.mean(values):.0f} ± {statistics.stdev(values):.0f} ({len(values)})"
 
-    rows = [
-        ("Table 1: episodes REX needs / SDE needs, 8 settings of the toy task",
-         f"{min(ours):.1f}× to {max(ours):.1f}×, SDE significantly faster in {faster} of {len(table1)}",
-         f"{min(paper):.1f}× to {max(paper):.1f}×", "docs/reproduce/table1.md"),
-        (f"Fig. 5 (REINFORCE, paper's setting): runs reaching a catch, {fig5['sde']['runs']} runs each",
-         f"SDE {_percent(fig5['sde'])}, REX {_percent(fig5['rex'])}",
-         f"SDE {fig5['sde']['paper'][CATCH]} %", "docs/reproduce/fig5_6.md"),
-        (f"Fig. 6 (ENAC): runs reaching a catch, {fig6['sde']['runs']} runs each",
-         f"SDE {_percent(fig6['sde'])}, REX {_percent(fig6['rex'])}",
-         f"SDE {fig6['sde']['paper'][CATCH]} %, REX {fig6['rex']['paper'][CATCH]} %", "docs/reproduce/fig5_6.md"),
-        (f"Fig. 5 at each explorer's selected learner (REINFORCE), {fig5_selected['sde']['runs']} runs each: "
-         "ending with a catch; the final policy catching on 20 episodes; reaching a catch",
-         f"SDE {_percent(fig5_selected['sde'], 'final')}, REX {_percent(fig5_selected['rex'], 'final')}; "
-         f"SDE {_percent(fig5_selected['sde'], 'final_policy')}, REX {_percent(fig5_selected['rex'], 'final_policy')}; "
-         f"SDE {_percent(fig5_selected['sde'])}, REX {_percent(fig5_selected['rex'])}",
-         f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach one", "docs/reproduce/fig5_6.md"),
-        (f"Fig. 5's final policies at the selected learners with the arm held level (a diagnostic, 20 episodes "
-         f"each, {held['sde']['runs']} runs each): catching; making a good catch",
-         f"SDE {_held(held['sde'], 'catches')}, REX {_held(held['rex'], 'catches')}; "
-         f"SDE {_held(held['sde'], 'good_catches')}, REX {_held(held['rex'], 'good_catches')}",
-         f"SDE {fig5_selected['sde']['paper'][CATCH]} % reach a catch, "
-         f"{fig5_selected['sde']['paper']['-1.0']} % a good one (in training)", "docs/reproduce/fig5_6.md"),
-        (f"Fig. 6 at each explorer's selected learner (ENAC, σ̂ fixed), {fig6_selected['sde']['runs']} runs each: "
-         "ending with a catch; the final policy catching on 20 episodes; reaching a catch",
-         f"SDE {_percent(fig6_selected['sde'], 'final')}, REX {_percent(fig6_selected['rex'], 'final')}; "
-         f"SDE {_percent(fig6_selected['sde'], 'final_policy')}, REX {_percent(fig6_selected['rex'], 'final_policy')}; "
-         f"SDE {_percent(fig6_selected['sde'])}, REX {_percent(fig6_selected['rex'])}",
-         f"SDE {fig6_selected['sde']['paper'][CATCH]} %, REX {fig6_selected['rex']['paper'][CATCH]} % reach one",
-         "docs/reproduce/fig5_6.md"),
-        (f"`+experiment=ballcatch` (selected learner), {selected['runs']} runs (seed 4242): ending with a catch; "
-         "the quick start's seed 0",
-         f"{selected['final'][CATCH]} of {selected['runs']} ({_percent(selected, 'final')}); "
-         f"{selected['best'][CATCH]} reach one; seed 0 ends at {quick_start:.2f} per step",
-         f"{selected['paper'][CATCH]} % reach one",
-         "docs/reproduce/fig5_6.md"),
-        (f"GPOMDP + SDE and PGPE at their selected learners, {gpomdp_selected['runs']} and {pgpe_selected['runs']} "
-         "runs: ending with a catch; the final policy catching on 20 episodes; reaching a catch",
-         f"GPOMDP + SDE {ends_keeps_reaches(gpomdp_selected)} — PGPE {ends_keeps_reaches(pgpe_selected)}",
-         "(not in the paper)", "docs/reproduce/methods.md"),
-        (f"PGPE on Fig. 5's setting, {methods['pgpe']['runs']} runs: reaching a catch",
-         f"PGPE {_percent(methods['pgpe'])}, SDE + GPOMDP {_percent(methods['sde+gpomdp'])}", "(not in the paper)",
-         "docs/reproduce/methods.md"),
-        ("PPO on HalfCheetahBullet, final return (seeds)",
-         f"SDE {mean_sd(ppo['sde']['final'])} ({len(ppo['sde']['final'])}), SB3 gSDE "
-         f"{mean_sd(ppo['sb3']['final'])} ({len(ppo['sb3']['final'])}): "
-         f"{ratio['final']['estimate']:.2f}× [{ratio['final']['low']:.2f}, {ratio['final']['high']:.2f}]",
-         "(not in the paper)", "docs/reproduce/ppo.md"),
-        (f"SAC on MountainCarContinuous, {sac['sde']['steps']:,} steps: late training return (seeds); env steps/s",
-         f"SDE {statistics.mean(sac['sde']['late']):.0f} ({len(sac['sde']['late'])}), SB3 gSDE "
-         f"{statistics.mean(sac['sb3']['late']):.0f} ({len(sac['sb3']['late'])}): "
-         f"{sac_ratio['late']['estimate']:.2f}× [{sac_ratio['late']['low']:.2f}, {sac_ratio['late']['high']:.2f}]; "
-         f"speed {_interval(sac_ratio['speed'])}; compiled update: {_interval(sac_compiled['speed'])}, "
-         f"{_interval(sac_compiled['speed_without_compilation'])} without the compilation",
-         "(not in the paper)", "docs/reproduce/sac.md"),
-        (f"SAC on MountainCarContinuous at the zoo's budget ({ours_zoo['steps']:,} steps), compiled update and policy "
-         "forward: final deterministic return (seeds); env steps/s; per CPU second",
-         f"SDE {mean_sd(ours_zoo['final'])} ({len(ours_zoo['final'])}), SB3 gSDE {mean_sd(zoo['sb3']['final'])} "
-         f"({len(zoo['sb3']['final'])}): {zoo_final}; speed {_interval(zoo_ratio['speed'])}; "
-         f"{_interval(zoo_ratio['cpu_speed'])}",
-         "(not in the paper)", "docs/reproduce/sac.md"),
+    table1_page, fig_page = "docs/reproduce/table1.md", "docs/reproduce/fig5_6.md"
+    methods_page, ppo_page, sac_page = "docs/reproduce/methods.md", "docs/reproduce/ppo.md", "docs/reproduce/sac.md"
+    fig5_sel, fig6_sel = "Fig. 5, each explorer's selected learner", "Fig. 6, each explorer's selected learner"
+    rows = [  # (result, page, measure, ours, baseline, paper: ours, paper: baseline)
+        ("Table 1, toy task", table1_page, "episodes REX needs ÷ episodes SDE needs, lowest to highest of "
+         f"{len(table1)} settings", f"{min(ours):.1f}× to {max(ours):.1f}×", NONE,
+         f"{min(paper):.1f}× to {max(paper):.1f}×", NONE),
+        ("Table 1, toy task", table1_page, "settings where SDE is significantly faster",
+         f"{faster} of {len(table1)}", NONE, NONE, NONE),
+        ("Fig. 5, REINFORCE, paper's settings", fig_page,
+         f"runs reaching a catch ({fig5['sde']['runs']} each)", f"SDE {_percent(fig5['sde'])}",
+         f"REX {_percent(fig5['rex'])}", paper_percent(fig5["sde"]), paper_percent(fig5["rex"])),
+        ("Fig. 6, ENAC, paper's settings", fig_page, f"runs reaching a catch ({fig6['sde']['runs']} each)",
+         f"SDE {_percent(fig6['sde'])}", f"REX {_percent(fig6['rex'])}", paper_percent(fig6["sde"]),
+         paper_percent(fig6["rex"])),
     ]
-    lines = ["| result | ours [95 % interval] | paper | page |", "| --- | --- | --- | --- |"]
-    lines += [f"| {what} | {value} | {theirs} | [{PAGES[page]}]({page}) |" for what, value, theirs, page in rows]
-    return "\n".join(lines) + "\n"
+    for name, counts in ((fig5_sel, fig5_selected), (fig6_sel, fig6_selected)):
+        runs = counts["sde"]["runs"]
+        rows += [
+            (name, fig_page, f"runs ending with a catch ({runs} each)", f"SDE {_percent(counts['sde'], 'final')}",
+             f"REX {_percent(counts['rex'], 'final')}", NONE, NONE),
+            (name, fig_page, "final policies catching on 20 episodes", f"SDE {_percent(counts['sde'], 'final_policy')}",
+             f"REX {_percent(counts['rex'], 'final_policy')}", NONE, NONE),
+            (name, fig_page, "runs reaching a catch", f"SDE {_percent(counts['sde'])}",
+             f"REX {_percent(counts['rex'])}", paper_percent(counts["sde"]), paper_percent(counts["rex"])),
+        ]
+        if counts is fig5_selected:
+            rows += [
+                (f"{fig5_sel}, arm held level (a diagnostic)", fig_page,
+                 f"final policies catching on 20 episodes ({held['sde']['runs']} each)",
+                 f"SDE {_held(held['sde'], 'catches')}", f"REX {_held(held['rex'], 'catches')}",
+                 f"{paper_percent(counts['sde'])} reach one in training", NONE),
+                (f"{fig5_sel}, arm held level (a diagnostic)", fig_page,
+                 "final policies making a good catch on 20 episodes", f"SDE {_held(held['sde'], 'good_catches')}",
+                 f"REX {_held(held['rex'], 'good_catches')}",
+                 f"{paper_percent(counts['sde'], '-1.0')} reach one in training", NONE),
+            ]
+    rows += [
+        ("`+experiment=ballcatch`, seed 4242", fig_page, f"runs ending with a catch ({selected['runs']})",
+         f"SDE {_percent(selected, 'final')}", NONE, NONE, NONE),
+        ("`+experiment=ballcatch`, seed 4242", fig_page, "runs reaching a catch", f"SDE {_percent(selected)}", NONE,
+         paper_percent(selected), NONE),
+        ("`+experiment=ballcatch`, the quick start's seed 0", fig_page, "final evaluation (mean reward per step)",
+         f"SDE {quick_start:.2f}", NONE, NONE, NONE),
+        ("Fig. 5's paper settings, other methods", methods_page,
+         f"runs reaching a catch ({methods['pgpe']['runs']} each)", f"PGPE {_percent(methods['pgpe'])}",
+         f"SDE {_percent(methods['sde'])}", NONE, NONE),
+        ("Fig. 5's paper settings, other methods", methods_page, "runs reaching a catch",
+         f"GPOMDP + SDE {_percent(methods['sde+gpomdp'])}", f"SDE {_percent(methods['sde'])}", NONE, NONE),
+    ]
+    both = {pgpe_selected["runs"], gpomdp_selected["runs"]}
+    each = f"{both.pop()} each" if len(both) == 1 else f"PGPE {pgpe_selected['runs']}, GPOMDP {gpomdp_selected['runs']}"
+    for measure, which in ((f"runs ending with a catch ({each})", "final"),
+                           ("final policies catching on 20 episodes", "final_policy"),
+                           ("runs reaching a catch", "best")):
+        rows.append(("Other methods at their selected learners", methods_page, measure,
+                     f"PGPE {_percent(pgpe_selected, which)}", f"GPOMDP + SDE {_percent(gpomdp_selected, which)}",
+                     NONE, NONE))
+    rows += [
+        ("PPO, HalfCheetahBullet", ppo_page, "final return, mean ± sd (seeds)", f"SDE {mean_sd(ppo['sde']['final'])}",
+         f"SB3 gSDE {mean_sd(ppo['sb3']['final'])}", NONE, NONE),
+        ("PPO, HalfCheetahBullet", ppo_page, "final return, ours ÷ SB3's", _interval(ppo["sde_over_sb3"]["final"]),
+         NONE, NONE, NONE),
+        (f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps", sac_page,
+         "final deterministic return, mean ± sd (seeds)", f"SDE {mean_sd(ours_zoo['final'])}",
+         f"SB3 gSDE {mean_sd(zoo['sb3']['final'])}", NONE, NONE),
+        (f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps", sac_page,
+         "final deterministic return, ours ÷ SB3's", zoo_final, NONE, NONE, NONE),
+        (f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps", sac_page,
+         "env steps per second, ours ÷ SB3's", _interval(zoo_ratio["speed"]), NONE, NONE, NONE),
+        (f"SAC, MountainCarContinuous, {sac['sde']['steps']:,} steps", sac_page,
+         "late training return, ours ÷ SB3's", _interval(sac["sde_over_sb3"]["late"]), NONE, NONE, NONE),
+    ]
+    lines = ["| result | measure | ours | baseline | paper: ours | paper: baseline |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| [{result}]({page}) | {measure} | {value} | {baseline} | {theirs} | {their_baseline} |"
+              for result, page, measure, value, baseline, theirs, their_baseline in rows]
+    return "\n".join(lines) + "\n\n" + LEGEND + "\n"
 
 
 def _interval(ratio: dict) -> str:

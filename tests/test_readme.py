@@ -59,6 +59,22 @@ def test_the_results_check_fails_on_a_changed_figure(monkeypatch, tmp_path):
     assert readme_results.main(["--check"]) == 1
 
 
+def _packed_cells(block: str) -> list[str]:
+    """The cells of the results table's rows that hold more than one measure (two intervals, or a list)."""
+    rows = [line for line in block.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    cells = [cell.strip() for row in rows for cell in row.strip("|").split(" | ")]
+    return [cell for cell in cells if cell.count("[") - cell.count("](") > 1 or ";" in cell or " / " in cell]
+
+
+def test_each_cell_of_the_results_table_holds_one_measure_and_a_legend_follows():
+    text = README.read_text()
+    block = text[text.index(readme_results.START):text.index(readme_results.END)]
+    assert not _packed_cells(block), _packed_cells(block)
+    assert readme_results.LEGEND in block.split("\n\n", 1)[1], "no legend under the results table"
+    packed = "| [x](p.md) | runs | SDE 24 % [14, 37], REX 2 % [0, 10] | — | — | — |"
+    assert _packed_cells(f"| a | b | c | d | e | f |\n{packed}\n") == ["SDE 24 % [14, 37], REX 2 % [0, 10]"]
+
+
 def test_no_hand_typed_result_table_outside_the_generated_block():
     text = README.read_text()
     outside = text[:text.index(readme_results.START)] + text[text.index(readme_results.END):]
