@@ -1,7 +1,9 @@
 """The documentation site is checked like code.
 
 - The site builds with Sphinx, warnings as errors (the command of the README and .ci/run), and
-  every name of ``sde_torchrl.__all__`` has its entry on the API page, with a docstring.
+  every name of ``sde_torchrl.__all__`` has its entry on the API page, with a docstring. The
+  build is an ``e2e`` test; ``.ci/run``, which has just built the site with that command, gives
+  it to the test in ``SDE_TORCHRL_BUILT_SITE`` so that it is built once.
 - The ``python`` blocks of each page under ``docs/guide`` and ``docs/reproduce`` run as written, in
   order, one process per page; a ``text`` block right after a ``python`` block is that block's
   expected output, compared exactly.
@@ -32,8 +34,27 @@ CHECKOUT_ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(RE
 FENCE = re.compile(r"^```(\w*)[^\n]*\n(.*?)^```\s*$", re.S | re.M)
 
 
+#: A site the README's command has just built (``.ci/run`` sets it to ``docs/_build/html``): checked as it is,
+#: not built a second time. Unset, the fixture builds the site itself, warnings as errors.
+BUILT_SITE = "SDE_TORCHRL_BUILT_SITE"
+
+
+def _pages_and_conf() -> list[Path]:
+    """Files every build reads (the guide and reproduction pages, the front page, the configuration):
+    one changed since a build leaves the site older than it."""
+    return [*PAGES, *DOCS.glob("*.md"), DOCS / "conf.py"]
+
+
 @pytest.fixture(scope="module")
 def site(tmp_path_factory) -> Path:
+    if os.environ.get(BUILT_SITE):
+        out = Path(os.environ[BUILT_SITE])
+        assert (out / "index.html").is_file() and (out / "api" / "index.html").is_file(), \
+            f"{BUILT_SITE}={out} holds no built site: build it with the README's command first"
+        built = max(p.stat().st_mtime for p in out.rglob("*") if p.is_file())
+        newer = [str(p.relative_to(REPO)) for p in _pages_and_conf() if p.stat().st_mtime > built]
+        assert not newer, f"the site at {out} is older than {newer[:5]}: build it again with the README's command"
+        return out
     out = tmp_path_factory.mktemp("site")
     start = time.perf_counter()
     result = subprocess.run([*BUILD, str(out), "-d", str(out / ".doctrees")], cwd=REPO, capture_output=True,
@@ -49,6 +70,13 @@ def test_the_readme_and_ci_build_the_site_with_this_command():
     assert command in (REPO / ".ci" / "run").read_text()
 
 
+def test_ci_gives_the_site_it_built_to_the_tests():
+    """.ci/run builds the site once, warnings as errors, and the site checks below read that build."""
+    ci = (REPO / ".ci" / "run").read_text()
+    assert f'{BUILT_SITE}="$repo/docs/_build/html"' in ci and "-m 'e2e and not slow'" in ci
+
+
+@pytest.mark.e2e  # it builds the site (or checks the one .ci/run built: SDE_TORCHRL_BUILT_SITE)
 def test_every_public_name_has_an_api_entry(site):
     page = (site / "api" / "index.html").read_text()
     missing = [name for name in sde_torchrl.__all__ if f'id="sde_torchrl.{name}"' not in page]
