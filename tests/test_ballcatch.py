@@ -363,6 +363,7 @@ def test_a_job_records_each_runs_level_in_its_summary(tmp_path):
 
 
 @pytest.mark.parametrize("model", ["cup", "pybrain"])
+@pytest.mark.e2e
 def test_benchmark_prints_one_json_line_with_its_figures(model):
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "analysis/bench_ballcatch.py", "--worlds", "2", "--steps", "5",

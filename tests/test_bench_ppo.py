@@ -70,6 +70,7 @@ def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_o
     assert (raw < expected - 0.5).all()  # the ablation's env charges the energy costs on the raw action
 
 
+@pytest.mark.e2e
 def test_a_short_sde_run_writes_its_result(tmp_path):
     result = subprocess.run([sys.executable, "analysis/bench_ppo.py", "run", "--method", "sde", "--steps", "8192",
                              "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)

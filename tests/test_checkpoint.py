@@ -149,6 +149,7 @@ def start_and_signal(run_dir: Path, sig: int, after_rows: int,
     return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
 
 
+@pytest.mark.e2e
 def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
     with ThreadPoolExecutor(max_workers=1) as pool:
         reference = pool.submit(run_cli, *CLI, run_dir=tmp_path / "ref")
@@ -185,6 +186,7 @@ def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
     assert not list(run_dir.glob("*.tmp"))
 
 
+@pytest.mark.e2e
 def test_sigterm_without_periodic_checkpoints_loses_nothing(tmp_path):
     """A scheduler's SIGTERM is handled as Ctrl-C is, also with ``checkpoint_period=0``: the job
     checkpoints after its update, names the signal, exits 143, and the same command resumes it
@@ -229,6 +231,7 @@ def test_the_previous_checkpoint_is_a_copy_never_a_hard_link(tmp_path):
 
 
 @pytest.mark.parametrize("multirun", [False, True])
+@pytest.mark.e2e
 def test_the_resume_line_pastes_back_as_it_is_printed(tmp_path, multirun):
     """Issue 38 item 8: a path with a space is quoted for the shell, and a job of a multirun names
     its sweep's directory (hydra.sweep.dir), not its own; the printed override, pasted back into

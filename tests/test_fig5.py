@@ -181,6 +181,7 @@ def test_no_runs_of_the_estimator_is_an_error(tmp_path):
     assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out"), "--estimator", "enac"]) == 1
 
 
+@pytest.mark.e2e
 def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
     """Real (short) ball-catching jobs: two shards over Hydra's joblib launcher and one process
     training both runs give the same fig5.json; the video script films the best run."""
@@ -255,6 +256,7 @@ def test_final_policies_of_some_runs_only_or_of_two_evaluations_are_refused(tmp_
 
 @pytest.mark.parametrize("experiment", [["+experiment=ballcatch", "episode_queue=2"],  # σ̂ learned
                                         ["+experiment=ballcatch_enac"]])  # σ̂ fixed: not a parameter
+@pytest.mark.e2e
 def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path, experiment):
     """Given the job's own seed and episode count, the evaluation of the loaded final controllers
     is the trainer's final evaluation, to the bit, however the runs are split into chunks; on

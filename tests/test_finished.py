@@ -78,6 +78,7 @@ def test_a_committed_run_directory_survives_its_documented_command(tmp_path):
 
 
 @pytest.mark.parametrize("checkpoint", ["kept", "removed"])
+@pytest.mark.e2e
 def test_a_finished_run_is_final_with_or_without_its_checkpoint(tmp_path, checkpoint):
     cli = ("+experiment=minimize", "runs=2", "updates=6", "eval_period=3", "logger=none")
     run_dir = tmp_path / "run"

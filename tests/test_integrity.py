@@ -89,6 +89,7 @@ def start_holder(directory: Path) -> subprocess.Popen:
     return holder
 
 
+@pytest.mark.e2e
 def test_in_use_directory_is_refused_without_changing_anything(tmp_path):
     cli = ("+experiment=minimize", "runs=2", "updates=4")
     assert run_cli(*cli, run_dir=tmp_path).returncode == 0
@@ -113,6 +114,7 @@ def test_in_use_directory_is_refused_without_changing_anything(tmp_path):
     assert run_cli(*cli, run_dir=tmp_path).returncode == 0
 
 
+@pytest.mark.e2e
 def test_sweep_job_in_use_is_refused_and_the_others_run(tmp_path):
     holder = start_holder(tmp_path / "0")
     try:
@@ -143,6 +145,7 @@ def checkpoint_without_wall(path: Path) -> str:
     return content_digest(state)
 
 
+@pytest.mark.e2e
 def test_two_commands_on_one_run_directory(tmp_path):
     cli = ("+experiment=minimize", "runs=2", "updates=400", "checkpoint_period=50")
     run_dir = tmp_path / "both"
@@ -246,6 +249,7 @@ def test_damaged_checkpoint_points_to_the_previous_one(crashed, reference):
     assert not previous.exists()
 
 
+@pytest.mark.e2e
 def test_damaged_checkpoint_on_the_command_line(tmp_path):
     cli = ("+experiment=minimize", "runs=2", "updates=3", "logger=none")
     assert run_cli(*cli, run_dir=tmp_path).returncode == 0
@@ -260,6 +264,7 @@ def test_damaged_checkpoint_on_the_command_line(tmp_path):
 # --------------------------------------------------------------------------- metrics.csv
 
 
+@pytest.mark.e2e
 def test_finished_job_rerun_detects_a_truncated_last_row(tmp_path):
     cli = ("+experiment=minimize", "runs=2", "updates=5", "logger=none")
     assert run_cli(*cli, run_dir=tmp_path).returncode == 0
@@ -302,6 +307,7 @@ def test_short_metrics_on_resume_costs_no_progress(crashed, reference):
     assert resumed["final_parameters"] == json.loads((reference / "summary.json").read_text())["final_parameters"]
 
 
+@pytest.mark.e2e
 def test_short_metrics_is_not_a_config_error_on_the_command_line(tmp_path):
     cli = ("+experiment=minimize", "runs=2", "updates=3", "logger=none")
     assert run_cli(*cli, run_dir=tmp_path).returncode == 0
@@ -347,6 +353,7 @@ def test_non_finite_evaluation_names_update_and_runs(tmp_path):
     assert not (tmp_path / "summary.json").exists()
 
 
+@pytest.mark.e2e
 def test_divergence_at_the_last_update_fails_by_name(tmp_path):
     result = run_cli("+experiment=minimize", "updates=1", "lr=1e6", "logger=none", run_dir=tmp_path)
     assert result.returncode == 1, result.stderr[-2000:]
@@ -400,6 +407,7 @@ def test_rank_deficient_enac_warns(caplog):
     assert "rank-deficient" not in caplog.text
 
 
+@pytest.mark.e2e
 def test_kill_during_a_run_leaves_no_stale_lock(tmp_path):
     proc = subprocess.Popen(train_command("+experiment=minimize", "runs=2", "updates=2000", "logger=none",
                                           run_dir=tmp_path), cwd=REPO, stdout=subprocess.DEVNULL,
@@ -444,6 +452,7 @@ def test_a_forked_child_does_not_keep_a_dead_holders_lock(tmp_path):
         os.kill(child, signal.SIGKILL)
 
 
+@pytest.mark.e2e
 def test_a_sweep_relaunched_with_other_values_leaves_the_finished_jobs_alone(tmp_path):
     """Relaunching a sweep into the same directory with another value: each finished job is
     refused (exit 2) with advice naming hydra.sweep.dir, and its directory is not changed:
@@ -526,6 +535,7 @@ def small_device(tmp_path):
 
 
 @pytest.mark.parametrize("free_kib", [40])
+@pytest.mark.e2e
 def test_a_full_disk_is_named_leaves_no_temporary_file_and_resumes_once_freed(tmp_path, small_device, free_kib):
     cli = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=7", "logger=none")
     reference = run_cli(*cli, run_dir=tmp_path / "reference")
@@ -557,6 +567,7 @@ def test_a_run_directory_that_is_a_file_is_a_config_error(tmp_path):
         build("updates=2").train(path)
 
 
+@pytest.mark.e2e
 def test_another_config_before_the_first_checkpoint_is_refused_like_after_it(tmp_path):
     run_dir = tmp_path / "run"
     cli = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=0")

@@ -39,6 +39,8 @@ def _shards_equal_one_process(tmp_path: Path, *launcher: str) -> None:
     assert shards == one
 
 
+@pytest.mark.e2e
+@pytest.mark.xdist_group("submitit")  # the preemption test below finds its task by name
 def test_submitit_local_executor_shards_equal_one_process(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     _shards_equal_one_process(tmp_path, "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10")
@@ -104,10 +106,13 @@ def ray_head():
         shutil.rmtree(temp, ignore_errors=True)
 
 
+@pytest.mark.e2e
 def test_ray_cluster_shards_equal_one_process(tmp_path, ray_head):
     _shards_equal_one_process(tmp_path, "hydra/launcher=ray_cluster", f"hydra.launcher.ray.init.address={ray_head}")
 
 
+@pytest.mark.e2e
+@pytest.mark.xdist_group("submitit")  # `pgrep -f submitit.core._submit` must find its task only
 def test_submitit_preemption_checkpoints_requeues_and_resumes(tmp_path):
     """submitit's preemption / time-limit signal (SIGUSR2, as ``job._interrupt()`` sends it):
     the job checkpoints after its update, submitit requeues it, and the requeued job resumes to

@@ -177,6 +177,7 @@ def assert_misses(samples: torch.Tensor, expected: torch.Tensor, z: float = 8.0)
     assert ((mean - expected).abs() > z * standard_error).any(), (mean, expected, standard_error)
 
 
+@pytest.mark.e2e
 def test_plain_sampling_matches_the_closed_form_and_a_missing_baseline_does_not(monkeypatch):
     """Two draws per update: the batch-mean baseline holds each return with weight 1/2, so the
     expected estimate is (N − 1)/N = 1/2 of the gradient; without it, the full gradient."""
@@ -192,6 +193,7 @@ def test_plain_sampling_matches_the_closed_form_and_a_missing_baseline_does_not(
     assert (no_baseline.std(0) > 2 * samples.std(0)).all()
 
 
+@pytest.mark.e2e
 def test_symmetric_sampling_matches_the_closed_form():
     """Pairs μ ± ε: the μ-estimate needs no baseline (unbiased, no (N − 1)/N factor); the
     σ-estimate's baseline is the mean over the P = 2 pairs: 1/2 of ∂J/∂σ. Plain sampling on the
@@ -205,6 +207,7 @@ def test_symmetric_sampling_matches_the_closed_form():
     assert_misses(plain, expected * torch.tensor([1.0, 0.5], dtype=torch.float64))
 
 
+@pytest.mark.e2e
 def test_variance_weighting_is_the_papers_step_not_the_gradient():
     expected = closed_form(THETA0, SIGMA)
     weighted = estimates(symmetric=True, episodes=4, variance_weighted=True)

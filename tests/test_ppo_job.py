@@ -113,6 +113,7 @@ def test_one_update_of_a_bullet_experiment_with_tiny_sizes():
         trainer.close()
 
 
+@pytest.mark.e2e
 def test_a_short_job_writes_its_run_directory(tmp_path):
     result = run_cli(*TINY, "updates=5", "explorer=gsde", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -132,6 +133,7 @@ def test_a_short_job_writes_its_run_directory(tmp_path):
 
 @pytest.mark.parametrize(("job", "explorer", "updates"), [
     (TINY, "gsde_freq4", 40), (TINY, "gaussian", 40), (TINY_A2C, "gsde", 150)])
+@pytest.mark.e2e
 def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, job, explorer, updates):
     """The envs are mid-episode at the checkpoint: the resumed job replays their episodes."""
     cli = (*job, f"updates={updates}", "checkpoint_period=0", f"explorer={explorer}")
@@ -154,6 +156,7 @@ def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, job
     assert scalars.read_bytes() == (tmp_path / "ref" / scalars.relative_to(run_dir)).read_bytes()
 
 
+@pytest.mark.e2e
 def test_a_kill_between_checkpoints_then_the_same_command_redoes_the_lost_updates(tmp_path):
     """SIGKILL: the rows after the last periodic checkpoint are cut back and done again, the same."""
     cli = (*TINY, "updates=40", "checkpoint_period=5", "explorer=gsde_freq4")

@@ -33,6 +33,7 @@ def test_queue_must_be_a_multiple_of_the_new_episodes():
         build("episodes_per_update=4", "episode_queue=6")
 
 
+@pytest.mark.e2e
 def test_ballcatch_experiment_runs_end_to_end(tmp_path):
     from _helpers import run_cli, summary_without_wall
 

@@ -93,6 +93,7 @@ def test_the_learning_rate_decays_per_round_as_sb3s_linear_schedule():
         trainer.close()
 
 
+@pytest.mark.e2e
 def test_a_short_job_writes_its_run_directory(tmp_path):
     result = run_cli(*TINY, "updates=4", "explorer=gsde", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -106,6 +107,7 @@ def test_a_short_job_writes_its_run_directory(tmp_path):
 
 
 @pytest.mark.parametrize("explorer", ["gsde_freq4", "gaussian"])
+@pytest.mark.e2e
 def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, explorer):
     """The checkpoint holds the replay buffer, the optimisers and the env mid-episode."""
     updates = 20

@@ -7,8 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from sde_torchrl.jobs.run_dir import finished_runs
 
+pytestmark = pytest.mark.e2e  # every test here trains sweeps as processes
 ROOT = Path(__file__).resolve().parents[1]
 COMMON = ["+experiment=minimize", "updates=6", "logger=none", "eval_period=3"]
 

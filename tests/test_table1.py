@@ -25,6 +25,7 @@ def _table1(out: Path, *args: str) -> dict:
     return json.loads((out / "table1.json").read_text())
 
 
+@pytest.mark.e2e
 def test_tiny_sweep_writes_every_output_and_rereads_its_runs(tmp_path):
     table = _table1(tmp_path / "a", "runs=2", "updates=8", "episodes_per_update=4")
     assert {(r["sweep"], r["sigma_noise"], r["episode_length"]) for r in table["rows"]} == SETTINGS

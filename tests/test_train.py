@@ -2,7 +2,8 @@
 
 Starting ``train.py`` costs several seconds of imports, so the command-line jobs the selected
 tests need are started once, two at a time, in a module-scoped fixture (``jobs``) and the
-tests only wait for their results; the Python-API tests run in this process meanwhile.
+tests only wait for their results; the Python-API tests run in this process meanwhile. The
+command-line tests are marked ``e2e`` (``python -m pytest -m e2e``), left out of the default run.
 """
 
 from __future__ import annotations
@@ -81,6 +82,9 @@ JOBS = {
 }
 # Jobs whose wall time is asserted: the others run at a lower CPU priority.
 TIMED_JOBS = {"default"}
+# The tests that wait for these jobs are end-to-end (``-m e2e``), all on one pytest-xdist worker:
+# on two, each worker's ``jobs`` fixture would start its own copy of the jobs.
+ON_ONE_WORKER = pytest.mark.xdist_group("train_jobs")
 # Which jobs each test waits for (only the selected tests' jobs are started).
 JOBS_BY_TEST = {
     "test_short_job_writes_documented_outputs": ("short",),
@@ -176,6 +180,8 @@ def eval_updates(updates: int, period: int) -> set[int]:
 # 1. A short job end to end: the documented outputs
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_short_job_writes_documented_outputs(jobs):
     out = jobs["short"].check().out_dir
 
@@ -250,6 +256,8 @@ def test_short_job_writes_documented_outputs(jobs):
     assert [int(step) for step, _ in logged_eval] == [(k + 1) * EPISODES for k in sorted(evals)]
 
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_checkpoint_loads_into_a_fresh_policy(jobs):
     out = jobs["short"].check().out_dir
     checkpoint = torch.load(out / "checkpoint.pt")
@@ -273,6 +281,8 @@ def test_checkpoint_loads_into_a_fresh_policy(jobs):
 # 2. The default experiment learns
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_default_experiment_learns_within_a_minute(jobs):
     result = jobs["default"].check()
     print(f"default experiment: {result.wall_s:.1f} s wall")
@@ -295,6 +305,8 @@ def test_default_experiment_learns_within_a_minute(jobs):
 # 3. Reproducibility
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_same_seed_reproduces_and_other_seed_differs(jobs):
     single = jobs["short"].check().out_dir
     sweep = jobs["seeds"].check()
@@ -367,6 +379,8 @@ def test_evaluation_does_not_shift_training(tmp_path):
 # 5. Group choices on the command line
 # --------------------------------------------------------------------------------------------
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_group_choices_combine_with_experiment(jobs):
     result = jobs["rex_gauss_enac"].check()
     summaries = sweep_summaries(result)
@@ -389,6 +403,8 @@ def test_group_choices_combine_with_experiment(jobs):
                                          else "episode")
 
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_every_n_choice_with_its_option(jobs):
     result = jobs["every_n"].check()
     summary = read_summary(result.out_dir)
@@ -402,6 +418,8 @@ def test_every_n_choice_with_its_option(jobs):
     assert (result.out_dir / "checkpoint.pt").is_file()
 
 
+@pytest.mark.e2e
+@ON_ONE_WORKER
 def test_unknown_group_option_fails(jobs):
     result = jobs["nonsense"]
     assert result.returncode == 2  # a config error

@@ -102,6 +102,7 @@ def test_overflowing_score_norm_names_its_run(tmp_path):
     assert "non-finite score norm at update 1 in run 2" in str(error)
 
 
+@pytest.mark.e2e
 def test_nan_run_on_the_command_line_fails_in_one_line(tmp_path):
     result = run_cli("+experiment=minimize", "updates=5", "runs=2", "lr=1e38", "logger=none", run_dir=tmp_path)
     assert result.returncode == 1
@@ -115,6 +116,7 @@ def test_nan_run_on_the_command_line_fails_in_one_line(tmp_path):
 # ------------------------------------------------------------------------ multirun isolation
 
 
+@pytest.mark.e2e
 def test_failing_job_in_a_sweep_keeps_the_others(tmp_path):
     # Job 0 diverges at its first update (a runtime failure); job 1 must still run and finish.
     result = run_cli("+experiment=minimize", "updates=6", "runs=2", "logger=none", "lr=1e38,0.005",
