@@ -46,6 +46,7 @@ def example_config(*overrides: str, config_dir: Path = EXAMPLE):
         return compose("config", overrides=list(overrides))
 
 
+@pytest.mark.e2e  # a training job with a collector worker process, about 15 s
 def test_torchrl_ppo_trainer_trains_the_sde_policy_of_the_example_config(tmp_path):
     cfg = example_config(*TINY, f"logger.log_dir={tmp_path}")
     torch.manual_seed(0)
