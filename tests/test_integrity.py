@@ -8,6 +8,7 @@ import logging
 import os
 import random
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -55,14 +56,21 @@ def reference(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture
-def crashed(tmp_path) -> Path:
-    """The job of :data:`BUDGET` killed at update 10 (checkpoint after update 8)."""
+@pytest.fixture(scope="module")
+def crashed_once(tmp_path_factory) -> Path:
+    """The job of :data:`BUDGET` killed at update 10 (checkpoint after update 8), trained once for the module."""
+    out = tmp_path_factory.mktemp("crashed")
     trainer = build(*BUDGET)
     crash_at(trainer, 10)
     with pytest.raises(Crash):
-        trainer.train(tmp_path, checkpoint_period=4)
-    return tmp_path
+        trainer.train(out, checkpoint_period=4)
+    return out
+
+
+@pytest.fixture
+def crashed(crashed_once, tmp_path) -> Path:
+    """A copy of :func:`crashed_once` to damage or resume."""
+    return Path(shutil.copytree(crashed_once, tmp_path / "crashed"))
 
 
 # --------------------------------------------------------------------------- run-directory lock
