@@ -17,7 +17,7 @@ How far that matters after Adam's per-parameter scaling is the condition number 
 correlation matrix, also reported.
 
 This script measures ``S`` on the task and checks the identity on the trainer's own episodes:
-it builds ``+experiment=ballcatch`` (REINFORCE + SDE at its selected learner) for one run,
+it builds ``+experiment=ballcatch`` (REINFORCE + SDE) at σ̂₀ = e⁻² (:data:`SIGMA_PARAM`) for one run,
 collects ``--episodes`` exploratory episodes at ``Θ0`` with the trainer's collector, computes
 the estimator's scores, and writes into ``--out``:
 
@@ -41,8 +41,10 @@ from pathlib import Path
 
 import torch
 
-#: The experiment measured and the score of its controller's weights.
+#: The experiment measured, at the exploration scale the committed record was measured with
+#: (σ̂₀ = e⁻², +experiment=ballcatch's before it started at e⁻³), and the score of its controller's weights.
 EXPERIMENT = "ballcatch"
+SIGMA_PARAM = -2.0
 WEIGHT = "actor.module.0.module.weight"
 
 
@@ -59,7 +61,7 @@ def measure(episodes: int, seed: int) -> dict:
     from sde_torchrl.config.compose import compose
     from sde_torchrl.modules.sde import SDEParams, sigma_from_param
 
-    cfg = compose([f"+experiment={EXPERIMENT}", "runs=1", f"episodes_per_update={episodes}", "episode_queue=0",
+    cfg = compose([f"+experiment={EXPERIMENT}", f"explorer.init_param={SIGMA_PARAM}", "runs=1", f"episodes_per_update={episodes}", "episode_queue=0",
                    "eval_episodes=1", f"seed={seed}", "logger=none"])
     trainer = build_trainer(cfg)
     batch = trainer.collect()[0]  # [N, T]: run 0

@@ -65,20 +65,22 @@ def test_selection_counts_catches_then_mean_then_order():
     assert tuning.select({"C1": None}) is None
 
 
-@pytest.mark.parametrize("method, experiment", [
-    ("reinforce_sde", "ballcatch"), ("reinforce_rex", "ballcatch_rex"),
-    ("enac_sde", "ballcatch_enac"), ("enac_rex", "ballcatch_enac_rex"), ("gpomdp_sde", "ballcatch_gpomdp"),
-    ("pgpe", "ballcatch_pgpe"),
+@pytest.mark.parametrize("method, experiment, round_", [
+    ("reinforce_sde", "ballcatch", 3), ("reinforce_rex", "ballcatch_rex", 2),
+    ("enac_sde", "ballcatch_enac", 2), ("enac_rex", "ballcatch_enac_rex", 2), ("gpomdp_sde", "ballcatch_gpomdp", 2),
+    ("pgpe", "ballcatch_pgpe", 2),
 ])
-def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment):
-    """+experiment=ballcatch (ballcatch_rex) is the candidate docs/ballcatch/tuning.json chose,
-    but for the tuning job's own seed, runs and bookkeeping."""
+def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, round_):
+    """+experiment=ballcatch (ballcatch_rex, ...) is the candidate docs/ballcatch/tuning.json chose
+    in the round whose rerun sweep is committed (REINFORCE + SDE: round 3's; the others: round 2's,
+    their reruns not committed yet), but for the tuning job's own seed, runs and bookkeeping."""
     from _helpers import REPO
     from omegaconf import OmegaConf
 
-    chosen = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())["methods"][method]["chosen"]
+    numbers = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())
+    chosen = (numbers["round3"] if round_ == 3 else numbers)["methods"][method]["chosen"]
     tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger")
-    job = [o for o in tuning.job_overrides(method, chosen) if o.split("=")[0] not in tuning_only]
+    job = [o for o in tuning.job_overrides(method, chosen, round_=round_) if o.split("=")[0] not in tuning_only]
 
     def resolved(*overrides):
         config = OmegaConf.to_container(compose_config(*overrides), resolve=True)
