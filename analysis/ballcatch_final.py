@@ -121,9 +121,11 @@ def evaluate_job(job: FinishedRun, episodes: int, seed: int, chunk: int, model: 
 def episode_outcomes(episodes, trainer, scale: float) -> dict[str, list]:
     """Per run, each evaluation episode's return (mean reward per step) and behaviour
     (:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`), as lists ``[runs][episodes]``."""
-    ball = torch.cat([episodes["observation"][..., :1, :], episodes["next", "observation"]], -2)
+    env = trainer.eval_env.base_env
+    observed = torch.cat([episodes["observation"][..., :1, :], episodes["next", "observation"]], -2)
+    ball = env.ball_positions(observed)  # a scaled observation is not the ball's position
     reward = episodes["next", "reward"][..., 0]
-    ground_z = trainer.eval_env.base_env.config.arm.ground_z
+    ground_z = env.config.arm.ground_z
     outcomes = catch_outcomes(ball, episodes["action"][..., 3], reward, ground_z)
     outcomes["return"] = scale * trainer.estimator.returns(episodes)
     return {key: value.tolist() for key, value in outcomes.items()}

@@ -69,6 +69,26 @@ def test_a_committed_reevaluation_is_what_the_code_gives(monkeypatch):
         assert values[0] == pytest.approx(committed["per_episode"][key][0], abs=1e-5, nan_ok=True), key
 
 
+def test_behaviours_read_the_balls_position_under_a_scaled_observation(monkeypatch):
+    """With env.observation=scaled the observation is not the ball's position: an episode that
+    catches (R ≥ −1.1) must not be counted as dropped."""
+    from sde_torchrl.jobs.run_dir import finished_runs
+
+    job = finished_runs(DOCS / "runs" / "fig5_seed3" / "rex" / "0")[0]
+    assert job.summary["config"]["env"]["observation"] == "scaled"
+    returns = json.loads((job.path / "final_policy.json").read_text())["final_policy_return"]
+    run = next(r for r, value in enumerate(returns) if value >= -1.1)
+    monkeypatch.setitem(job.summary, "runs", 1)  # that run alone, on its own 20 balls
+    monkeypatch.setitem(job.summary, "first_run", job.summary["first_run"] + run)
+    monkeypatch.setitem(job.summary, "final_parameters",
+                        {name: values[run:run + 1] for name, values in job.summary["final_parameters"].items()})
+    result = final.evaluate_job(job, 20, 7, chunk=1, model="pybrain")
+    assert result["final_policy_return"] == pytest.approx([returns[run]], abs=1e-6)
+    episodes = result["per_episode"]
+    catching = [i for i, value in enumerate(episodes["return"][0]) if value >= -1.1]
+    assert catching and not any(episodes["dropped"][0][i] for i in catching)
+
+
 @pytest.mark.parametrize("change", [0.06, "level"])
 def test_the_reevaluation_refuses_a_shipped_arm_file_that_differs_from_final_policy(tmp_path, change):
     """Beyond the tolerance, or at another of the paper's levels, the shipped arm's return is not

@@ -22,8 +22,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                 BALLCATCH, ("methods.md", "methods.json")),
     "fig5_selected": ("fig5", [str(BALLCATCH / "runs" / "fig5_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig5_selected", ("fig5.md", "fig5.json")),
-    "fig5_seed3": ("fig5", [str(BALLCATCH / "runs" / "fig5_seed3" / "sde")], BALLCATCH / "fig5_seed3",
-                   ("fig5.md", "fig5.json")),
+    "fig5_seed3": ("fig5", [str(BALLCATCH / "runs" / "fig5_seed3" / explorer) for explorer in ("sde", "rex")],
+                   BALLCATCH / "fig5_seed3", ("fig5.md", "fig5.json")),
     "fig6_selected": ("fig6", [str(BALLCATCH / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig6_selected", ("fig6.md", "fig6.json")),
     "methods_selected": ("fig5", [*(str(BALLCATCH / "runs" / folder) for folder in
