@@ -61,8 +61,9 @@ def measure(episodes: int, seed: int) -> dict:
     from sde_torchrl.config.compose import compose
     from sde_torchrl.modules.sde import SDEParams, sigma_from_param
 
-    cfg = compose([f"+experiment={EXPERIMENT}", f"explorer.init_param={SIGMA_PARAM}", "runs=1", f"episodes_per_update={episodes}", "episode_queue=0",
-                   "eval_episodes=1", f"seed={seed}", "logger=none"])
+    cfg = compose([f"+experiment={EXPERIMENT}", f"explorer.init_param={SIGMA_PARAM}", "runs=1",
+                   f"episodes_per_update={episodes}", "episode_queue=0", "eval_episodes=1", f"seed={seed}",
+                   "logger=none"])
     trainer = build_trainer(cfg)
     batch = trainer.collect()[0]  # [N, T]: run 0
     sde = next(module for module in trainer.policy.modules() if isinstance(module, SDEParams))
