@@ -61,37 +61,32 @@ def compose(
 
 @contextmanager
 def store_entries_hidden(directory: Path) -> Iterator[None]:
-    """Hides, while composing ``directory``'s tree, the ``ConfigStore`` entries that have the path of
-    one of its YAML files.
+    """Hides, while composing ``directory``'s tree, the ``ConfigStore`` groups that are also groups
+    of its own (``env``, ``optimizer``, ``logger``, ...; Hydra's own ``hydra`` group stays).
 
-    Hydra (1.3 still) merges a ``ConfigStore`` entry into the YAML file of the same path as its
-    schema (its deprecated "automatic schema matching"). Our files name their schemas themselves
-    (``/schema/<group>/<option>``); entries that other libraries store under the same paths, such
-    as TorchRL's trainer configs (``env/gym``, ``optimizer/adam``, ``logger/csv``, ...), would
-    otherwise be merged into ours and fail the composition. They are back in the store afterwards.
+    Other libraries store options under the same group names, such as TorchRL's trainer configs
+    (``env/gym``, ``optimizer/adam``, ``optimizer/lbfgs``, ``logger/trackio``, ...). Hydra (1.3
+    still) would merge an entry of the same path into our YAML file as its schema (its deprecated
+    "automatic schema matching") and fail the composition, and would offer the others as options
+    of our groups, which our schemas do not check. Our files name their schemas themselves
+    (``/schema/<group>/<option>``). The groups are back in the store afterwards.
 
     Args:
         directory: the config tree being composed.
 
     Examples:
-        >>> import torchrl.trainers.algorithms.configs  # stores env/gym, optimizer/adam, logger/csv, ...
-        >>> env_options = ConfigStore.instance().repo["env"]
+        >>> import torchrl.trainers.algorithms.configs  # stores env/gym, optimizer/lbfgs, logger/csv, ...
+        >>> store = ConfigStore.instance().repo
         >>> with store_entries_hidden(CONF_DIR):
-        ...     "gym.yaml" in env_options
-        False
-        >>> "gym.yaml" in env_options
+        ...     "optimizer" in store, "schema" in store
+        (False, True)
+        >>> "lbfgs.yaml" in store["optimizer"]
         True
     """
-    repo, hidden = ConfigStore.instance().repo, []
-    for path in directory.rglob("*.yaml"):
-        *groups, name = path.relative_to(directory).parts
-        node = repo
-        for group in groups:
-            node = node.get(group) if isinstance(node, dict) else None
-        if isinstance(node, dict) and name in node:
-            hidden.append((node, name, node.pop(name)))
+    repo = ConfigStore.instance().repo
+    own = {path.name for path in directory.iterdir() if path.is_dir() and path.name != "hydra"}
+    hidden = {group: repo.pop(group) for group in own & set(repo)}
     try:
         yield
     finally:
-        for node, name, entry in hidden:
-            node[name] = entry
+        repo.update(hidden)
