@@ -51,6 +51,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 # Light imports only (no torch): a job locks its run directory before importing torch.
+from sde_torchrl.config.help import register_help_resolver
 from sde_torchrl.config.schemas import describe_error, register_resolvers, validate
 from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.trainers.interrupt import TrainingInterrupted, stop_requested
@@ -60,6 +61,7 @@ from sde_torchrl.utils.files import DamagedFileError, DiskFullError, write_atomi
 
 log = logging.getLogger("train")
 register_resolvers()
+register_help_resolver()
 
 EXIT_FAILED, EXIT_CONFIG, EXIT_IN_USE, EXIT_DAMAGED, EXIT_INTERRUPTED = 1, 2, 3, 4, 130
 

@@ -14,6 +14,8 @@ import re
 import textwrap
 from pathlib import Path
 
+from omegaconf import DictConfig, OmegaConf
+
 from sde_torchrl.config.schemas import TrainConf
 
 #: The groups a user chooses from, in the order a job is put together, and what each chooses.
@@ -113,3 +115,14 @@ def _yaml(value: object) -> str:
     if value is None:
         return "null"
     return str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def register_help_resolver() -> None:
+    """Registers ``${sde_help:}`` (``conf/config.yaml``'s ``hydra.help.template``): :func:`help_text`
+    for the config tree the application composes from (its ``main`` config source)."""
+    OmegaConf.register_new_resolver("sde_help", _help_for, replace=True)
+
+
+def _help_for(_root_: DictConfig) -> str:
+    main = next(source for source in _root_.hydra.runtime.config_sources if source.provider == "main")
+    return help_text(main.path.removeprefix("file://"))

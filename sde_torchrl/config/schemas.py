@@ -990,8 +990,7 @@ def register_resolvers() -> None:
     """Config resolvers and the config schemas (:func:`register_configs`): call before composing
     a config. The resolvers: ``${midway_r_lim:T,x0,s,noise_std,theta0}`` (``midway_threshold``);
     ``${sde_memory_gb:}``, ``${sde_memory_bytes:}`` and ``${sde_time_min:}``, a launcher's request
-    for the job (:func:`~sde_torchrl.jobs.resources.launcher_request`); ``${sde_help:}``, the text
-    of ``--help`` (:mod:`sde_torchrl.config.help`). Light: torch is imported when a
+    for the job (:func:`~sde_torchrl.jobs.resources.launcher_request`). Light: torch is imported when a
     value is resolved, not here (``train.py`` locks its run directory before importing torch)."""
     register_configs()
 
@@ -1006,7 +1005,6 @@ def register_resolvers() -> None:
                                     replace=True)
     OmegaConf.register_new_resolver("sde_time_min", lambda _root_: launcher_request(_root_)["timeout_min"],
                                     replace=True)
-    OmegaConf.register_new_resolver("sde_help", _help_text, replace=True)
     OmegaConf.register_new_resolver("sde_memory_bytes", lambda _root_: int(launcher_request(_root_)["mem_gb"] * 1e9),
                                     replace=True)
 
@@ -1091,10 +1089,3 @@ def _omegaconf_line(err: Any) -> str:
         allowed = f"{msg} (expected {expected})"
     return f"{key}={show(value)}: {allowed}" if value is not None else f"{key}: {allowed}"
 
-
-def _help_text(_root_: DictConfig) -> str:
-    """``--help``'s text for the config tree the application composes from (its ``main`` source)."""
-    from sde_torchrl.config.help import help_text
-
-    main = next(source for source in _root_.hydra.runtime.config_sources if source.provider == "main")
-    return help_text(main.path.removeprefix("file://"))

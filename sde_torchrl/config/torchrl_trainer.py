@@ -138,14 +138,7 @@ def make_sde_model(
     action_dim: int | None = None,
     feature_dim: int | None = None,
     feature_key: Any = None,
-    schedule: str = "episode",
-    every_n: int | None = None,
-    rollout_steps: int | None = None,
-    sharing: str = "element",
-    sigma_transform: str = "expln",
-    init_param: float = -2.0,
-    gaussian_init_param: float | None = None,
-    learn_sigma: bool = True,
+    **sde_options: Any,
 ) -> SDEActor:
     """The squashed SDE policy from a ``tanh_normal`` model config's fields (:class:`SDEModelConfig`'s ``_target_``).
 
@@ -181,17 +174,12 @@ def make_sde_model(
         feature_dim: ``S``, the size of what the noise matrix multiplies; default: the network's
             ``in_features`` when the features are its input.
         feature_key: the features ``x`` of ``(σ̂ ⊙ ξ) x``; default: the single key of ``in_keys``.
-        schedule: when the noise is redrawn (``"episode"``: SDE, at every reset; ``"step"``: REX;
-            ``"every_n"``; SB3's ``"every_n_steps"``, ``"rollout"``; see
-            :class:`~sde_torchrl.modules.sde.SDEParams`).
-        every_n: the period of ``"every_n"`` and ``"every_n_steps"``.
-        rollout_steps: steps per rollout for ``"every_n_steps"`` and ``"rollout"``
-            (``frames_per_batch // num_envs`` with TorchRL's collectors).
-        sharing: one ``σ̂`` per matrix element, action, feature or one for all.
-        sigma_transform: ``σ̂ = expln(p)`` (eq. 23) or ``exp(p)``.
-        init_param: initial ``p`` (-2: ``σ̂ ≈ 0.135``).
-        gaussian_init_param: initial ``q`` of eq. (22)'s extra i.i.d. Gaussian part, or ``None``.
-        learn_sigma: learn ``p`` (and ``q``), or keep them fixed.
+        **sde_options: :class:`~sde_torchrl.modules.sde.SDEParams`' own options, with its
+            defaults: ``schedule`` (when the noise is redrawn: ``"episode"``, SDE, at every reset;
+            ``"step"``, REX; ``"every_n"``; SB3's ``"every_n_steps"``, ``"rollout"``), ``every_n``,
+            ``rollout_steps`` (``frames_per_batch // num_envs`` with TorchRL's collectors),
+            ``sharing``, ``sigma_transform`` (``expln``, eq. 23, or ``exp``), ``init_param``
+            (-2: ``σ̂ ≈ 0.135``), ``gaussian_init_param`` (eq. 22) and ``learn_sigma``.
 
     Returns:
         The :class:`~sde_torchrl.modules.sde_actor.SDEActor`.
@@ -227,10 +215,7 @@ def make_sde_model(
     loc_key = _normalize_hydra_key(param_keys[0])
     head = MeanHead(action_dim, TANH_LOC_UPSCALE if tanh_loc else None)
     actor = TensorDictModule(nn.Sequential(network, head), in_keys=in_keys, out_keys=[loc_key])
-    sde = SDEParams(action_dim, feature_dim, schedule=schedule, every_n=every_n, rollout_steps=rollout_steps,
-                    sharing=sharing, sigma_transform=sigma_transform, init_param=init_param,
-                    gaussian_init_param=gaussian_init_param, learn_sigma=learn_sigma, loc_key=loc_key,
-                    feature_key=feature_key)
+    sde = SDEParams(action_dim, feature_dim, **sde_options, loc_key=loc_key, feature_key=feature_key)
     policy = make_sde_actor(actor, sde, squash=True, low=_bound(low, -1.0), high=_bound(high, 1.0),
                             action_key=out_keys[0])
     if shared:
