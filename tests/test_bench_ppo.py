@@ -1,4 +1,4 @@
-"""analysis/bench_ppo.py: SB3's normalisation rule, a short real PPO run with the SDE policy, the report."""
+"""analysis/benchmarks/bench_ppo/: SB3's normalisation rule, a short real PPO run with the SDE policy, the report."""
 
 from __future__ import annotations
 
@@ -9,11 +9,10 @@ import sys
 import numpy as np
 import pytest
 import torch
-from _helpers import REPO, load_script
+from _helpers import REPO
 
+from analysis.benchmarks import bench_ppo as bench
 from sde_torchrl.envs.normalize import running_update
-
-bench = load_script("bench_ppo")
 
 
 def test_running_statistics_match_stable_baselines3():
@@ -72,8 +71,9 @@ def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_o
 
 @pytest.mark.e2e
 def test_a_short_sde_run_writes_its_result(tmp_path):
-    result = subprocess.run([sys.executable, "analysis/bench_ppo.py", "run", "--method", "sde", "--steps", "8192",
-                             "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
+    result = subprocess.run([sys.executable, "-m", "analysis.benchmarks.bench_ppo", "run", "--method", "sde",
+                             "--steps", "8192", "--out", str(tmp_path)],
+                            cwd=REPO, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     data = json.loads((tmp_path / "sde_seed0.json").read_text())
     assert data["env_steps"] == 8192 and len(data["eval_returns"]) == bench.EVAL_EPISODES

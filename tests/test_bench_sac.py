@@ -1,4 +1,4 @@
-"""analysis/bench_sac.py: tiny runs of both sides, the SAC losses' SDE noise, the report."""
+"""analysis/benchmarks/bench_sac/: tiny runs of both sides, the SAC losses' SDE noise, the report."""
 
 from __future__ import annotations
 
@@ -7,13 +7,12 @@ import json
 import numpy as np
 import pytest
 import torch
-from _helpers import REPO, load_script
+from _helpers import REPO
 from tensordict import TensorDict
 
+from analysis.benchmarks import bench_sac as bench
 from sde_torchrl.modules.sac_actor import CLIP_MEAN
 from sde_torchrl.trainers.sac import fresh_loss_noise
-
-bench = load_script("bench_sac")
 
 
 def _action_spec():

@@ -8,8 +8,8 @@ on the job's arm in the gymnasium env with pybullet's software renderer and writ
 episode, both as mean rewards per step (the paper's units).
 
 Usage:
-    python analysis/ballcatch_video.py --out docs/ballcatch/sde_best.gif SWEEP_DIR [more shards...]
-    python analysis/ballcatch_video.py --explorer rex --pick median --out docs/ballcatch/rex_typical.gif SWEEP_DIR
+    python -m analysis.paper.ballcatch_video --out docs/ballcatch/sde_best.gif SWEEP_DIR [more shards...]
+    python -m analysis.paper.ballcatch_video --explorer rex --pick median --out docs/ballcatch/rex_typical.gif SWEEP_DIR
 """
 
 from __future__ import annotations

@@ -23,9 +23,9 @@ share), GAE and the update's parts.
 
 Usage::
 
-    python analysis/bench_ppo.py run --method sde --seed 0 --steps 500000 --out docs/ppo/runs
-    python analysis/bench_ppo.py report docs/ppo/runs --out docs/ppo
-    python analysis/bench_ppo.py phases sb3 sde+compile sde --rollouts 4 --out docs/ppo/phases.md
+    python -m analysis.benchmarks.bench_ppo run --method sde --seed 0 --steps 500000 --out docs/ppo/runs
+    python -m analysis.benchmarks.bench_ppo report docs/ppo/runs --out docs/ppo
+    python -m analysis.benchmarks.bench_ppo phases sb3 sde+compile sde --rollouts 4 --out docs/ppo/phases.md
 
 Examples:
     >>> sorted(METHODS)
@@ -46,8 +46,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from figures import binned_curve, ratio_of_means, saved_figure
 
+from analysis.figures import binned_curve, ratio_of_means, saved_figure
 from sde_torchrl.envs.normalize import running_update
 from sde_torchrl.utils.intervals import bootstrap_interval
 
@@ -611,7 +611,8 @@ def main(argv: list[str] | None = None) -> int:
         table = (speed if args.command == "speed" else phases)(args.variants, args.rollouts)
         sys.stdout.write(table)
         if args.out is not None:
-            command = " ".join(["python analysis/bench_ppo.py", *(argv if argv is not None else sys.argv[1:])])
+            arguments = argv if argv is not None else sys.argv[1:]
+            command = " ".join(["python -m analysis.benchmarks.bench_ppo", *arguments])
             title = "Speed of one PPO iteration" if args.command == "speed" else "Where one PPO iteration's time goes"
             args.out.write_text(f"# {title}\n\nWritten by `{command}` on {time.strftime('%Y-%m-%d')} "
                                 f"({os.cpu_count()} cores; iterations 2-{args.rollouts}).\n\n{table}")

@@ -2,13 +2,13 @@
 
 (a) ``plain``: one run, one env, TorchRL's ``env.rollout`` stepping a single episode at a time
     (a Python loop per step), then the estimator and the update: the straightforward way.
-(b) ``batched``: what ``analysis/table1.py`` runs: ``runs`` learners side by side, each with
+(b) ``batched``: what ``analysis/paper/table1.py`` runs: ``runs`` learners side by side, each with
     ``episodes`` episodes per update, collected by :func:`sde_torchrl.collectors.rollout.tensor_rollout`.
 
 Both count full training updates (collect, estimate, step), so the figures are what a sweep gets.
 
 Usage:
-    python analysis/bench_toy.py [--runs 30] [--episodes 10] [--length 15] [--seconds 5]
+    python -m analysis.benchmarks.bench_toy [--runs 30] [--episodes 10] [--length 15] [--seconds 5]
 """
 
 from __future__ import annotations

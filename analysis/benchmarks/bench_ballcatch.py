@@ -36,7 +36,7 @@ Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats``
 * with ``--workers 2``: ``parallel_env_steps_per_s``, ``env.rollout`` on a ``ParallelEnv`` of
   two batched envs (one per core) holding ``--worlds`` worlds between them.
 
-Usage: ``python analysis/bench_ballcatch.py --model pybrain --worlds 16 --steps 500``
+Usage: ``python -m analysis.benchmarks.bench_ballcatch --model pybrain --worlds 16 --steps 500``
 """
 
 from __future__ import annotations

@@ -1,14 +1,14 @@
-"""Ball catching with ENAC, paper Fig. 6: ``analysis/fig5.py --estimator enac``.
+"""Ball catching with ENAC, paper Fig. 6: ``analysis/paper/fig5.py --estimator enac``.
 
 Usage:
-    python analysis/fig6.py --out results/fig6 SWEEP_DIR [more shards...]
+    python -m analysis.paper.fig6 --out results/fig6 SWEEP_DIR [more shards...]
 """
 
 from __future__ import annotations
 
 import sys
 
-import fig5
+from analysis.paper import fig5
 
 
 def main(argv: list[str] | None = None) -> int:
