@@ -12,7 +12,13 @@ import pytest
 from _helpers import REPO
 
 from analysis import figures, runner
-from analysis.benchmarks import bench_ppo
+from analysis.benchmarks import common
+from analysis.benchmarks.bench_ppo import build as ppo_build
+from analysis.benchmarks.bench_ppo import speed as ppo_speed
+from analysis.benchmarks.bench_ppo import timing as ppo_timing
+from analysis.benchmarks.bench_sac import build as sac_build
+from analysis.benchmarks.bench_sac import compiler as sac_compiler
+from analysis.benchmarks.bench_sac import report as sac_report
 from analysis.paper import ballcatch_scores, fig5
 from analysis.selection import ballcatch_tuning
 from sde_torchrl.jobs.run_dir import MetricRow, finished_runs, read_finished_run, read_metrics
@@ -122,8 +128,10 @@ def test_figure_helpers():
     assert figures.bounds((1.0, 0.5, 2.0)) == [0.5, 2.0]
 
 
-@pytest.mark.parametrize("module", [runner, figures, ballcatch_tuning, bench_ppo, fig5, ballcatch_scores],
-                         ids=lambda module: module.__name__)
+@pytest.mark.parametrize("module", [
+    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_build, ppo_speed, ppo_timing, sac_build,
+    sac_compiler, sac_report,
+], ids=lambda module: module.__name__)
 def test_docstring_examples_of_the_analysis_modules_run(module):
     import doctest
 

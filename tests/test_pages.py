@@ -14,7 +14,7 @@ import shutil
 import pytest
 from _helpers import REPO
 
-from analysis.benchmarks import bench_ppo
+from analysis.benchmarks.bench_ppo import cli as bench_ppo
 from analysis.paper import fig5, fig6, table1
 from analysis.selection import ballcatch_tuning, learner_search
 
