@@ -217,7 +217,7 @@ def markdown(numbers: dict) -> str:
     """The tables of ``tuning.md``: one row per candidate, one column per method."""
     methods = numbers["methods"]
     lines = [
-        "# Ball catching: the learner selection (issue 22)",
+        "# Ball catching: the learner selection",
         "",
         f"Written by `analysis/selection/ballcatch_tuning.py report` from the jobs under `docs/ballcatch/tuning/` "
         f"(rule: `learner_selection.md`; seed {numbers['seed']}, {numbers['runs']} runs per job, 500 updates). "
