@@ -133,7 +133,8 @@ def episode_outcomes(episodes, trainer, scale: float) -> dict[str, list]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--episodes", type=int, required=True, help="deterministic episodes per run")
     parser.add_argument("--seed", type=int, required=True, help="seed of the evaluation env's streams")

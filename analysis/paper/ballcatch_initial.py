@@ -41,7 +41,8 @@ def initial_evaluation(overrides: list[str]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="directory to write initial.json into")
     parser.add_argument("overrides", nargs="+", help="the job's Hydra overrides, as for train.py")
     args = parser.parse_args(argv)

@@ -68,7 +68,8 @@ def pick(runs: list[Run], which: str) -> Run:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--out", type=Path, required=True, help="GIF file to write")
     parser.add_argument("--explorer", default="sde")

@@ -404,8 +404,10 @@ def _plot_panels(runs: dict[str, dict[int, dict]], result: dict, left, right, ti
     right.legend(fontsize=7)
 
 
-def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None, estimator: str = "reinforce",
+         prog: str = f"python -m {__spec__.name}") -> int:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--estimator", choices=sorted(FIGURE), default=estimator)

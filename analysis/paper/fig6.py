@@ -13,7 +13,7 @@ from analysis.paper import fig5
 
 def main(argv: list[str] | None = None) -> int:
     """:func:`fig5.main` with ENAC's runs: ``fig6.json``, ``fig6.md`` and ``fig6.png``."""
-    return fig5.main(argv, estimator="enac")
+    return fig5.main(argv, estimator="enac", prog=f"python -m {__spec__.name}")
 
 
 if __name__ == "__main__":

@@ -492,7 +492,8 @@ def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="where tables and figures go")
     parser.add_argument("--from", dest="source", type=Path,
                         help="read finished run directories instead of running the sweeps")
