@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import csv
-import importlib
 import json
 import subprocess
 import sys
 from pathlib import Path
-from types import ModuleType
 
 REPO = Path(__file__).resolve().parents[1]
 #: Lines some native extensions print on import (pybullet's build banner), not ours.
@@ -27,15 +25,6 @@ def build(*overrides: str):
     from sde_torchrl.config.build import build_trainer
 
     return build_trainer(compose_config("+experiment=minimize", "logger=none", *overrides))
-
-
-def load_script(name: str) -> ModuleType:
-    """``analysis/<name>.py`` as a module, imported as the scripts import each other (their shared
-    ``runner.py`` and ``figures.py``, ``fig6.py``'s ``fig5``): the analysis scripts are run as files,
-    not installed, and Python puts a script's folder first on ``sys.path``."""
-    if str(REPO / "analysis") not in sys.path:
-        sys.path.insert(0, str(REPO / "analysis"))
-    return importlib.import_module(name)
 
 
 def train_command(*overrides: str, run_dir: Path, multirun: bool = False) -> list[str]:

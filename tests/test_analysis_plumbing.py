@@ -9,13 +9,21 @@ import shutil
 import time
 
 import pytest
-from _helpers import REPO, load_script
+from _helpers import REPO
 
+from analysis import figures, runner
+from analysis.benchmarks import common
+from analysis.benchmarks.bench_ppo import build as ppo_build
+from analysis.benchmarks.bench_ppo import speed as ppo_speed
+from analysis.benchmarks.bench_ppo import timing as ppo_timing
+from analysis.benchmarks.bench_sac import build as sac_build
+from analysis.benchmarks.bench_sac import compiler as sac_compiler
+from analysis.benchmarks.bench_sac import report as sac_report
+from analysis.paper import ballcatch_scores, fig5
+from analysis.selection import ballcatch_tuning
 from sde_torchrl.jobs.run_dir import MetricRow, finished_runs, read_finished_run, read_metrics
 
 RUNS = REPO / "docs" / "ballcatch" / "runs"
-runner = load_script("runner")
-figures = load_script("figures")
 
 
 def _plain_rows(path):
@@ -120,9 +128,12 @@ def test_figure_helpers():
     assert figures.bounds((1.0, 0.5, 2.0)) == [0.5, 2.0]
 
 
-@pytest.mark.parametrize("name", ["runner", "figures", "ballcatch_tuning", "bench_ppo", "fig5", "ballcatch_scores"])
-def test_docstring_examples_of_the_analysis_modules_run(name):
+@pytest.mark.parametrize("module", [
+    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_build, ppo_speed, ppo_timing, sac_build,
+    sac_compiler, sac_report,
+], ids=lambda module: module.__name__)
+def test_docstring_examples_of_the_analysis_modules_run(module):
     import doctest
 
-    result = doctest.testmod(load_script(name), optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0

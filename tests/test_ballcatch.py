@@ -366,8 +366,9 @@ def test_a_job_records_each_runs_level_in_its_summary(tmp_path):
 @pytest.mark.e2e
 def test_benchmark_prints_one_json_line_with_its_figures(model):
     root = Path(__file__).resolve().parents[1]
-    result = subprocess.run([sys.executable, "analysis/bench_ballcatch.py", "--worlds", "2", "--steps", "5",
-                             "--repeats", "1", "--model", model], cwd=root, capture_output=True, text=True, timeout=300)
+    result = subprocess.run([sys.executable, "-m", "analysis.benchmarks.bench_ballcatch", "--worlds", "2",
+                             "--steps", "5", "--repeats", "1", "--model", model],
+                            cwd=root, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     figures = json.loads(result.stdout.strip().splitlines()[-1])
     assert figures["worlds"] == 2 and figures["raw_steps_per_s"] > 0 and figures["model"] == model

@@ -9,9 +9,9 @@ import json
 from pathlib import Path
 
 import pytest
-from _helpers import load_script, run_cli
+from _helpers import run_cli
 
-fig5 = load_script("fig5")
+from analysis.paper import fig5
 
 
 def _sweep(tmp_path: Path, experiment: str, estimator: str) -> dict:

@@ -8,9 +8,11 @@ import json
 from pathlib import Path
 
 import pytest
-from _helpers import load_script
 
-arm_start = load_script("ballcatch_arm_start")
+from analysis.paper import ballcatch_arm_start as arm_start
+from analysis.paper import ballcatch_final as final
+from analysis.paper import ballcatch_reevaluation as reevaluation
+
 DOCS = Path(__file__).parents[1] / "docs" / "ballcatch"
 
 
@@ -44,8 +46,6 @@ def test_gravity_torques_agree_with_the_simulators_inverse_dynamics():
         assert abs(simulated) == pytest.approx(by_hand[joint], rel=0.02), joint
 
 
-reevaluation = load_script("ballcatch_reevaluation")
-final = load_script("ballcatch_final")
 FIG5_SELECTED = DOCS / "runs" / "fig5_selected"
 
 

@@ -1,12 +1,12 @@
-"""REINFORCE + SDE's scores on the ball-catching controller are Θ̂ S (analysis/ballcatch_scores.py)."""
+"""REINFORCE + SDE's scores on the ball-catching controller are Θ̂ S (analysis/paper/ballcatch_scores.py)."""
 
 from __future__ import annotations
 
 import json
 
-from _helpers import REPO, load_script
+from _helpers import REPO
 
-scores = load_script("ballcatch_scores")
+from analysis.paper import ballcatch_scores as scores
 
 
 def test_the_scores_of_the_trainers_own_episodes_are_the_noise_times_the_state_moment():

@@ -1,15 +1,15 @@
-"""The learner selection's jobs and rule (analysis/ballcatch_tuning.py, docs/ballcatch/learner_selection.md)."""
+"""The learner selection's jobs and rule (analysis/selection/ballcatch_tuning.py,
+docs/ballcatch/learner_selection.md)."""
 
 from __future__ import annotations
 
 import json
 
 import pytest
-from _helpers import compose_config, load_script
+from _helpers import compose_config
 
+from analysis.selection import ballcatch_tuning as tuning
 from sde_torchrl.config.schemas import validate
-
-tuning = load_script("ballcatch_tuning")
 
 
 @pytest.mark.parametrize("method", list(tuning.METHODS))

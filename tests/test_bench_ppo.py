@@ -1,4 +1,4 @@
-"""analysis/bench_ppo.py: SB3's normalisation rule, a short real PPO run with the SDE policy, the report."""
+"""analysis/benchmarks/bench_ppo/: SB3's normalisation rule, a short real PPO run with the SDE policy, the report."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import sys
 import numpy as np
 import pytest
 import torch
-from _helpers import REPO, load_script
+from _helpers import REPO
 
+from analysis.benchmarks import common
+from analysis.benchmarks.bench_ppo import build, cli, report, speed, timing, train
 from sde_torchrl.envs.normalize import running_update
-
-bench = load_script("bench_ppo")
 
 
 def test_running_statistics_match_stable_baselines3():
@@ -33,7 +33,7 @@ def test_normalizer_scales_rewards_by_the_discounted_return_like_vecnormalize():
     from stable_baselines3.common.running_mean_std import RunningMeanStd
     from tensordict import TensorDict
 
-    gamma, normalizer, reference = 0.9, bench.make_normalizer(2, 0.9), RunningMeanStd(shape=())
+    gamma, normalizer, reference = 0.9, build.make_normalizer(2, 0.9), RunningMeanStd(shape=())
     returns = np.zeros(4)
     for step in range(6):
         reward, done = torch.full((4, 1), float(step + 1)), torch.tensor([[False]] * 3 + [[step == 2]])
@@ -48,8 +48,8 @@ def test_normalizer_scales_rewards_by_the_discounted_return_like_vecnormalize():
 
 def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_one():
     """SB3 clips before ``env.step``; pybullet charges its energy costs on the action it is given."""
-    env = bench.make_torchrl_env(2, 0, bench.make_normalizer(26, 0.99))
-    reference = bench.make_torchrl_env(2, 0, bench.make_normalizer(26, 0.99))
+    env = build.make_torchrl_env(2, 0, build.make_normalizer(26, 0.99))
+    reference = build.make_torchrl_env(2, 0, build.make_normalizer(26, 0.99))
     try:
         td = env.reset()
         td["action"] = torch.tensor([[3.0, -3.0, 0.5, 1.0, -1.0, 0.0]] * 2)
@@ -62,7 +62,7 @@ def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_o
         reference.close()
     assert torch.equal(out["action"], td["action"])  # what the loss scores: the sampled action
     torch.testing.assert_close(out["next", "episode_reward"], expected)  # what the env got: the clipped one
-    unclipped = bench.make_torchrl_env(2, 0, bench.make_normalizer(26, 0.99), clip_actions=False)
+    unclipped = build.make_torchrl_env(2, 0, build.make_normalizer(26, 0.99), clip_actions=False)
     try:
         raw = unclipped.step(unclipped.reset().update({"action": td["action"]}))["next", "episode_reward"]
     finally:
@@ -72,11 +72,12 @@ def test_the_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_o
 
 @pytest.mark.e2e
 def test_a_short_sde_run_writes_its_result(tmp_path):
-    result = subprocess.run([sys.executable, "analysis/bench_ppo.py", "run", "--method", "sde", "--steps", "8192",
-                             "--out", str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=600)
+    result = subprocess.run([sys.executable, "-m", "analysis.benchmarks.bench_ppo", "run", "--method", "sde",
+                             "--steps", "8192", "--out", str(tmp_path)],
+                            cwd=REPO, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     data = json.loads((tmp_path / "sde_seed0.json").read_text())
-    assert data["env_steps"] == 8192 and len(data["eval_returns"]) == bench.EVAL_EPISODES
+    assert data["env_steps"] == 8192 and len(data["eval_returns"]) == common.EVAL_EPISODES
     assert np.isfinite(data["eval_returns"]).all() and data["env_steps_per_s"] > 0
     assert data["final_return_mean"] == pytest.approx(np.mean(data["eval_returns"]))
     assert len(data["iteration_ends_s"]) == 1 and 0 < data["iteration_ends_s"][0] <= data["wall_s"]
@@ -92,14 +93,14 @@ def test_a_short_sde_run_writes_its_result(tmp_path):
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        bench.main(argv)
+        cli.main(argv)
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["plain", "sb3", "sb3_gauss"])
 def test_a_short_run_of_the_other_methods(tmp_path, method):
-    bench.run(method, 1, 8192, tmp_path)
+    train.run(method, 1, 8192, tmp_path)
     data = json.loads((tmp_path / f"{method}_seed1.json").read_text())
     assert data["env_steps"] == 8192 and np.isfinite(data["eval_returns"]).all()
 
@@ -108,7 +109,7 @@ def _fresh_loss():
     from torchrl.objectives import ClipPPOLoss
 
     torch.manual_seed(0)
-    policy, critic, _ = bench.make_torchrl_policy("sde", 26, 6)
+    policy, critic, _ = build.make_torchrl_policy("sde", 26, 6)
     return ClipPPOLoss(policy, critic, clip_epsilon=0.4, entropy_bonus=False, critic_coeff=0.5,
                        loss_critic_type="l2", normalize_advantage=True)
 
@@ -117,7 +118,7 @@ def _parameters_after_two_updates(minibatch, compile_update):
     from tensordict import TensorDict
 
     loss = _fresh_loss()
-    step = bench.make_update(loss, torch.optim.Adam(loss.parameters(), lr=1e-2, eps=1e-5), compile_update)
+    step = train.make_update(loss, torch.optim.Adam(loss.parameters(), lr=1e-2, eps=1e-5), compile_update)
     for _ in range(2):  # the second step runs on Adam's state, with the ratio away from 1
         step(minibatch.clone())
     return TensorDict.from_module(loss).detach()
@@ -129,12 +130,12 @@ def test_the_compiled_update_equals_the_eager_one():
 
     torch.manual_seed(1)
     n = 64
-    policy = bench.make_torchrl_policy("sde", 26, 6)[0]
+    policy = build.make_torchrl_policy("sde", 26, 6)[0]
     batch = TensorDict({"observation": torch.randn(n, 26), "sde_noise": torch.randn(n, 6, 256),
                         "advantage": torch.randn(n, 1), "value_target": torch.randn(n, 1)}, [n])
     with torch.no_grad():
         policy(batch)  # the action and its log-prob, as collected
-    minibatch = batch.select(*bench.MINIBATCH_KEYS, strict=False)
+    minibatch = batch.select(*build.MINIBATCH_KEYS, strict=False)
     initial = TensorDict.from_module(_fresh_loss()).detach()
     eager = _parameters_after_two_updates(minibatch, compile_update=False)
     compiled = _parameters_after_two_updates(minibatch, compile_update=True)
@@ -154,7 +155,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
     for seed, (sde, sb3) in enumerate([(1800, 2000), (2000, 2200), (2200, 2400)]):
         _fake_run(tmp_path, "sde", seed, sde, 600)
         _fake_run(tmp_path, "sb3", seed, sb3, 1000)
-    table = bench.report(tmp_path, tmp_path / "out")
+    table = report.report(tmp_path, tmp_path / "out")
     assert "| TorchRL PPO, SDE (ours) | 3 | 507,904 | 2000 ± 200 | 1800, 2000, 2200 | 600 |" in table
     assert "final return 0.91×" in table and "env steps per second 0.60× [0.60, 0.60]" in table  # equal speeds
     ratios = json.loads((tmp_path / "out" / "bench_ppo.json").read_text())["sde_over_sb3"]
@@ -164,20 +165,21 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
 
 
 def test_report_without_runs_says_what_to_run(tmp_path):
-    with pytest.raises(SystemExit, match="bench_ppo.py run"):
-        bench.report(tmp_path, tmp_path / "out")
+    with pytest.raises(SystemExit, match="analysis.benchmarks.bench_ppo run"):
+        report.report(tmp_path, tmp_path / "out")
 
 
 @pytest.mark.parametrize("variant", ["sde", "sb3"])
 def test_phases_split_an_iteration_into_parts_that_fit_inside_it(monkeypatch, variant):
-    """``bench_ppo.py phases`` on a tiny iteration (2 envs × 16 steps, one epoch): every phase is
+    """``bench_ppo phases`` on a tiny iteration (2 envs × 16 steps, one epoch): every phase is
     timed once per iteration, the parts of collection and update fit inside them, and collection
     plus GAE plus update make up the iteration."""
     pytest.importorskip("stable_baselines3")
     for key, value in {"n_envs": 2, "n_steps": 16, "n_epochs": 1, "batch_size": 8}.items():
-        monkeypatch.setitem(bench.ZOO, key, value)
-    phases = bench._iteration_phases(variant, 3)
-    assert bench.TIMER is None
+        monkeypatch.setitem(build.ZOO, key, value)
+    clip = torch.nn.utils.clip_grad_norm_
+    phases = speed.iteration_phases(variant, 3)
+    assert not timing.TIMER.active and torch.nn.utils.clip_grad_norm_ is clip  # nothing left switched on or patched
     parts = ["update: loss forward", "update: clip + Adam step"] + (["update: backward"] if variant == "sde" else [])
     assert {"iteration", "collect", "collect: pybullet step", "update", *parts} <= set(phases)
     assert 0 < phases["collect: pybullet step"] < phases["collect"]
@@ -192,7 +194,7 @@ def test_the_compiled_collection_policy_acts_as_the_eager_one():
     from tensordict import TensorDict
 
     torch.manual_seed(0)
-    policy, _, sde = bench.make_torchrl_policy("sde", 5, 2)
+    policy, _, sde = build.make_torchrl_policy("sde", 5, 2)
     td = TensorDict({"observation": torch.randn(4, 5), sde.noise_key: torch.randn(4, 2, sde.feature_dim)}, [4])
     with torch.no_grad():
         eager = policy(td.clone())
@@ -201,3 +203,33 @@ def test_the_compiled_collection_policy_acts_as_the_eager_one():
         assert torch.equal(torch.get_rng_state(), state)
     for key in ("action", "action_log_prob"):
         torch.testing.assert_close(compiled[key], eager[key], rtol=1e-5, atol=1e-6)
+
+
+class _Raised(Exception):
+    pass
+
+
+def test_timing_sb3s_update_patches_torch_and_the_model_for_the_block_only():
+    """``phases`` times SB3's clip by standing in for ``torch.nn.utils.clip_grad_norm_``, which SB3
+    calls by that name: within the block the stand-ins time under the TorchRL update's names, and
+    after it, also after an error, torch's function and the model's own methods are back."""
+    from types import SimpleNamespace
+
+    clip, parameter = torch.nn.utils.clip_grad_norm_, torch.zeros(2, requires_grad=True)
+    optimizer = torch.optim.SGD([parameter], lr=0.1)
+    policy = SimpleNamespace(evaluate_actions=lambda x: 2 * x, optimizer=optimizer)
+    timer = timing.PhaseTimer()
+    with timer.on() as seconds, timing.sb3_update_timed(SimpleNamespace(policy=policy), timer):
+        assert torch.nn.utils.clip_grad_norm_ is not clip and "step" in vars(optimizer)
+        assert policy.evaluate_actions(3) == 6
+        parameter.grad = torch.ones(2)
+        torch.nn.utils.clip_grad_norm_([parameter], 0.5)
+        optimizer.step()
+    assert set(seconds) == {"update: loss forward", "update: clip + Adam step"}
+    assert parameter.grad.norm() == pytest.approx(0.5) and parameter.detach().tolist() != [0.0, 0.0]
+    assert torch.nn.utils.clip_grad_norm_ is clip and "step" not in vars(optimizer)
+    assert policy.evaluate_actions(3) == 6 and policy.evaluate_actions.__name__ == "<lambda>"
+    with pytest.raises(_Raised), timing.sb3_update_timed(SimpleNamespace(policy=policy), timer):
+        raise _Raised
+    assert torch.nn.utils.clip_grad_norm_ is clip and "step" not in vars(optimizer)
+    assert policy.evaluate_actions.__name__ == "<lambda>"

@@ -1,4 +1,4 @@
-"""analysis/bench_sac.py: tiny runs of both sides, the SAC losses' SDE noise, the report."""
+"""analysis/benchmarks/bench_sac/: tiny runs of both sides, the SAC losses' SDE noise, the report."""
 
 from __future__ import annotations
 
@@ -7,13 +7,12 @@ import json
 import numpy as np
 import pytest
 import torch
-from _helpers import REPO, load_script
+from _helpers import REPO
 from tensordict import TensorDict
 
+from analysis.benchmarks.bench_sac import build, cli, compiler, report, train
 from sde_torchrl.modules.sac_actor import CLIP_MEAN
 from sde_torchrl.trainers.sac import fresh_loss_noise
-
-bench = load_script("bench_sac")
 
 
 def _action_spec():
@@ -24,10 +23,10 @@ def _action_spec():
 
 def _sde_setup(loss_noise: str, seed: int = 0, compile_update: bool = False):
     torch.manual_seed(seed)
-    zoo = bench.ZOO["mountaincar"]
-    policy, critic, sde = bench.make_torchrl_policy("sde", 2, _action_spec(), zoo)
-    loss = bench.make_loss(policy, critic, _action_spec(), zoo)
-    return loss, sde, bench.make_update(loss, sde, zoo, loss_noise, compile_update)
+    zoo = build.ZOO["mountaincar"]
+    policy, critic, sde = build.make_torchrl_policy("sde", 2, _action_spec(), zoo)
+    loss = build.make_loss(policy, critic, _action_spec(), zoo)
+    return loss, sde, train.make_update(loss, sde, zoo, loss_noise, compile_update)
 
 
 def _transitions(n: int, stored_noise: torch.Tensor) -> TensorDict:
@@ -101,7 +100,7 @@ def _saved_for_backward(settings) -> list[torch.dtype]:
 def test_the_compiled_step_saves_no_boolean_mask_for_its_backward():
     """Without the pass, inductor's partitioner saves ReLU's boolean mask; with it, only float tensors."""
     assert torch.bool in _saved_for_backward(torch._functorch.config.patch(enable_autograd_cache=False))
-    saved = _saved_for_backward(bench.recomputing_boolean_masks())
+    saved = _saved_for_backward(compiler.recomputing_boolean_masks())
     assert saved and torch.bool not in saved
 
 
@@ -121,8 +120,8 @@ def test_the_sde_actor_is_sb3s_sac_gsde_actor():
     """Mean clipped to ±2 before the squash, features not detached, σ̂ per element, p = log_std_init."""
     _, sde, _ = _sde_setup("fresh")
     assert sde.sigma_param.shape == (1, 64) and torch.allclose(sde.sigma_param, torch.tensor(-3.67))
-    assert sde.schedule == "every_n" and sde.every_n == bench.ZOO["mountaincar"]["train_freq"]
-    policy = bench.make_torchrl_policy("sde", 2, _action_spec(), bench.ZOO["mountaincar"])[0]
+    assert sde.schedule == "every_n" and sde.every_n == build.ZOO["mountaincar"]["train_freq"]
+    policy = build.make_torchrl_policy("sde", 2, _action_spec(), build.ZOO["mountaincar"])[0]
     td = policy(TensorDict({"observation": torch.full((4, 2), 1e4), "sde_noise": torch.zeros(4, 1, 64)}, [4]))
     assert td["loc"].abs().max() <= CLIP_MEAN
     assert td["sde_features"].requires_grad  # gSDE's learn_features=True in SB3's SAC
@@ -130,7 +129,7 @@ def test_the_sde_actor_is_sb3s_sac_gsde_actor():
 
 @pytest.mark.parametrize("method", ["sde", "sb3"])
 def test_a_tiny_run_writes_its_result(tmp_path, method):
-    path = bench.run(method, "mountaincar", 3, 64, tmp_path, eval_episodes=1)
+    path = train.run(method, "mountaincar", 3, 64, tmp_path, eval_episodes=1)
     assert path.name == f"mountaincar_{method}_seed3.json"
     data = json.loads(path.read_text())
     assert data["env_steps"] == 64 and data["gradient_steps"] == 64  # 32 after each of 2 collections
@@ -155,7 +154,7 @@ def test_a_tiny_run_writes_its_result(tmp_path, method):
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
-        bench.main(argv)
+        cli.main(argv)
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
@@ -164,7 +163,7 @@ def _fake_run(folder, env, method, seed, final, speed, loss_noise=None, compiled
     suffix = "_stored_noise" if loss_noise == "stored" else "_compiled" * compiled + "_policy" * compiled_policy
     name = f"{env}_{method}{suffix}_seed{seed}.json"
     (folder / name).write_text(json.dumps(
-        {"method": method, "env": env, "seed": seed, "settings": bench.ZOO[env], "env_steps": 15_000, "curve": curve,
+        {"method": method, "env": env, "seed": seed, "settings": build.ZOO[env], "env_steps": 15_000, "curve": curve,
          "final_return_mean": final,
          "env_steps_per_s": speed, "env_steps_per_cpu_s": 1.5 * speed, "wall_s": 15_000 / speed,
          "eval_returns": [final], "loss_noise": loss_noise, "compiled": compiled, "compiled_policy": compiled_policy,
@@ -183,7 +182,7 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
     _fake_run(tmp_path, "mountaincar", "sde", 0, -1e6, 40, loss_noise="stored")  # the ablation: a row of its own
     _fake_run(tmp_path, "halfcheetah", "sde", 0, 500, 20)
     _fake_run(tmp_path, "halfcheetah", "sb3", 0, 600, 30)
-    page = bench.report(tmp_path, tmp_path / "out")
+    page = report.report(tmp_path, tmp_path / "out")
     # the fake curves end at the final return: the last quarter's episodes (> 11,250 steps) average 11/14 .. 14/14 of it
     late = [np.mean([final * k / 14 for k in (11, 12, 13, 14)]) for final in (80, 90, 100)]
     assert (f"| TorchRL SAC, SDE (ours) | 3 | 15,000 | 90.0 ± 10.0 | 80.0, 90.0, 100.0 | {np.mean(late):.1f} ± "
@@ -215,15 +214,15 @@ def test_report_gives_means_spreads_and_the_ratios_to_sb3(tmp_path):
 
 
 def test_report_without_runs_says_what_to_run(tmp_path):
-    with pytest.raises(SystemExit, match="bench_sac.py run"):
-        bench.report(tmp_path, tmp_path / "out")
+    with pytest.raises(SystemExit, match="analysis.benchmarks.bench_sac run"):
+        report.report(tmp_path, tmp_path / "out")
 
 
 def test_the_actor_loss_equals_sb3s_with_the_same_weights_and_noise_matrix():
     """Our SDE actor loss (SACLoss) and SB3's SAC + gSDE actor loss, same weights, same exploration matrix."""
     from stable_baselines3 import SAC
 
-    zoo = bench.ZOO["mountaincar"]
+    zoo = build.ZOO["mountaincar"]
     model = SAC("MlpPolicy", "MountainCarContinuous-v0", use_sde=True, ent_coef=zoo["ent_coef"], seed=0, device="cpu",
                 policy_kwargs={"log_std_init": zoo["log_std_init"], "net_arch": zoo["net_arch"]})
     actor, critic = model.actor, model.critic
@@ -267,7 +266,7 @@ def test_evaluation_counts_each_envs_first_episode_only():
         return torch.where(observation[..., 1:] >= 0, 1.0, -1.0)
 
     policy = TensorDictModule(bang_bang, in_keys=["observation"], out_keys=["action"])
-    returns = bench.evaluate_torchrl(policy, "MountainCarContinuous-v0", seed=0, episodes=3)
+    returns = train.evaluate_torchrl(policy, "MountainCarContinuous-v0", seed=0, episodes=3)
     assert len(returns) == 3 and all(85 < r < 100 for r in returns)  # +100 at the goal, -0.1 per full-thrust step
 
 
@@ -275,6 +274,6 @@ def test_evaluation_counts_each_envs_first_episode_only():
 def test_the_committed_page_is_what_report_writes_from_the_committed_runs(tmp_path, page):
     """bench_sac.md and .json (8,000 steps; the zoo's budget): regenerated from their runs/, they come out identical."""
     folder = REPO / "docs" / page
-    assert bench.main(["report", str(folder / "runs"), "--out", str(tmp_path)]) == 0
+    assert cli.main(["report", str(folder / "runs"), "--out", str(tmp_path)]) == 0
     for name in ("bench_sac.md", "bench_sac.json"):
         assert (tmp_path / name).read_text() == (folder / name).read_text(), name

@@ -1,4 +1,4 @@
-"""analysis/fig5.py: catch counts from evaluation curves, merging shards of a sweep."""
+"""analysis/paper/fig5.py: catch counts from evaluation curves, merging shards of a sweep."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from _helpers import REPO, load_script, run_cli
+from _helpers import REPO, run_cli
 
-fig5 = load_script("fig5")
+from analysis.paper import fig5
 
 
 def _write_job(directory: Path, explorer: str, first_run: int, evals: list[list[float]],
@@ -140,7 +140,7 @@ def test_initial_evaluations_give_the_mean_change_per_run(tmp_path):
 
 def test_initial_evaluation_of_a_summed_return_job_is_in_mean_rewards(tmp_path):
     """The same Θ0 and release jitter, regressed on sums or means: the same mean-reward returns."""
-    initial = load_script("ballcatch_initial")
+    from analysis.paper import ballcatch_initial as initial
     tiny = ["+experiment=ballcatch_paper", "runs=2", "eval_episodes=1", "env.episode_length=120"]
     summed = initial.initial_evaluation(tiny)
     mean = initial.initial_evaluation([*tiny, "estimator.episode_return=mean"])
@@ -198,7 +198,7 @@ def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
     assert one == json.loads((tmp_path / "fig_shards" / "fig5.json").read_text())
     assert one["explorers"]["sde"]["runs"] == 2
 
-    video = subprocess.run([sys.executable, "analysis/ballcatch_video.py", str(tmp_path / "shards"),
+    video = subprocess.run([sys.executable, "-m", "analysis.paper.ballcatch_video", str(tmp_path / "shards"),
                             "--out", str(tmp_path / "best.gif")], cwd=REPO, capture_output=True, text=True,
                            timeout=600)
     assert video.returncode == 0, video.stderr[-2000:]
@@ -211,7 +211,7 @@ def test_joblib_shards_of_a_ballcatch_sweep_give_the_same_table(tmp_path):
 
 
 def test_video_picks_the_best_or_the_median_run():
-    video = load_script("ballcatch_video")
+    from analysis.paper import ballcatch_video as video
     runs = [video.Run(index, final, None, "pybrain") for index, final in enumerate([-2.0, -1.0, -3.0, -1.5, -2.5])]
     assert video.pick(runs, "best").index == 1
     assert video.pick(runs, "median").index == 0  # -2.0, the middle of five
@@ -220,7 +220,7 @@ def test_video_picks_the_best_or_the_median_run():
 
 def _write_final_policy(directory: Path, explorer: str, first_run: int, returns: list[float],
                         episodes: int = 20, seed: int = 7) -> None:
-    """``final_policy.json`` as ``analysis/ballcatch_final.py`` writes it into a job directory."""
+    """``final_policy.json`` as ``analysis/paper/ballcatch_final.py`` writes it into a job directory."""
     (directory / "final_policy.json").write_text(json.dumps(
         {"explorer": explorer, "estimator": "reinforce", "first_run": first_run, "episodes": episodes, "seed": seed,
          "final_policy_return": returns}))
@@ -261,7 +261,7 @@ def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path,
     """Given the job's own seed and episode count, the evaluation of the loaded final controllers
     is the trainer's final evaluation, to the bit, however the runs are split into chunks; on
     another seed the balls differ; a job the config tree no longer rebuilds is refused."""
-    final = load_script("ballcatch_final")
+    from analysis.paper import ballcatch_final as final
     job = [*experiment, "runs=3", "updates=2", "eval_period=2", "env.episode_length=60", "logger=none"]
     assert run_cli(*job, run_dir=tmp_path / "job", timeout=600).returncode == 0
     summary = json.loads((tmp_path / "job" / "summary.json").read_text())

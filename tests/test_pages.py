@@ -12,34 +12,38 @@ import json
 import shutil
 
 import pytest
-from _helpers import REPO, load_script
+from _helpers import REPO
+
+from analysis.benchmarks.bench_ppo import cli as bench_ppo
+from analysis.paper import fig5, fig6, table1
+from analysis.selection import ballcatch_tuning, learner_search
 
 BALLCATCH = REPO / "docs" / "ballcatch"
 PAGES = {  # page → (script, its arguments before --out, the folder the page is in, the files it writes)
-    "fig5": ("fig5", [str(BALLCATCH / "runs" / "fig5")], BALLCATCH, ("fig5.md", "fig5.json")),
-    "fig6": ("fig6", [str(BALLCATCH / "runs" / "fig6")], BALLCATCH, ("fig6.md", "fig6.json")),
-    "methods": ("fig5", [str(BALLCATCH / "runs" / "fig5"), str(BALLCATCH / "runs" / "methods"), "--estimator", "all"],
+    "fig5": (fig5, [str(BALLCATCH / "runs" / "fig5")], BALLCATCH, ("fig5.md", "fig5.json")),
+    "fig6": (fig6, [str(BALLCATCH / "runs" / "fig6")], BALLCATCH, ("fig6.md", "fig6.json")),
+    "methods": (fig5, [str(BALLCATCH / "runs" / "fig5"), str(BALLCATCH / "runs" / "methods"), "--estimator", "all"],
                 BALLCATCH, ("methods.md", "methods.json")),
-    "fig5_selected": ("fig5", [str(BALLCATCH / "runs" / "fig5_selected" / explorer) for explorer in ("sde", "rex")],
+    "fig5_selected": (fig5, [str(BALLCATCH / "runs" / "fig5_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig5_selected", ("fig5.md", "fig5.json")),
-    "fig5_seed3": ("fig5", [str(BALLCATCH / "runs" / "fig5_seed3" / explorer) for explorer in ("sde", "rex")],
+    "fig5_seed3": (fig5, [str(BALLCATCH / "runs" / "fig5_seed3" / explorer) for explorer in ("sde", "rex")],
                    BALLCATCH / "fig5_seed3", ("fig5.md", "fig5.json")),
-    "fig6_selected": ("fig6", [str(BALLCATCH / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
+    "fig6_selected": (fig6, [str(BALLCATCH / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig6_selected", ("fig6.md", "fig6.json")),
-    "methods_selected": ("fig5", [*(str(BALLCATCH / "runs" / folder) for folder in
+    "methods_selected": (fig5, [*(str(BALLCATCH / "runs" / folder) for folder in
                                     ("fig5_selected/sde", "fig5_selected/rex", "methods_selected/gpomdp",
                                      "methods_selected/pgpe")),
                                   "--estimator", "all"],
                          BALLCATCH / "methods_selected", ("methods.md", "methods.json")),
-    "score_probe": ("fig5", [*(str(BALLCATCH / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
+    "score_probe": (fig5, [*(str(BALLCATCH / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
                              "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
-    "selected/fig5": ("fig5", [str(BALLCATCH / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
+    "selected/fig5": (fig5, [str(BALLCATCH / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
-    "tuning": ("ballcatch_tuning", ["report", str(BALLCATCH / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
-    "ppo": ("bench_ppo", ["report", str(REPO / "docs" / "ppo" / "runs")], REPO / "docs" / "ppo",
+    "tuning": (ballcatch_tuning, ["report", str(BALLCATCH / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
+    "ppo": (bench_ppo, ["report", str(REPO / "docs" / "ppo" / "runs")], REPO / "docs" / "ppo",
             ("bench_ppo.md", "bench_ppo.json")),
     # every candidate is recorded: --resume runs none of them and rewrites the page from the record
-    "learner_search": ("learner_search", ["--resume", "--workers", "1"], REPO / "docs" / "table1",
+    "learner_search": (learner_search, ["--resume", "--workers", "1"], REPO / "docs" / "table1",
                        ("learner_search.md", "learner_search.json")),
 }
 
@@ -47,9 +51,9 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
 @pytest.mark.parametrize("page", list(PAGES))
 def test_a_result_page_is_what_its_script_writes_from_the_committed_runs(tmp_path, page):
     script, arguments, folder, files = PAGES[page]
-    if script == "learner_search":  # its runs are its record
+    if script is learner_search:  # its runs are its record
         shutil.copy(folder / "learner_search.json", tmp_path)
-    assert load_script(script).main([*arguments, "--out", str(tmp_path)]) == 0
+    assert script.main([*arguments, "--out", str(tmp_path)]) == 0
     for name in files:
         written = (tmp_path / name).read_bytes()
         assert written == (folder / name).read_bytes(), f"{folder / name} differs from its script's"
@@ -60,6 +64,5 @@ def test_table1_page_is_what_its_script_writes_from_the_committed_results(tmp_pa
     ``table1.py`` writes from them, is their record: the page must be what the script's writer makes
     of it, so no figure on it is typed by hand."""
     results = json.loads((REPO / "docs" / "table1" / "table1.json").read_text())
-    load_script("table1").write_markdown(results["rows"], results["mlp2d"], tmp_path / "table1.md",
-                                         results.get("wall_s"))
+    table1.write_markdown(results["rows"], results["mlp2d"], tmp_path / "table1.md", results.get("wall_s"))
     assert (tmp_path / "table1.md").read_bytes() == (REPO / "docs" / "table1" / "table1.md").read_bytes()

@@ -10,10 +10,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+from docs import readme_results
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 REPO = README.parent
-sys.path.insert(0, str(REPO / "docs"))
-import readme_results  # noqa: E402
 
 # scripts run from a temporary folder import this checkout's package, not another installed copy
 CHECKOUT_ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}

@@ -1,4 +1,4 @@
-"""analysis/table1.py: the sweep machinery on a tiny budget (fast), and the paper's claims on
+"""analysis/paper/table1.py: the sweep machinery on a tiny budget (fast), and the paper's claims on
 the full budget (slow: ``python -m pytest -m slow tests/test_table1.py``)."""
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from _helpers import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = {("noise", 0.5, 15), ("noise", 1.0, 15), ("noise", 1.5, 15), ("episode_length", 0.5, 5),
@@ -19,7 +18,7 @@ OUTPUTS = ("table1.json", "table1.md", "fig2.png", "fig3_left.png", "fig3_right.
 
 
 def _table1(out: Path, *args: str) -> dict:
-    result = subprocess.run([sys.executable, "analysis/table1.py", "--out", str(out), *args],
+    result = subprocess.run([sys.executable, "-m", "analysis.paper.table1", "--out", str(out), *args],
                             cwd=ROOT, capture_output=True, text=True, timeout=1800)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((out / "table1.json").read_text())
@@ -59,7 +58,7 @@ def _summary(method: str, sweep: str, episodes: list) -> dict:
 
 
 def test_cells_carry_bootstrap_intervals_and_significance(tmp_path):
-    table1 = load_script("table1")
+    from analysis.paper import table1
     rex = [9000 + 100 * i for i in range(30)]  # mean 10,450: the paper's 9,950 lies outside its interval
     sde = [700 + 10 * i for i in range(29)] + [None]
     gpomdp = [1400 + 20 * i for i in range(30)]

@@ -1,6 +1,6 @@
 """From a config with ``algorithm=sac`` to a ready :class:`~sde_torchrl.trainers.offpolicy.SACTrainer`.
 
-The pieces, as ``analysis/bench_sac.py`` measured them against Stable-Baselines3's ``SAC``:
+The pieces, as ``analysis/benchmarks/bench_sac/`` measured them against Stable-Baselines3's ``SAC``:
 
 - the envs: one gymnasium env (:class:`~sde_torchrl.envs.vector.GymVectorEnv`), its training
   returns summed (``RewardSum``), then the SDE noise primer; the evaluation envs likewise,

@@ -5,7 +5,7 @@
 # Usage, from the repository root: bash docs/sac/runs/sweep.sh [OUT]   (OUT defaults to docs/sac/runs)
 set -euo pipefail
 OUT=${1:-docs/sac/runs}
-run() { python analysis/bench_sac.py run "$@" --out "$OUT"; }
+run() { python -m analysis.benchmarks.bench_sac run "$@" --out "$OUT"; }
 run --env mountaincar --method sde --seed 0 --steps 8000
 run --env mountaincar --method sb3 --seed 0 --steps 8000
 run --env mountaincar --method sb3 --seed 1 --steps 8000
@@ -34,4 +34,4 @@ for seed in 0 1 2 3 4; do
   run --env mountaincar --method sde --seed $seed --steps 8000 --compile
   run --env mountaincar --method sb3 --seed $seed --steps 8000
 done
-python analysis/bench_sac.py report "$OUT" --out "$(dirname "$OUT")"
+python -m analysis.benchmarks.bench_sac report "$OUT" --out "$(dirname "$OUT")"

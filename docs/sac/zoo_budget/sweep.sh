@@ -12,7 +12,7 @@ OUT=${1:-docs/sac/zoo_budget/runs}
 ONLY=${ONLY:-}
 NOISE=${NOISE:-sde}
 SEEDS=${SEEDS:-5}
-run() { python analysis/bench_sac.py run --env mountaincar --steps 50000 --out "$OUT" "$@"; }
+run() { python -m analysis.benchmarks.bench_sac run --env mountaincar --steps 50000 --out "$OUT" "$@"; }
 case "$NOISE" in
   sde) ours() { run --method sde --compile --compile-policy --seed "$1"; }; sb3() { run --method sb3 --seed "$1"; } ;;
   gauss) ours() { run --method plain --compile --seed "$1"; }; sb3() { run --method sb3_gauss --seed "$1"; } ;;
@@ -28,4 +28,4 @@ case "$ONLY" in
   *) echo "sweep.sh: ONLY must be ours, sb3 or empty, got '$ONLY'" >&2; exit 2 ;;
 esac
 wait
-python analysis/bench_sac.py report "$OUT" --out "$(dirname "$OUT")"
+python -m analysis.benchmarks.bench_sac report "$OUT" --out "$(dirname "$OUT")"

@@ -11,7 +11,7 @@ of one estimator, and writes into ``--out DIR``:
 - ``fig5.json`` / ``fig5.md``: those counts per explorer, best and final, with their intervals,
   beside the paper's, and the SDE − REX differences with bootstrap intervals (significant
   where the interval excludes 0); with the ``initial.json`` files of
-  ``analysis/ballcatch_initial.py`` under the sweep directories, the mean initial and final
+  ``analysis/paper/ballcatch_initial.py`` under the sweep directories, the mean initial and final
   evaluations and the mean change per run with its bootstrap interval; for runs whose
   ``metrics.csv`` records the exploration state (``sigma_min``, ``sigma_max``), how many runs'
   exploration collapsed (a scale below :data:`COLLAPSE`: some of it, or all of it) and when;
@@ -23,9 +23,9 @@ REX with REINFORCE, SDE with GPOMDP (``sde+gpomdp``) and PGPE, written as ``meth
 every method's difference from REINFORCE + SDE (and PGPE's from REX) in the same form.
 
 Usage:
-    python analysis/fig5.py --out results/fig5 multirun/2026-11-22/10-00-00 [more shards...]
-    python analysis/fig5.py --estimator enac --out results/fig6 SWEEP_DIR
-    python analysis/fig5.py --estimator all --out results/methods FIG5_SWEEP GPOMDP_SWEEP PGPE_SWEEP
+    python -m analysis.paper.fig5 --out results/fig5 multirun/2026-11-22/10-00-00 [more shards...]
+    python -m analysis.paper.fig5 --estimator enac --out results/fig6 SWEEP_DIR
+    python -m analysis.paper.fig5 --estimator all --out results/methods FIG5_SWEEP GPOMDP_SWEEP PGPE_SWEEP
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import json
 import sys
 from pathlib import Path
 
-from figures import bounds, difference_of_means, saved_figure, style
+from analysis.figures import bounds, difference_of_means, saved_figure, style
 
 #: Levels of the paper's right-hand plots: "slowed down", "kept on the fingers", "catch",
 #: "good catch".
@@ -110,8 +110,8 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
 def load_per_run(directories: list[Path], estimator: str, filename: str, key: str) -> dict[str, dict[int, float]]:
     """``explorer → global run index → value`` from the files ``filename`` under ``directories``
     that list one value per run under ``key`` (mean reward per step): ``initial.json``
-    (``initial_eval_return``, ``analysis/ballcatch_initial.py``), ``final_policy.json``
-    (``final_policy_return``, ``analysis/ballcatch_final.py``)."""
+    (``initial_eval_return``, ``analysis/paper/ballcatch_initial.py``), ``final_policy.json``
+    (``final_policy_return``, ``analysis/paper/ballcatch_final.py``)."""
     values: dict[str, dict[int, float]] = {}
     for directory in directories:
         for path in sorted(directory.rglob(filename)):
@@ -125,7 +125,7 @@ def load_per_run(directories: list[Path], estimator: str, filename: str, key: st
 
 def behaviour_counts(directories: list[Path], estimator: str) -> dict[str, dict[str, int]]:
     """``explorer → behaviour → episodes`` of the final policies re-evaluated in the job's own arm
-    with their behaviour (``reevaluation_pybrain.json``, ``analysis/ballcatch_final.py --model
+    with their behaviour (``reevaluation_pybrain.json``, ``analysis/paper/ballcatch_final.py --model
     pybrain``), for the explorers whose every job has one."""
     from sde_torchrl.envs.ballcatch.outcomes import BEHAVIOURS
 
@@ -239,7 +239,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
         missing = sorted(runs.get(explorer, {}).keys() - values.keys())
         if missing:
             raise ValueError(f"{explorer}: {len(missing)} runs (first {missing[0]}) have no final_policy.json "
-                             "entry: run analysis/ballcatch_final.py on every shard")
+                             "entry: run analysis/paper/ballcatch_final.py on every shard")
     flags = {explorer: reached(by_run, final_policy.get(explorer)) for explorer, by_run in runs.items()}
     explorers = {}
     for explorer, by_run in sorted(runs.items()):
@@ -310,14 +310,14 @@ def _table(result: dict, differences: dict[str, dict], kinds: tuple[str, ...], p
 def write_markdown(result: dict, path: Path) -> None:
     """Per level, the fraction of runs (best / final evaluated policy) with its 95 % interval,
     beside the paper's; then the SDE − REX differences; then, if measured, the same for the
-    final policies evaluated on more episodes (``analysis/ballcatch_final.py``)."""
+    final policies evaluated on more episodes (``analysis/paper/ballcatch_final.py``)."""
     differences = result.get("differences") or (
         {"sde − rex": result["sde_minus_rex"]} if "sde_minus_rex" in result else {})
     lines = _table(result, differences, ("best", "final"), paper=True)
     if "final_policy" in result:
         episodes, seed = result["final_policy"]["episodes"], result["final_policy"]["seed"]
         lines += ["", f"The final policy evaluated on {episodes} episodes (seed {seed}; "
-                  "`analysis/ballcatch_final.py`, rule in `docs/ballcatch/final_policy_rule.md`), percent of "
+                  "`analysis/paper/ballcatch_final.py`, rule in `docs/ballcatch/final_policy_rule.md`), percent of "
                   "runs whose mean reward over them reached the level:", ""]
         lines += _table(result, differences, ("final_policy",), paper=False)
     for explorer, counts in result.get("behaviours", {}).items():
@@ -404,8 +404,10 @@ def _plot_panels(runs: dict[str, dict[int, dict]], result: dict, left, right, ti
     right.legend(fontsize=7)
 
 
-def main(argv: list[str] | None = None, estimator: str = "reinforce") -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None, estimator: str = "reinforce",
+         prog: str = f"python -m {__spec__.name}") -> int:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--estimator", choices=sorted(FIGURE), default=estimator)

@@ -13,7 +13,7 @@ need about 28 GB) with the same result.
 
 Writes ``final_policy.json`` into each job directory: the job's explorer, estimator, first run,
 the episodes and seed, and each run's return as a mean reward per step (the paper's units).
-``analysis/fig5.py`` reports the counts beside the trainer's when every run has one. The rule
+``analysis/paper/fig5.py`` reports the counts beside the trainer's when every run has one. The rule
 that fixed ``--episodes 20 --seed 7`` before any run: ``docs/ballcatch/final_policy_rule.md``.
 
 With ``--model NAME`` the same policies are evaluated in another arm model (``pybrain_held``: the
@@ -22,8 +22,9 @@ arm joints held level, a diagnostic) and with their behaviour per episode
 (rule: ``docs/ballcatch/reevaluation_rule.md``).
 
 Usage:
-    python analysis/ballcatch_final.py --episodes 20 --seed 7 docs/ballcatch/runs/fig5_selected/sde
-    python analysis/ballcatch_final.py --episodes 20 --seed 7 --model pybrain_held docs/ballcatch/runs/fig5_selected/sde
+    python -m analysis.paper.ballcatch_final --episodes 20 --seed 7 docs/ballcatch/runs/fig5_selected/sde
+    python -m analysis.paper.ballcatch_final --episodes 20 --seed 7 --model pybrain_held \
+        docs/ballcatch/runs/fig5_selected/sde
 """
 
 from __future__ import annotations
@@ -132,7 +133,8 @@ def episode_outcomes(episodes, trainer, scale: float) -> dict[str, list]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--episodes", type=int, required=True, help="deterministic episodes per run")
     parser.add_argument("--seed", type=int, required=True, help="seed of the evaluation env's streams")

@@ -8,8 +8,8 @@ on the job's arm in the gymnasium env with pybullet's software renderer and writ
 episode, both as mean rewards per step (the paper's units).
 
 Usage:
-    python analysis/ballcatch_video.py --out docs/ballcatch/sde_best.gif SWEEP_DIR [more shards...]
-    python analysis/ballcatch_video.py --explorer rex --pick median --out docs/ballcatch/rex_typical.gif SWEEP_DIR
+    python -m analysis.paper.ballcatch_video --out docs/ballcatch/sde_best.gif SWEEP_DIR [more shards...]
+    python -m analysis.paper.ballcatch_video --explorer rex --pick median --out docs/ballcatch/rex_typical.gif SWEEP_DIR
 """
 
 from __future__ import annotations
@@ -68,7 +68,8 @@ def pick(runs: list[Run], which: str) -> Run:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--out", type=Path, required=True, help="GIF file to write")
     parser.add_argument("--explorer", default="sde")

@@ -2,13 +2,13 @@
 
 (a) ``plain``: one run, one env, TorchRL's ``env.rollout`` stepping a single episode at a time
     (a Python loop per step), then the estimator and the update: the straightforward way.
-(b) ``batched``: what ``analysis/table1.py`` runs: ``runs`` learners side by side, each with
+(b) ``batched``: what ``analysis/paper/table1.py`` runs: ``runs`` learners side by side, each with
     ``episodes`` episodes per update, collected by :func:`sde_torchrl.collectors.rollout.tensor_rollout`.
 
 Both count full training updates (collect, estimate, step), so the figures are what a sweep gets.
 
 Usage:
-    python analysis/bench_toy.py [--runs 30] [--episodes 10] [--length 15] [--seconds 5]
+    python -m analysis.benchmarks.bench_toy [--runs 30] [--episodes 10] [--length 15] [--seconds 5]
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ def steps_per_second(overrides: list[str], seconds: float) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=30)
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--length", type=int, default=15)

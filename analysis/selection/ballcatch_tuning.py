@@ -10,8 +10,8 @@ writes ``tuning.md`` and ``tuning.json``: per method and candidate the final cat
 catches and mean final evaluation (the paper's mean reward per step), and the chosen candidate.
 
 Usage:
-    python analysis/ballcatch_tuning.py run --out docs/ballcatch/tuning [--methods reinforce_sde ...]
-    python analysis/ballcatch_tuning.py report --out docs/ballcatch docs/ballcatch/tuning
+    python -m analysis.selection.ballcatch_tuning run --out docs/ballcatch/tuning [--methods reinforce_sde ...]
+    python -m analysis.selection.ballcatch_tuning report --out docs/ballcatch docs/ballcatch/tuning
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import logging
 import sys
 from pathlib import Path
 
-from runner import TrainJob, run_train_jobs
+from analysis.runner import TrainJob, run_train_jobs
 
 SEED, RUNS = 1000, 8
 CATCH, GOOD_CATCH = -1.1, -1.0
@@ -217,9 +217,9 @@ def markdown(numbers: dict) -> str:
     """The tables of ``tuning.md``: one row per candidate, one column per method."""
     methods = numbers["methods"]
     lines = [
-        "# Ball catching: the learner selection (issue 22)",
+        "# Ball catching: the learner selection",
         "",
-        f"Written by `analysis/ballcatch_tuning.py report` from the jobs under `docs/ballcatch/tuning/` "
+        f"Written by `analysis/selection/ballcatch_tuning.py report` from the jobs under `docs/ballcatch/tuning/` "
         f"(rule: `learner_selection.md`; seed {numbers['seed']}, {numbers['runs']} runs per job, 500 updates). "
         "A cell: runs whose final deterministic evaluation is a catch (R ≥ -1.1) / a good catch (R ≥ -1.0), "
         "and the mean final evaluation (mean reward per step); **bold**: the method's candidate chosen in "
@@ -252,7 +252,7 @@ def markdown(numbers: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="train the tuning jobs")
     run.add_argument("--out", type=Path, required=True)

@@ -39,7 +39,7 @@ Neither speed-ups nor the paper's episode counts enter the rule; the same learne
 methods, and no method is tuned alone.
 
 Usage:
-    python analysis/learner_search.py --out docs/table1 [--workers 2] [--all]
+    python -m analysis.selection.learner_search --out docs/table1 [--workers 2] [--all]
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from runner import JobPool
+from analysis.runner import JobPool
 
 BUDGET = 15_000  # episodes per run
 RUNS = 10
@@ -229,7 +229,7 @@ def write_outputs(tried: list[dict], passing: dict, chosen: dict | None, out: Pa
     """``learner_search.md`` (one row per candidate tried) and ``learner_search.json``."""
     labels = [label for _, _, label in SETTINGS]
     lines = [
-        "Learner search (analysis/learner_search.py; rule in its docstring): per setting, mean episodes "
+        "Learner search (analysis/selection/learner_search.py; rule in its docstring): per setting, mean episodes "
         f"to R_lim of REX / SDE over {RUNS} runs (seed {SEED}), `div` = a run diverged (non-finite, or "
         "below 100× its first return), "
         f"`k/{RUNS} miss` = k runs did not reach R_lim within {BUDGET:,} episodes, `·` = not run "
@@ -259,7 +259,8 @@ def write_outputs(tried: list[dict], passing: dict, chosen: dict | None, out: Pa
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="where learner_search.md/json go")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--all", action="store_true", help="also search the pairs after the first passing one")

@@ -5,11 +5,11 @@ one" compares with (the trainer's first evaluation comes after ``eval_period`` u
 the job that ``train.py OVERRIDES`` would run, trains nothing, evaluates ``Θ0`` as the trainer
 evaluates (``eval_episodes`` episodes per run without exploration, the job's evaluation env)
 and writes ``initial.json``: the job's explorer, estimator, first run and each run's return as
-a mean reward per step (the paper's units). ``analysis/fig5.py`` finds these files under the
+a mean reward per step (the paper's units). ``analysis/paper/fig5.py`` finds these files under the
 sweep directories it reads.
 
 Usage:
-    python analysis/ballcatch_initial.py --out SWEEP/initial_rex +experiment=ballcatch_paper_sweep explorer=rex \
+    python -m analysis.paper.ballcatch_initial --out SWEEP/initial_rex +experiment=ballcatch_paper_sweep explorer=rex \
         first_run=0
 """
 
@@ -41,7 +41,8 @@ def initial_evaluation(overrides: list[str]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="directory to write initial.json into")
     parser.add_argument("overrides", nargs="+", help="the job's Hydra overrides, as for train.py")
     args = parser.parse_args(argv)

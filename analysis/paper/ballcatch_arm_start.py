@@ -6,7 +6,7 @@ each arm joint in the start pose from the figures of PyBrain's ``arm.xode`` (sha
 densities), set against each joint's FMax of 0.5. Writes ``arm_start.json`` and ``arm_start.md``.
 
 Usage:
-    python analysis/ballcatch_arm_start.py --out docs/ballcatch
+    python -m analysis.paper.ballcatch_arm_start --out docs/ballcatch
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def markdown(numbers: dict) -> str:
     lines = [
         "# Ball catching: the arm at the start of an episode",
         "",
-        "Written by `analysis/ballcatch_arm_start.py` (rule: `arm_start_rule.md`). "
+        "Written by `analysis/paper/ballcatch_arm_start.py` (rule: `arm_start_rule.md`). "
         + verdict + " A policy has to lift and level the palm itself (the arm's maximum torques, 600 / 600 / 90, "
         "allow it); the arm held level is the diagnostic model `pybrain_held`.",
         "",
@@ -133,7 +133,7 @@ def markdown(numbers: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     torques = weight_torques()

@@ -2,14 +2,14 @@
 by the rule in ``docs/ballcatch/reevaluation_rule.md``.
 
 Reads the ``reevaluation_pybrain.json`` and ``reevaluation_pybrain_held.json`` that
-``analysis/ballcatch_final.py --model ...`` wrote into every job of the sweeps (checking that
+``analysis/paper/ballcatch_final.py --model ...`` wrote into every job of the sweeps (checking that
 the shipped arm's returns equal the job's ``final_policy.json``), and writes
 ``reevaluation.json`` and ``reevaluation.md``: per explorer and arm the runs whose 20-episode
 return is a catch and a good catch, the behaviour of every episode (dropped, kept on the hand,
 held), the mean hold distance, and the rule's verdict on the tilted-palm lead.
 
 Usage:
-    python analysis/ballcatch_reevaluation.py --out docs/ballcatch docs/ballcatch/runs/fig5_selected
+    python -m analysis.paper.ballcatch_reevaluation --out docs/ballcatch docs/ballcatch/runs/fig5_selected
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def load(sweeps: list[Path]) -> tuple[dict[str, dict[str, dict[int, dict]]], dic
     files = sorted(path for sweep in sweeps for path in sweep.rglob("reevaluation_*.json"))
     if not files:
         raise SystemExit(f"error: no reevaluation_*.json under {[str(s) for s in sweeps]}: "
-                         "run analysis/ballcatch_final.py --model pybrain_held (and pybrain) first")
+                         "run analysis/paper/ballcatch_final.py --model pybrain_held (and pybrain) first")
     for path in files:
         found = json.loads(path.read_text())
         arm, explorer = found["model"], found["explorer"]
@@ -126,9 +126,9 @@ def markdown(numbers: dict) -> str:
     lines = [
         "# Ball catching: the final policies with the arm held level",
         "",
-        f"Written by `analysis/ballcatch_reevaluation.py` (rule: `reevaluation_rule.md`) from the final policies of "
-        f"Fig. 5 at the selected learners, 20 episodes each on the same balls, in the shipped arm and in the "
-        f"diagnostic arm `pybrain_held` (shoulder, elbow and wrist held at their start angles, so the palm stays "
+        f"Written by `analysis/paper/ballcatch_reevaluation.py` (rule: `reevaluation_rule.md`) from the final "
+        "policies of Fig. 5 at the selected learners, 20 episodes each on the same balls, in the shipped arm and in "
+        "the diagnostic arm `pybrain_held` (shoulder, elbow and wrist held at their start angles, so the palm stays "
         f"level at height 0.5). **The tilted-palm lead is {v['verdict']}**: of the {v['group']} SDE final policies "
         f"whose 20-episode return in the shipped arm lies in [{GROUP[0]}, {GROUP[1]}), {v['good_when_held']} "
         f"({100 * v['share']:.0f} %) make a good catch (R ≥ −1.0) with the arm held (confirmed at ≥ "
@@ -163,7 +163,7 @@ def markdown(numbers: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__.splitlines()[0])
     parser.add_argument("sweeps", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)

@@ -36,7 +36,7 @@ Prints ONE JSON line, all rates in world-steps per second, best of ``--repeats``
 * with ``--workers 2``: ``parallel_env_steps_per_s``, ``env.rollout`` on a ``ParallelEnv`` of
   two batched envs (one per core) holding ``--worlds`` worlds between them.
 
-Usage: ``python analysis/bench_ballcatch.py --model pybrain --worlds 16 --steps 500``
+Usage: ``python -m analysis.benchmarks.bench_ballcatch --model pybrain --worlds 16 --steps 500``
 """
 
 from __future__ import annotations
@@ -154,7 +154,7 @@ def time_torchrl(env, steps: int, seed: int, num_worlds: int, model: str) -> flo
 
 def main() -> None:
     """Parse arguments, run the timings and print one JSON line."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__.splitlines()[0])
     parser.add_argument("--model", choices=tuple(ARM_MODELS), default=BallCatchConfig.model, help="the arm")
     parser.add_argument("--worlds", type=int, default=16)
     parser.add_argument("--steps", type=int, default=500)

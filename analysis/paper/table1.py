@@ -2,7 +2,7 @@
 
 Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
 ``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
-that ``analysis/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
+that ``analysis/selection/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
 into ``DIR/runs``; a rerun skips the finished jobs and resumes the others), or reads finished run
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
 paper's, and the checks of :func:`checks`), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
@@ -14,7 +14,7 @@ ratio of the two methods' mean counts excludes 1, and ours differs significantly
 when the paper's count lies outside our interval (the paper gives no spread of its own).
 
 Added method, beyond the paper: **GPOMDP + SDE**, the SDE jobs of the two 1-D sweeps again with
-``estimator=gpomdp``. Its learner, by the rule of ``analysis/learner_search.py``, which chooses
+``estimator=gpomdp``. Its learner, by the rule of ``analysis/selection/learner_search.py``, which chooses
 ONE learner for all the methods compared and never tunes one method alone, is that learner
 unchanged (plain scores, per-run norm bound 100, N = 10, α = 0.002, summed return, the sweeps'
 budget). Rerunning the search with GPOMDP among the methods would let GPOMDP's runs change REX's
@@ -25,7 +25,7 @@ Added method, beyond the paper: **PGPE** (``explorer=pgpe estimator=pgpe``, Sehn
 jobs of the two 1-D sweeps again with PGPE's explorer and estimator. Its settings follow the same
 rule, written down and committed before any Table 1 result of PGPE was seen (none was run):
 
-1. The learner is the one ``analysis/learner_search.py`` chose for all methods, unchanged: plain
+1. The learner is the one ``analysis/selection/learner_search.py`` chose for all methods, unchanged: plain
    gradients (``estimator.variance_weighted=false``: PGPE's likelihood-ratio gradient itself, not
    the paper's ``α_i = α σ_i²`` step, which is the counterpart of the variance-weighted scores the
    search did not choose), the per-run norm bound 100, N = 10 episodes per update, α = 0.002, the
@@ -40,8 +40,8 @@ rule, written down and committed before any Table 1 result of PGPE was seen (non
    the table reports them as not converged.
 
 Usage:
-    python analysis/table1.py --out results/table1              # run everything, then report
-    python analysis/table1.py --out results/table1 --from DIR   # report on finished runs
+    python -m analysis.paper.table1 --out results/table1              # run everything, then report
+    python -m analysis.paper.table1 --out results/table1 --from DIR   # report on finished runs
 """
 
 from __future__ import annotations
@@ -56,8 +56,8 @@ import sys
 import time
 from pathlib import Path
 
-from figures import bounds, ratio_of_means, saved_figure, style
-from runner import TrainJob, run_train_jobs
+from analysis.figures import bounds, ratio_of_means, saved_figure, style
+from analysis.runner import TrainJob, run_train_jobs
 
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 #: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE and PGPE.
@@ -433,7 +433,7 @@ def write_markdown(rows: list[dict], mlp: dict | None, path: Path, wall_s: float
         f"{c['speedup_grows_with_noise']}.",
     ]
     if wall_s is not None:
-        lines.append(f"Wall time of `python analysis/table1.py`: {wall_s:.0f} s.")
+        lines.append(f"Wall time of `python -m analysis.paper.table1`: {wall_s:.0f} s.")
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -492,7 +492,8 @@ def plot_mlp(runs: list[dict], mlp: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="where tables and figures go")
     parser.add_argument("--from", dest="source", type=Path,
                         help="read finished run directories instead of running the sweeps")

@@ -29,7 +29,7 @@ the estimator's scores, and writes into ``--out``:
 - ``scores.md``: the same as a page.
 
 Usage:
-    python analysis/ballcatch_scores.py --episodes 100 --seed 3 --out docs/ballcatch
+    python -m analysis.paper.ballcatch_scores --episodes 100 --seed 3 --out docs/ballcatch
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def write_markdown(m: dict, path: Path) -> None:
     rows = [f"| {value:.3g} | ({', '.join(f'{c:+.2f}' for c in vector)}) |"
             for value, vector in zip(reversed(m["eigenvalues"]), reversed(m["eigenvectors_xyz"]), strict=True)]
     lines = [
-        "Written by `analysis/ballcatch_scores.py` from "
+        "Written by `analysis/paper/ballcatch_scores.py` from "
         f"{m['episodes']} exploratory episodes of `+experiment={m['experiment']}` at Θ0 (one run, seed {m['seed']}).",
         "",
         f"- The scores of the controller's weights equal Θ̂ S episode by episode: largest relative difference "
@@ -118,7 +118,7 @@ def write_markdown(m: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=f"python -m {__spec__.name}", description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--out", type=Path, required=True)

@@ -1,0 +1,67 @@
+"""What the PPO and SAC benchmarks against Stable-Baselines3 share: the gymnasium env by its id,
+the return of each evaluation env's first episode, a run's record written whole with the versions
+it ran on, and the band of training curves over seeds.
+
+Examples:
+    >>> reward, done = torch.ones(2, 4), torch.tensor([[0, 1, 0, 1], [0, 0, 0, 1]], dtype=torch.bool)
+    >>> first_episode_returns(reward, done)
+    [2.0, 4.0]
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import platform
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from analysis.figures import binned_curve
+
+#: Deterministic evaluation episodes at the end of a run.
+EVAL_EPISODES = 10
+
+
+def gym_make(env_id: str):
+    """``gymnasium.make(env_id)``, pybullet's envs registered first for a ``...Bullet...`` id."""
+    import gymnasium as gym
+
+    if "Bullet" in env_id:
+        import pybullet_envs_gymnasium  # noqa: F401  (registers the Bullet envs)
+    return gym.make(env_id)
+
+
+def first_episode_returns(reward: torch.Tensor, done: torch.Tensor) -> list[float]:
+    """Each env's return up to and including its first ``done``; ``reward`` and ``done`` are ``[envs, steps]``."""
+    first_episode = (done.long().cumsum(-1) - done.long()) == 0  # up to and including the first done
+    return (reward * first_episode).sum(-1).tolist()
+
+
+def versions(*libraries: str) -> dict[str, str]:
+    """The versions a run ran on: torch's, torchrl's, those of ``libraries`` (module names), python's."""
+    found = {name: importlib.import_module(name).__version__ for name in ("torch", "torchrl", *libraries)}
+    return {**found, "python": platform.python_version()}
+
+
+def write_run(path: Path, result: dict) -> Path:
+    """Write a run's record as JSON, whole or not at all (a temporary file, then renamed); returns ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result))
+    os.replace(tmp, path)
+    return path
+
+
+def curve_band(runs: list[dict], bin_steps: int, total: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The runs' training curves on a common grid (:func:`~analysis.figures.binned_curve`): the
+    grid's env steps and, per window, the mean, lowest and highest over runs (NaN where no episode
+    of any run ended: a gap in the curve)."""
+    curves = np.stack([binned_curve(r, bin_steps, total) for r in runs])
+    x = (np.arange(curves.shape[1]) + 1) * bin_steps
+    with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return x, np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
