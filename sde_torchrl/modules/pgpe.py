@@ -169,7 +169,8 @@ class ParameterExplorer(TensorDictModuleBase):
         return tensordict
 
     def perturbed(self, noise: torch.Tensor) -> torch.Tensor:
-        """The episodes' parameters ``θ = μ + σ ⊙ ξ`` from the standard-normal draws ``ξ``.
+        """The episodes' parameters ``θ = μ + σ ⊙ ξ ~ N(μ, diag(σ²))`` from the standard-normal
+        draws ``ξ`` (Sehnke et al. 2010, section 2): what :meth:`forward` acts with.
 
         Args:
             noise: ``ξ`` ``[*runs, *B, K]``.
