@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
-from torchrl.envs import RewardScaling
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torchrl.envs import RewardScaling, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl import LinearActor, MLPActor, SDEParams, make_minimize_env, make_sde_actor
@@ -15,11 +15,14 @@ from sde_torchrl.collectors.rollout import (
     linear_episode_env,
     linear_episode_rollout,
     noise_primer,
+    parameter_rollout,
+    parameter_step_env,
     tensor_rollout,
     tensor_step_env,
 )
 from sde_torchrl.envs.ballcatch import make_ballcatch_env
 from sde_torchrl.envs.ballcatch.models import ARM_MODELS, SCRIPTED_WEIGHTS
+from sde_torchrl.modules.pgpe import ParameterExplorer
 from sde_torchrl.utils.rng import RunStreams
 
 
@@ -266,6 +269,72 @@ def test_per_step_maps_run_like_one_map_per_episode():
     env2.close()
 
 
+# ------------------------------------------------------------------ parameter-exploring episodes
+def _pgpe_setup(actor="linear", symmetric=True, squash=False, streams=True):
+    """PGPE's policy and env as the trainer builds them: run-stacked, with the explorer's primer."""
+    runs, dim = 2, 2
+    actor_module = (LinearActor(dim, dim, bias=False, runs=runs, init=[-1.0, 0.0]) if actor == "linear"
+                    else MLPActor(dim, dim, hidden=[3], runs=runs, init=[-1.0, 0.0]))
+    actor_module.module.reset_parameters(RunStreams(0, runs, "init"))
+    explorer = ParameterExplorer(actor_module, symmetric=symmetric, squash=squash, runs=runs, init_param=-0.5)
+    explorer.streams = RunStreams(0, runs, "explore") if streams else None
+    env = make_minimize_env(6, dim=dim, episodes=4, runs=runs, x0_spread=1.0, seed=4)
+    env.append_transform(explorer.make_tensordict_primer())
+    return env, TensorDictSequential(actor_module, explorer)
+
+
+@pytest.mark.parametrize("actor, symmetric, squash", [
+    ("linear", True, False), ("linear", False, True), ("mlp", True, False), ("mlp", False, True),
+])
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_parameter_rollout_equals_env_rollout(actor, symmetric, squash, mode):
+    env, policy = _pgpe_setup(actor, symmetric, squash)
+    env2, policy2 = _pgpe_setup(actor, symmetric, squash)
+    assert parameter_step_env(env2, policy2) is env2.base_env
+    with set_exploration_type(mode), torch.no_grad():
+        for _ in range(2):  # the second collection starts where the first left the streams
+            reference = env.rollout(6, policy, break_when_any_done=False)
+            fast = parameter_rollout(env2.base_env, policy2, 6)
+            assert fast.batch_size == reference.batch_size == (2, 4, 6)
+            assert set(fast.keys(True, True)) <= set(reference.keys(True, True))
+            expected = {"observation", "loc", "action", "action_sample", "pgpe_parameters", "is_init",
+                        ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "truncated")}
+            expected |= {"pgpe_noise"} if mode == ExplorationType.RANDOM else set()
+            assert set(fast.keys(True, True)) == expected
+            for key in fast.keys(True, True):  # bit for bit: the same draws and the same arithmetic
+                assert torch.equal(fast[key], reference[key]), key
+    theta = fast["pgpe_parameters"]
+    if mode == ExplorationType.RANDOM:
+        assert bool((theta[..., 1:, :] == theta[..., :1, :]).all())  # held for the whole episode
+        assert not torch.equal(theta[:, 0, 0], theta[:, 1, 0])  # one draw per episode
+    else:
+        assert torch.equal(fast["action_sample"], fast["loc"])
+
+
+def test_parameter_path_needs_pgpes_policy_and_an_init_tracker():
+    env, policy = _pgpe_setup()
+    assert parameter_step_env(env, policy) is env.base_env
+    assert parameter_step_env(env, policy.module[0]) is None  # the actor alone: no exploration
+    sde_env, sde_policy = _setup("episode")
+    assert parameter_step_env(sde_env, sde_policy) is None  # SDE's policy has a path of its own
+    env_global, policy_global = _pgpe_setup(streams=False)  # global generator: the primer draws from it first
+    assert parameter_step_env(env_global, policy_global) is None
+    untracked = TransformedEnv(env.base_env, policy.module[1].make_tensordict_primer())  # no is_init
+    assert parameter_step_env(untracked, policy) is None
+    env.append_transform(RewardScaling(loc=0.0, scale=2.0))  # a transform that must run
+    assert parameter_step_env(env, policy) is None
+
+
+def test_linear_episode_controller_is_the_explorers_controller_bit_for_bit():
+    actor = LinearActor(3, 2, bias=False, runs=4, init=[-1.0, 1.0])
+    explorer = ParameterExplorer(actor, runs=4)
+    theta, x = torch.randn(4, 5, 6), torch.randn(4, 5, 3)
+    assert torch.equal(explorer.episode_controller(theta)(x), explorer.controller(theta, [x]))
+    explorer = ParameterExplorer(LinearActor(3, 2, bias=False), symmetric=False)  # unstacked
+    theta, x = torch.randn(7, 6), torch.randn(7, 3)
+    assert torch.equal(explorer.episode_controller(theta)(x), explorer.controller(theta, [x]))
+
+
 # ------------------------------------------------------------------------------ the entry point
 def _assert_same_episodes(got, expected):
     assert got.batch_size == expected.batch_size
@@ -298,6 +367,18 @@ def test_collect_episodes_runs_linear_episodes_where_it_can(mode, schedule):
         _assert_same_episodes(collect_episodes(env2, policy2, 30), reference)
     env.close()
     env2.close()
+
+
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_collect_episodes_steps_pgpe_episodes_where_it_can(mode):
+    env, policy = _pgpe_setup()
+    env2, policy2 = _pgpe_setup()
+    with set_exploration_type(mode):
+        with torch.no_grad():
+            reference = parameter_rollout(env.base_env, policy, 6)
+        episodes = collect_episodes(env2, policy2, 6)
+    _assert_same_episodes(episodes, reference)
+    assert not episodes["pgpe_parameters"].requires_grad  # collected without a graph
 
 
 @pytest.mark.parametrize("fast", [True, False])

@@ -3,7 +3,8 @@
 Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
 ``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
 that ``analysis/selection/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
-into ``DIR/runs``; a rerun skips the finished jobs and resumes the others), or reads finished run
+into ``DIR/runs``, a finished job without its checkpoint, which only made reading it slower; a rerun
+skips the finished jobs and resumes the others), or reads finished run
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the
 paper's, and the checks of :func:`checks`), ``fig2.png``, ``fig3_left.png`` and ``fig3_right.png``.
 
@@ -507,7 +508,7 @@ def main(argv: list[str] | None = None) -> int:
     source = args.source
     if source is None:
         source = args.out / "runs"
-        if run_train_jobs(jobs(source, args.overrides), args.workers):
+        if run_train_jobs(jobs(source, args.overrides), args.workers, keep_checkpoints=False):
             return 1  # the failed jobs are named in the log; a rerun resumes them
     runs = load_runs(source)
     if not runs:

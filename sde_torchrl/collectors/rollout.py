@@ -19,7 +19,14 @@ eligibility function accepts the env and the policy:
    the SDE sample (:func:`~sde_torchrl.modules.distribution.sde_sample`) and the env's
    :class:`~sde_torchrl.modules.noise.SDENoisePrimer` are called on tensors at every step and
    one TensorDict is built at the end.
-3. **TorchRL** ``env.rollout``: the reference, for everything else (other transforms, other
+3. **Parameter-exploring episodes** (:func:`parameter_step_env`, :func:`parameter_rollout`):
+   the env is a :class:`TensorStepEnv` and the policy PGPE's ``TensorDictSequential(actor,
+   ParameterExplorer(actor))`` (:mod:`sde_torchrl.modules.pgpe`). Each episode's parameters
+   ``θ = μ + σ ⊙ ξ`` are drawn once, before its first step, as the explorer draws them where
+   ``is_init`` is set; then the actor's network (for ``loc``), the controller under ``θ``
+   (:meth:`~sde_torchrl.modules.pgpe.ParameterExplorer.episode_controller`) and the env are
+   called on tensors at every step and one TensorDict is built at the end.
+4. **TorchRL** ``env.rollout``: the reference, for everything else (other transforms, other
    policies, gymnasium envs).
 
 What every path guarantees, for the same env, policy and random-stream states:
@@ -39,12 +46,18 @@ What every path guarantees, for the same env, policy and random-stream states:
   and ``loc``, ``action_sample``, ``action``, the next observation and the reward
   agree to 1e-4, and mean episode rewards to 0.02 over 120 steps
   (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, SDE and REX, random and
-  deterministic exploration).
+  deterministic exploration). Parameter-exploring episodes draw PGPE's ``ξ`` from the
+  explorer's streams as ``env.rollout`` does (the random draws of the env's primer, which the
+  explorer replaces at every episode start, are not made) and compute the same numbers:
+  every key they write equals ``env.rollout``'s bit for bit
+  (``::test_parameter_rollout_equals_env_rollout``).
 * **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the observation (the
   features), the ``SDEParams``' ``loc_key``, the policy's ``action_key``, ``log_prob_key`` and
   (squashed) ``sample_key``, ``is_init`` and, unless exploration is deterministic, the noise
   (``noise_key``, and ``gaussian_noise_key`` with eq. 22's part); under ``next``:
-  ``observation``, ``reward``, ``done`` and ``truncated``. The fast paths write nothing else
+  ``observation``, ``reward``, ``done`` and ``truncated``; for PGPE, the explorer's keys
+  (``loc``, ``action``, ``action_sample``, ``pgpe_parameters`` and, unless exploration is
+  deterministic, ``pgpe_noise``) in place of the SDE policy's. The fast paths write nothing else
   (``env.rollout`` adds, e.g., ``terminated``, ``step_count``, ``σ̂`` and the env's extra
   observations).
 * **A fallback that is never wrong**: an env wrapped in a transform the fast paths do not
@@ -52,6 +65,7 @@ What every path guarantees, for the same env, policy and random-stream states:
   (``::test_envs_or_policies_it_cannot_reproduce_fall_back``,
   ``::test_linear_episode_path_needs_a_bias_free_linear_map_fixed_per_episode``,
   ``::test_linear_episode_path_needs_an_env_that_runs_linear_episodes``,
+  ``::test_parameter_path_needs_pgpes_policy_and_an_init_tracker``,
   ``tests/test_gym.py::test_collection_falls_back_to_env_rollout``), and ``fast=False`` forces it.
 """
 
@@ -61,12 +75,13 @@ from typing import Protocol, runtime_checkable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
 from sde_torchrl.modules.actors import BatchedLinear
 from sde_torchrl.modules.distribution import TanhSDENormal, sde_sample
 from sde_torchrl.modules.noise import SDENoisePrimer, deterministic_exploration
+from sde_torchrl.modules.pgpe import ParameterExplorer
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import SDEActor
 from sde_torchrl.utils.checks import positive_int
@@ -118,7 +133,9 @@ class LinearEpisodeEnv(TensorStepEnv, Protocol):
 
 
 # ------------------------------------------------------------------------------ the entry point
-def collect_episodes(env: EnvBase, policy: SDEActor, steps: int, *, fast: bool = True) -> TensorDictBase:
+def collect_episodes(
+    env: EnvBase, policy: SDEActor | TensorDictSequential, steps: int, *, fast: bool = True
+) -> TensorDictBase:
     """Fresh whole episodes of ``steps`` steps, one per batch element of ``env``.
 
     Takes the fastest path that gives ``env.rollout``'s episodes (see the module docstring for
@@ -128,7 +145,8 @@ def collect_episodes(env: EnvBase, policy: SDEActor, steps: int, *, fast: bool =
 
     Args:
         env: the (batched) env, reset by the collection.
-        policy: the policy, usually :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`'s.
+        policy: the policy, usually :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`'s, or
+            PGPE's ``TensorDictSequential(actor, ParameterExplorer(actor))``.
         steps: episode length ``T``.
         fast: allow the fast paths; ``False`` forces ``env.rollout``.
 
@@ -153,6 +171,8 @@ def collect_episodes(env: EnvBase, policy: SDEActor, steps: int, *, fast: bool =
                 return linear_episode_rollout(base, policy, steps, noise_primer(env))
             if (base := tensor_step_env(env, policy)) is not None:
                 return tensor_rollout(base, policy, steps, noise_primer(env))
+            if (base := parameter_step_env(env, policy)) is not None:
+                return parameter_rollout(base, policy, steps)
         return env.rollout(steps, policy, break_when_any_done=False)
 
 
@@ -338,6 +358,102 @@ def episode_matrix(
     return theta + align(sde.sde_sigma, sde.run_dims, noise.dim() - 2) * noise, noise
 
 
+# -------------------------------------------------------------- parameter-exploring episodes
+def parameter_step_env(env: EnvBase, policy: object) -> TensorStepEnv | None:
+    """The env to hand to :func:`parameter_rollout` for ``env`` and ``policy``, or ``None``.
+
+    That needs an env that is a :class:`TensorStepEnv`, possibly wrapped only in transforms the
+    fast paths reproduce, among them an ``InitTracker`` (where ``is_init`` is set, the explorer
+    draws the episode's parameters), and PGPE's policy ``TensorDictSequential(actor,
+    ParameterExplorer(actor))`` whose actor is a ``TensorDictModule`` mapping the observation
+    to the explorer's ``loc`` and whose explorer draws from its per-run ``streams`` (from
+    torch's global generator, its draws would follow those of the env's random primer, which
+    this path does not make).
+    """
+    base = _untransformed(env)
+    if not isinstance(base, TensorStepEnv) or not isinstance(policy, TensorDictSequential):
+        return None
+    modules = list(policy.module)
+    if len(modules) != 2 or not isinstance(modules[1], ParameterExplorer):
+        return None
+    actor, explorer = modules
+    supported = (isinstance(actor, TensorDictModule) and explorer.network is actor.module
+                 and actor.in_keys == explorer.actor_in_keys == [OBSERVATION_KEY]
+                 and actor.out_keys == [explorer.loc_key] and explorer.streams is not None
+                 and _has_transform(env, InitTracker))
+    return base if supported else None
+
+
+def parameter_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: int) -> TensorDict:
+    """Collects one fresh episode of ``steps`` steps per batch element under PGPE's exploration.
+
+    Each episode's parameters ``θ = μ + σ ⊙ ξ`` are drawn before its first step
+    (:meth:`~sde_torchrl.modules.pgpe.ParameterExplorer.next_noise`, symmetric pairs included)
+    and held while it runs (Sehnke et al. 2010, section 2): ``u_t = f(x_t; θ)``, squashed by
+    ``tanh`` if the explorer squashes; under deterministic exploration nothing is drawn and
+    ``u_t = f(x_t; μ)``.
+
+    Args:
+        env: a :class:`TensorStepEnv` (see :func:`parameter_step_env`).
+        policy: ``TensorDictSequential(actor, ParameterExplorer(actor))``.
+        steps: episode length ``T``.
+
+    Returns:
+        TensorDict ``[*batch, T]`` with the keys listed in the module docstring.
+
+    Examples:
+        >>> from tensordict.nn import TensorDictSequential
+        >>> from sde_torchrl import LinearActor, make_minimize_env
+        >>> from sde_torchrl.modules.pgpe import ParameterExplorer
+        >>> from sde_torchrl.utils.rng import RunStreams
+        >>> actor = LinearActor(1, 1, bias=False, init=-2.0, runs=3)
+        >>> explorer = ParameterExplorer(actor, runs=3)
+        >>> explorer.streams = RunStreams(seed=0, runs=3, stream="explore")
+        >>> policy = TensorDictSequential(actor, explorer)
+        >>> env = make_minimize_env(15, episodes=4, runs=3)
+        >>> episodes = parameter_rollout(parameter_step_env(env, policy), policy, 15)
+        >>> episodes.batch_size, episodes["pgpe_parameters"].shape
+        (torch.Size([3, 4, 15]), torch.Size([3, 4, 15, 1]))
+    """
+    actor, explorer = policy.module
+    batch = env.batch_size
+    x = env.initial_state()
+    if deterministic_exploration():  # nothing drawn: the controller at μ, which is the actor
+        noise = None
+        parameters = align(explorer.mean(), explorer.run_dims, len(batch)).expand(*batch, explorer.num_parameters)
+    else:
+        noise = explorer.next_noise(None, None, batch)
+        parameters = explorer.perturbed(noise)
+        controller = explorer.episode_controller(parameters)
+    observations, locs, samples, next_observations, rewards = [], [], [], [], []
+    for _ in range(steps):
+        loc = actor.module(x)
+        sample = loc if noise is None else controller(x)
+        x_next, reward = env.transition(x, torch.tanh(sample) if explorer.squash else sample)
+        for column, value in ((observations, x), (locs, loc), (samples, sample), (next_observations, x_next),
+                              (rewards, reward)):
+            column.append(value)
+        x = x_next
+    time_dim = len(batch)
+    observation, loc, sample, next_observation, reward = (
+        torch.stack(column, dim=time_dim) for column in (observations, locs, samples, next_observations, rewards)
+    )
+    episodes = _step_entries(observation, next_observation, reward)
+    episodes.update({
+        explorer.loc_key: loc, explorer.sample_key: sample,
+        explorer.action_key: torch.tanh(sample) if explorer.squash else sample,
+        explorer.parameters_key: _held(parameters, time_dim, steps),
+    })
+    if noise is not None:
+        episodes.set(explorer.noise_key, _held(noise, time_dim, steps))
+    return episodes
+
+
+def _held(value: torch.Tensor, time_dim: int, steps: int) -> torch.Tensor:
+    """A per-episode ``value`` ``[*batch, K]`` at every step, ``[*batch, steps, K]`` (a view)."""
+    return value.unsqueeze(time_dim).expand(*value.shape[:time_dim], steps, *value.shape[time_dim:])
+
+
 # ------------------------------------------------------------------------------------ helpers
 def _untransformed(env: EnvBase) -> EnvBase | None:
     """The base env under ``env``'s transforms, or ``None`` if one of them must run."""
@@ -346,6 +462,15 @@ def _untransformed(env: EnvBase) -> EnvBase | None:
             return None
         env = env.base_env
     return env
+
+
+def _has_transform(env: EnvBase, kind: type) -> bool:
+    """Whether one of ``env``'s transforms is a ``kind``."""
+    found = []
+    while isinstance(env, TransformedEnv):
+        found += [t for t in _flatten([env.transform]) if isinstance(t, kind)]
+        env = env.base_env
+    return bool(found)
 
 
 def _flatten(transforms: list) -> list:
@@ -375,10 +500,6 @@ def _episodes(
     """The episode TensorDict ``[*batch, T]`` that ``env.rollout`` writes, from its step tensors."""
     sde = policy.sde
     batch, device = observation.shape[:-1], observation.device
-    done = torch.zeros(*batch, 1, dtype=torch.bool, device=device)
-    done[..., -1, :] = True
-    first = torch.zeros(*batch, 1, dtype=torch.bool, device=device)
-    first[..., 0, :] = True
     features = observation.to(loc.dtype)
     sigma = align(sde.sde_sigma, sde.run_dims, len(batch)).to(loc.dtype)
     gaussian_scale = sde.gaussian_scale(len(batch))
@@ -388,14 +509,12 @@ def _episodes(
         action = dist.squash(sample)
     else:
         dist, action = policy.module[-1].distribution_class(loc, sigma, features, gaussian_scale=gaussian_scale), sample
-    episodes = TensorDict({
-        OBSERVATION_KEY: observation,
+    episodes = _step_entries(observation, next_observation, reward)
+    episodes.update({
         sde.loc_key: loc,
         policy.action_key: action,
         policy.log_prob_key: dist.log_prob(action),  # eqs. 13, 20, once for all steps
-        IS_INIT_KEY: first,
-        "next": {OBSERVATION_KEY: next_observation, REWARD_KEY: reward, DONE_KEY: done, TRUNCATED_KEY: done.clone()},
-    }, batch_size=batch)  # no device=: it would move a stray CPU entry instead of showing it
+    })
     if policy.squash:
         episodes.set(policy.sample_key, sample)
     if noise is not None:
@@ -403,3 +522,19 @@ def _episodes(
     if gaussian is not None:
         episodes.set(sde.gaussian_noise_key, gaussian)
     return episodes
+
+
+def _step_entries(observation: torch.Tensor, next_observation: torch.Tensor, reward: torch.Tensor) -> TensorDict:
+    """The entries of ``env.rollout``'s episodes ``[*batch, T]`` that are the env's: the observations,
+    ``is_init`` at the first step, and under ``next`` the observations, rewards, and ``done`` and
+    ``truncated`` at the last step."""
+    batch, device = observation.shape[:-1], observation.device
+    done = torch.zeros(*batch, 1, dtype=torch.bool, device=device)
+    done[..., -1, :] = True
+    first = torch.zeros(*batch, 1, dtype=torch.bool, device=device)
+    first[..., 0, :] = True
+    return TensorDict({
+        OBSERVATION_KEY: observation,
+        IS_INIT_KEY: first,
+        "next": {OBSERVATION_KEY: next_observation, REWARD_KEY: reward, DONE_KEY: done, TRUNCATED_KEY: done.clone()},
+    }, batch_size=batch)  # no device=: it would move a stray CPU entry instead of showing it

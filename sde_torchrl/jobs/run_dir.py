@@ -101,13 +101,14 @@ def metric_rows(
         [{'run': 2, 'update': 0, 'episodes': 10, 'return_mean': -1.5, 'eval_return': '', 'grad_norm': 0.25,
           'sigma_min': 0.125, 'sigma_max': 0.5, 'weight_max': 2.0}]
     """
+    runs = len(return_mean)
+    evals = [""] * runs if eval_return is None else eval_return.tolist()  # Python floats, one call per column
+    columns = zip(return_mean.tolist(), evals, grad_norm.tolist(), *exploration.tolist(), strict=True)
     return [{
         "run": first_run + r, "update": update, "episodes": episodes,
-        "return_mean": float(return_mean[r]),
-        "eval_return": "" if eval_return is None else float(eval_return[r]),
-        "grad_norm": float(grad_norm[r]),
-        **{name: float(exploration[i, r]) for i, name in enumerate(EXPLORATION_FIELDS)},
-    } for r in range(len(return_mean))]
+        "return_mean": value, "eval_return": evaluated, "grad_norm": norm,
+        **dict(zip(EXPLORATION_FIELDS, scales, strict=True)),
+    } for r, (value, evaluated, norm, *scales) in enumerate(columns)]
 
 
 def recorded_rows(loop: Mapping[str, Any], first_run: int, episodes: Any) -> list[dict[str, Any]]:

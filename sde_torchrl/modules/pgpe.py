@@ -21,6 +21,7 @@ explore alike and differ only in their gradient estimates.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from tensordict import TensorDictBase
@@ -30,6 +31,7 @@ from torch.func import functional_call, vmap
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, TensorDictPrimer
 
+from sde_torchrl.modules.actors import BatchedLinear
 from sde_torchrl.modules.noise import deterministic_exploration
 from sde_torchrl.modules.sde import expln
 from sde_torchrl.utils.checks import finite, positive_int
@@ -153,12 +155,11 @@ class ParameterExplorer(TensorDictModuleBase):
         inputs = [tensordict.get(key) for key in self.actor_in_keys]
         batch = loc.shape[:-1]
         noise = tensordict.get(self.noise_key, None)
-        mu = align(self.mean(), self.run_dims, len(batch))
         if deterministic_exploration():  # nothing drawn: evaluation does not shift the streams
-            sample, parameters = loc, mu.expand(*batch, self.num_parameters)
+            sample, parameters = loc, align(self.mean(), self.run_dims, len(batch)).expand(*batch, self.num_parameters)
         else:
             noise = self.next_noise(noise, tensordict.get(self.is_init_key, None), batch)
-            parameters = mu + align(self.sigma, self.run_dims, len(batch)) * noise
+            parameters = self.perturbed(noise)
             sample = self.controller(parameters, inputs)
         if noise is not None:
             tensordict.set(self.noise_key, noise)
@@ -166,6 +167,56 @@ class ParameterExplorer(TensorDictModuleBase):
         tensordict.set(self.sample_key, sample)
         tensordict.set(self.action_key, torch.tanh(sample) if self.squash else sample)
         return tensordict
+
+    def perturbed(self, noise: torch.Tensor) -> torch.Tensor:
+        """The episodes' parameters ``θ = μ + σ ⊙ ξ ~ N(μ, diag(σ²))`` from the standard-normal
+        draws ``ξ`` (Sehnke et al. 2010, section 2): what :meth:`forward` acts with.
+
+        Args:
+            noise: ``ξ`` ``[*runs, *B, K]``.
+
+        Returns:
+            ``θ`` ``[*runs, *B, K]``.
+
+        Examples:
+            >>> from sde_torchrl import LinearActor
+            >>> explorer = ParameterExplorer(LinearActor(1, 1, init=-2.0), init_param=0.0)  # σ = 1
+            >>> explorer.perturbed(torch.tensor([[0.5], [-0.5]]))
+            tensor([[-1.5000],
+                    [-2.5000]], grad_fn=<AddBackward0>)
+        """
+        batch_dims = noise.dim() - 1
+        return align(self.mean(), self.run_dims, batch_dims) + align(self.sigma, self.run_dims, batch_dims) * noise
+
+    def episode_controller(self, parameters: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``x ↦ f(x; θ)`` under parameters ``θ`` held for whole episodes: :meth:`controller`
+        as a function of the input alone, for a caller that steps episodes with tensors.
+
+        For a bias-free :class:`~sde_torchrl.modules.actors.BatchedLinear` network ``θ`` is
+        reshaped once into the maps ``Θ`` ``[*runs, *B, A, S]`` and every call is the batched
+        product ``Θ x`` that :meth:`controller` computes for each row (the same product, so
+        the same numbers); any other network is evaluated by :meth:`controller` at every call.
+
+        Args:
+            parameters: ``θ`` ``[*runs, *B, K]``.
+
+        Returns:
+            A function of the input ``[*runs, *B, S]`` giving the output ``[*runs, *B, A]``.
+
+        Examples:
+            >>> from sde_torchrl import LinearActor
+            >>> explorer = ParameterExplorer(LinearActor(2, 1, bias=False, init=0.0))
+            >>> f = explorer.episode_controller(torch.tensor([[1.0, 2.0], [3.0, 4.0]]))
+            >>> f(torch.tensor([[1.0, 1.0], [1.0, 0.0]]))
+            tensor([[3.],
+                    [3.]])
+        """
+        network = self.network
+        if isinstance(network, BatchedLinear) and network.bias is None and self.parameter_names == ["weight"]:
+            maps = parameters.reshape(*parameters.shape[:-1], network.out_features, network.in_features)
+            transposed = maps.transpose(-1, -2)
+            return lambda x: (x.unsqueeze(-2) @ transposed).squeeze(-2)
+        return lambda x: self.controller(parameters, [x])
 
     def next_noise(self, previous: torch.Tensor | None, is_init: torch.Tensor | None,
                    batch: torch.Size) -> torch.Tensor:
