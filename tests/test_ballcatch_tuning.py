@@ -7,7 +7,7 @@ import json
 import pytest
 from _helpers import compose_config, load_script
 
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 
 tuning = load_script("ballcatch_tuning")
 

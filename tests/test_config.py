@@ -8,7 +8,8 @@ from importlib.util import find_spec
 import pytest
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
 
-from sde_torchrl.config.schemas import describe_error, validate
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.utils.checks import ArgumentError
 
 
@@ -225,6 +226,6 @@ def test_checking_a_config_imports_no_torch():
     import subprocess
     import sys
 
-    code = ("import sys, sde_torchrl.config.schemas, sde_torchrl.utils.options; "
+    code = ("import sys, sde_torchrl.config.registration, sde_torchrl.config.errors, sde_torchrl.utils.options; "
             "assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
