@@ -70,6 +70,30 @@ def test_bad_value_gives_one_line_naming_key_value_and_allowed(overrides, expect
     assert config_error_line(*overrides) == expected
 
 
+ESTIMATOR_OPTIONS = "max_grad_norm, max_grad_entry, episode_return, variance_weighted"
+
+
+@pytest.mark.parametrize("estimator", ["reinforce", "enac", "gpomdp", "pgpe"])
+def test_a_key_the_estimator_does_not_take_is_refused_naming_the_estimator_and_its_options(estimator):
+    """``estimator.symmetric`` is ``explorer=pgpe``'s option: each estimator's own schema refuses it,
+    named, with the keys that estimator takes."""
+    assert config_error_line(f"estimator={estimator}", "estimator.symmetric=true") == (
+        f"estimator.symmetric: unknown key (estimator={estimator}'s options: {ESTIMATOR_OPTIONS})")
+
+
+def test_each_estimator_option_has_its_own_schema_naming_its_estimator():
+    from sde_torchrl.config.compose import CONF_DIR
+    from sde_torchrl.config.registration import SCHEMAS
+
+    options = sorted(path.stem for path in (CONF_DIR / "estimator").glob("*.yaml"))
+    schemas = {path.split("/")[1]: schema for path, schema in SCHEMAS.items() if path.startswith("estimator/")}
+    assert sorted(schemas) == options
+    for option, schema in schemas.items():
+        conf = validate(compose_config(f"estimator={option}", *(("explorer=pgpe",) if option == "pgpe" else ())))
+        assert type(conf.estimator) is schema and conf.estimator.option == option
+        assert conf.estimator._target_.rsplit(".", 1)[-1].lower() == f"{option}estimator"
+
+
 def test_unknown_gym_id_is_rejected_before_building():
     line = config_error_line("env.id=Pendulm-v1", experiment="pendulum")
     assert line.startswith("env.id=Pendulm-v1: a registered gymnasium env id")

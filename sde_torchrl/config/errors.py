@@ -15,6 +15,7 @@ from typing import Any
 from hydra.errors import ConfigCompositionException, MissingConfigException, OverrideParseException
 from omegaconf.errors import OmegaConfBaseException
 
+from sde_torchrl.config.schemas.train import unknown_key
 from sde_torchrl.utils.checks import ArgumentError, show
 
 
@@ -28,10 +29,10 @@ def describe_error(error: BaseException) -> str | None:
     Examples:
         >>> from sde_torchrl.config.compose import compose
         >>> try:
-        ...     compose(["explorer.bogus=1"])
+        ...     compose(["estimator=gpomdp", "estimator.symmetric=true"])
         ... except ConfigCompositionException as error:
-        ...     describe_error(error)
-        'explorer.bogus: unknown key'
+        ...     describe_error(error)  # doctest: +ELLIPSIS
+        "estimator.symmetric: unknown key (estimator=gpomdp's options: max_grad_norm, ...)"
     """
     for err in _chain(error):
         if isinstance(err, ArgumentError):
@@ -73,7 +74,7 @@ def _omegaconf_line(err: Any) -> str:
     value = getattr(err, "value", None)  # not always set by OmegaConf
     msg = str(getattr(err, "msg", "") or err).splitlines()[0]
     if "not in struct" in msg or "Key '" in msg and "not in" in msg:
-        return f"{key}: unknown key"
+        return f"{key}: {unknown_key(key.rpartition('.')[0], getattr(err, 'object_type', None))}"
     expected = getattr(err, "ref_type", None) or getattr(err, "object_type_str", None)
     if value is None and "Value '" in msg:
         value = msg.split("Value '", 1)[1].split("'", 1)[0]

@@ -6,8 +6,8 @@ Every group option's YAML file names its schema first in its defaults list
 names ``/schema/config``.
 
 Examples:
-    >>> SCHEMAS["env/minimize"].__name__
-    'MinimizeEnvConf'
+    >>> SCHEMAS["estimator/enac"].option
+    'enac'
 """
 
 from __future__ import annotations
@@ -17,7 +17,12 @@ from omegaconf import OmegaConf
 
 from sde_torchrl.config.schemas.algorithms import A2CConf, PPOConf, SACConf
 from sde_torchrl.config.schemas.envs import BallCatchEnvConf, GymEnvConf, MinimizeEnvConf
-from sde_torchrl.config.schemas.estimators import EstimatorConf
+from sde_torchrl.config.schemas.estimators import (
+    ENACEstimatorConf,
+    GPOMDPEstimatorConf,
+    PGPEEstimatorConf,
+    ReinforceEstimatorConf,
+)
 from sde_torchrl.config.schemas.loggers import CSVLoggerConf, TensorboardLoggerConf, WandbLoggerConf
 from sde_torchrl.config.schemas.optimizers import AdamOptimizerConf, RMSpropOptimizerConf, SGDOptimizerConf
 from sde_torchrl.config.schemas.policy import (
@@ -44,7 +49,10 @@ SCHEMAS: dict[str, type] = {
     "algorithm/ppo": PPOConf,
     "algorithm/a2c": A2CConf,
     "algorithm/sac": SACConf,
-    "estimator/episodic": EstimatorConf,
+    "estimator/reinforce": ReinforceEstimatorConf,
+    "estimator/enac": ENACEstimatorConf,
+    "estimator/gpomdp": GPOMDPEstimatorConf,
+    "estimator/pgpe": PGPEEstimatorConf,
     "optimizer/sgd": SGDOptimizerConf,
     "optimizer/adam": AdamOptimizerConf,
     "optimizer/rmsprop": RMSpropOptimizerConf,
@@ -59,8 +67,8 @@ def register_configs() -> None:
 
     Examples:
         >>> register_configs()
-        >>> ConfigStore.instance().load("schema/env/minimize.yaml").node._target_
-        'sde_torchrl.envs.make_minimize_env'
+        >>> ConfigStore.instance().load("schema/estimator/pgpe.yaml").node._target_
+        'sde_torchrl.objectives.pgpe.PGPEEstimator'
     """
     store = ConfigStore.instance()
     for path, node in SCHEMAS.items():

@@ -18,7 +18,7 @@ One module a group, or a few groups that go together:
 
 - :mod:`~sde_torchrl.config.schemas.envs`: ``env``;
 - :mod:`~sde_torchrl.config.schemas.policy`: ``actor`` and ``explorer``;
-- :mod:`~sde_torchrl.config.schemas.estimators`: ``estimator``;
+- :mod:`~sde_torchrl.config.schemas.estimators`: ``estimator``, one schema per estimator;
 - :mod:`~sde_torchrl.config.schemas.algorithms`: ``algorithm`` (PPO, A2C, SAC);
 - :mod:`~sde_torchrl.config.schemas.optimizers`: ``optimizer``;
 - :mod:`~sde_torchrl.config.schemas.loggers`: ``logger``;

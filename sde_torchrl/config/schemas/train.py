@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from sde_torchrl.config.schemas.algorithms import A2CConf, SACConf
 from sde_torchrl.config.schemas.envs import GymEnvConf
+from sde_torchrl.config.schemas.estimators import GPOMDPEstimatorConf, PGPEEstimatorConf, ReinforceEstimatorConf
 from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf, MLPActorConf, PGPEExplorerConf
 from sde_torchrl.jobs.resources import check_memory
 from sde_torchrl.trainers.settings import TrainingSettings
@@ -198,7 +199,7 @@ def _check_pgpe(conf: TrainConf) -> None:
     ``episodes_per_update`` (pairs ``μ ± ε``); at least two draws (the batch-mean baseline of a
     single draw cancels its return: every gradient would be exactly 0)."""
     pgpe_explorer = isinstance(conf.explorer, PGPEExplorerConf)
-    pgpe_estimator = (getattr(conf.estimator, "_target_", "") or "").endswith("PGPEEstimator")
+    pgpe_estimator = isinstance(conf.estimator, PGPEEstimatorConf)
     if pgpe_explorer != pgpe_estimator:
         key = "estimator" if pgpe_explorer else "explorer"
         value = (getattr(getattr(conf, key), "_target_", "") or "").rsplit(".", 1)[-1]
@@ -226,17 +227,15 @@ def _check_can_learn(conf: TrainConf) -> None:
     solution it then takes is not zero, only noisy: a warning once the parameters are counted
     (:func:`sde_torchrl.config.build.warn_if_rank_deficient`).
     """
-    target = getattr(conf.estimator, "_target_", "") or ""
-    name = next((n for suffix, n in BASELINE_ESTIMATORS.items() if target.endswith(suffix)), None)
-    if name is not None and max(conf.episodes_per_update, conf.episode_queue) < 2:
+    if isinstance(conf.estimator, BASELINE_ESTIMATORS) and max(conf.episodes_per_update, conf.episode_queue) < 2:
         raise ArgumentError(
             "episodes_per_update", conf.episodes_per_update,
-            f"at least 2 with estimator={name} (or an episode_queue of 2 or more): over a single "
+            f"at least 2 with estimator={conf.estimator.option} (or an episode_queue of 2 or more): over a single "
             "episode the optimal baseline equals its return (GPOMDP's: each reward), so every gradient is exactly 0")
 
 
-#: Estimators whose optimal baseline cancels a single episode: ``_target_`` suffix → group option.
-BASELINE_ESTIMATORS = {"ReinforceEstimator": "reinforce", "GPOMDPEstimator": "gpomdp"}
+#: Estimators whose optimal baseline cancels a single episode's return.
+BASELINE_ESTIMATORS = (ReinforceEstimatorConf, GPOMDPEstimatorConf)
 
 
 def validate(cfg: DictConfig) -> TrainConf:
@@ -250,5 +249,27 @@ def validate(cfg: DictConfig) -> TrainConf:
 
     Raises:
         ArgumentError: for the first value that is not allowed.
+
+    Examples:
+        >>> from sde_torchrl.config.compose import compose
+        >>> validate(compose(["estimator=enac"])).estimator.option
+        'enac'
     """
     return OmegaConf.to_object(cfg)
+
+
+def unknown_key(group: str, schema: type | None) -> str:
+    """What to say of a key of ``group`` that its schema does not have: for a schema that is one
+    group option's own (its ``option``), that option and its keys.
+
+    Examples:
+        >>> unknown_key("estimator", PGPEEstimatorConf)
+        "unknown key (estimator=pgpe's options: max_grad_norm, max_grad_entry, episode_return, variance_weighted)"
+        >>> unknown_key("explorer", ExplorerConf)
+        'unknown key'
+    """
+    option = getattr(schema, "option", None)
+    if option is None:
+        return "unknown key"
+    keys = ", ".join(field.name for field in fields(schema) if field.name != "_target_")
+    return f"unknown key ({group}={option}'s options: {keys})"
