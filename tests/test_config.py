@@ -76,9 +76,22 @@ ESTIMATOR_OPTIONS = "max_grad_norm, max_grad_entry, episode_return, variance_wei
 @pytest.mark.parametrize("estimator", ["reinforce", "enac", "gpomdp", "pgpe"])
 def test_a_key_the_estimator_does_not_take_is_refused_naming_the_estimator_and_its_options(estimator):
     """``estimator.symmetric`` is ``explorer=pgpe``'s option: each estimator's own schema refuses it,
-    named, with the keys that estimator takes."""
+    named, with the keys that estimator takes, whether overridden or added with ``+``."""
     assert config_error_line(f"estimator={estimator}", "estimator.symmetric=true") == (
         f"estimator.symmetric: unknown key (estimator={estimator}'s options: {ESTIMATOR_OPTIONS})")
+    assert config_error_line(f"estimator={estimator}", "+estimator.symmetric=true") == (
+        f"estimator.symmetric=true: unknown key (estimator={estimator}'s options: {ESTIMATOR_OPTIONS})")
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    (("+explorer.bogus=1",), "explorer.bogus=1: unknown key"),
+    (("+optimizer.momentun=0.9",), "optimizer.momentun=0.9: unknown key"),
+    (("+epochs=3",), "epochs=3: unknown key"),
+])
+def test_a_key_added_with_plus_that_no_schema_has_is_refused(overrides, expected):
+    """``+group.key=value`` adds a key that Hydra would refuse without the ``+``; unchecked and
+    unused, it would still be recorded in the job's config."""
+    assert config_error_line(*overrides) == expected
 
 
 def test_each_estimator_option_has_its_own_schema_naming_its_estimator():

@@ -10,7 +10,7 @@ Examples:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, Optional
 
 from omegaconf import DictConfig, OmegaConf
@@ -248,14 +248,33 @@ def validate(cfg: DictConfig) -> TrainConf:
         The :class:`TrainConf`, its groups as their schemas' dataclasses, interpolations resolved.
 
     Raises:
-        ArgumentError: for the first value that is not allowed.
+        ArgumentError: for the first value that is not allowed, or a key that its schema does
+            not have.
 
     Examples:
         >>> from sde_torchrl.config.compose import compose
         >>> validate(compose(["estimator=enac"])).estimator.option
         'enac'
+        >>> validate(compose(["estimator=enac", "+estimator.symmetric=true"]))  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: estimator.symmetric=true: unknown key (estimator=enac's options: ...)
     """
+    _refuse_unknown_keys(cfg)
     return OmegaConf.to_object(cfg)
+
+
+def _refuse_unknown_keys(node: DictConfig, prefix: str = "") -> None:
+    """Refuses a key that the schema of its node does not have. Hydra refuses ``group.key=value``
+    for such a key, but ``+group.key=value`` adds it, and ``OmegaConf.to_object`` would keep it as
+    an attribute that nothing checks or reads."""
+    schema = OmegaConf.get_type(node)
+    names = {field.name for field in fields(schema)} if is_dataclass(schema) else None
+    for key, value in node.items_ex(resolve=False):
+        if names is not None and key not in names:
+            raise ArgumentError(f"{prefix}{key}", value, unknown_key(prefix.rstrip("."), schema))
+        if isinstance(value, DictConfig):
+            _refuse_unknown_keys(value, f"{prefix}{key}.")
 
 
 def unknown_key(group: str, schema: type | None) -> str:
