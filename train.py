@@ -51,8 +51,10 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 # Light imports only (no torch): a job locks its run directory before importing torch.
+from sde_torchrl.config.errors import describe_error
 from sde_torchrl.config.help import register_help_resolver
-from sde_torchrl.config.schemas import describe_error, register_resolvers, validate
+from sde_torchrl.config.registration import register_resolvers
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.trainers.interrupt import TrainingInterrupted, stop_requested
 from sde_torchrl.trainers.progress import progress_wanted

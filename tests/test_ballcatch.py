@@ -544,7 +544,7 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     from _helpers import compose_config, run_cli
 
     from sde_torchrl.config import build
-    from sde_torchrl.config import schemas as config
+    from sde_torchrl.config.schemas import envs as config
 
     assert config.ARM_MODELS == tuple(ARM_MODELS)
     cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=2",

@@ -9,7 +9,7 @@ import pytest
 from _helpers import compose_config
 
 from analysis.selection import ballcatch_tuning as tuning
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 
 
 @pytest.mark.parametrize("method", list(tuning.METHODS))

@@ -8,7 +8,8 @@ from importlib.util import find_spec
 import pytest
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli
 
-from sde_torchrl.config.schemas import describe_error, validate
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.utils.checks import ArgumentError
 
 
@@ -67,6 +68,43 @@ def config_error_line(*overrides: str, experiment: str = "minimize") -> str:
 ])
 def test_bad_value_gives_one_line_naming_key_value_and_allowed(overrides, expected):
     assert config_error_line(*overrides) == expected
+
+
+ESTIMATOR_OPTIONS = "max_grad_norm, max_grad_entry, episode_return, variance_weighted"
+
+
+@pytest.mark.parametrize("estimator", ["reinforce", "enac", "gpomdp", "pgpe"])
+def test_a_key_the_estimator_does_not_take_is_refused_naming_the_estimator_and_its_options(estimator):
+    """``estimator.symmetric`` is ``explorer=pgpe``'s option: each estimator's own schema refuses it,
+    named, with the keys that estimator takes, whether overridden or added with ``+``."""
+    assert config_error_line(f"estimator={estimator}", "estimator.symmetric=true") == (
+        f"estimator.symmetric: unknown key (estimator={estimator}'s options: {ESTIMATOR_OPTIONS})")
+    assert config_error_line(f"estimator={estimator}", "+estimator.symmetric=true") == (
+        f"estimator.symmetric=true: unknown key (estimator={estimator}'s options: {ESTIMATOR_OPTIONS})")
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    (("+explorer.bogus=1",), "explorer.bogus=1: unknown key"),
+    (("+optimizer.momentun=0.9",), "optimizer.momentun=0.9: unknown key"),
+    (("+epochs=3",), "epochs=3: unknown key"),
+])
+def test_a_key_added_with_plus_that_no_schema_has_is_refused(overrides, expected):
+    """``+group.key=value`` adds a key that Hydra would refuse without the ``+``; unchecked and
+    unused, it would still be recorded in the job's config."""
+    assert config_error_line(*overrides) == expected
+
+
+def test_each_estimator_option_has_its_own_schema_naming_its_estimator():
+    from sde_torchrl.config.compose import CONF_DIR
+    from sde_torchrl.config.registration import SCHEMAS
+
+    options = sorted(path.stem for path in (CONF_DIR / "estimator").glob("*.yaml"))
+    schemas = {path.split("/")[1]: schema for path, schema in SCHEMAS.items() if path.startswith("estimator/")}
+    assert sorted(schemas) == options
+    for option, schema in schemas.items():
+        conf = validate(compose_config(f"estimator={option}", *(("explorer=pgpe",) if option == "pgpe" else ())))
+        assert type(conf.estimator) is schema and conf.estimator.option == option
+        assert conf.estimator._target_.rsplit(".", 1)[-1].lower() == f"{option}estimator"
 
 
 def test_unknown_gym_id_is_rejected_before_building():
@@ -225,6 +263,6 @@ def test_checking_a_config_imports_no_torch():
     import subprocess
     import sys
 
-    code = ("import sys, sde_torchrl.config.schemas, sde_torchrl.utils.options; "
+    code = ("import sys, sde_torchrl.config.registration, sde_torchrl.config.errors, sde_torchrl.utils.options; "
             "assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -25,7 +25,7 @@ from tensordict import TensorDict
 
 from sde_torchrl import LinearActor, SDEParams, make_sde_actor
 from sde_torchrl.collectors.rollout import episode_matrix, noise_primer, tensor_rollout
-from sde_torchrl.config.schemas import TrainConf
+from sde_torchrl.config.schemas.train import TrainConf
 from sde_torchrl.envs.minimize import make_minimize_env
 from sde_torchrl.modules.actors import MLPActor
 from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal, sde_sample, sde_variance

@@ -233,7 +233,7 @@ def test_every_committed_run_directory_reads_as_finished():
 
 
 def test_a_logger_folder_cannot_take_the_name_of_a_file_the_job_writes():
-    from sde_torchrl.config.schemas import RUN_DIRECTORY_NAMES
+    from sde_torchrl.config.schemas.loggers import RUN_DIRECTORY_NAMES
     from sde_torchrl.jobs.checkpoint import PREVIOUS
     from sde_torchrl.jobs.run_dir import JOB_FILES
 

@@ -26,7 +26,7 @@ from tensordict import TensorDict
 import sde_torchrl
 import sde_torchrl.objectives.estimators
 from sde_torchrl import LinearActor, MLPActor, ReinforceEstimator, make_minimize_env
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.objectives.estimators import (
     EpisodeLogLikelihood,
     EpisodesError,

@@ -161,7 +161,7 @@ def test_bad_new_options_are_named(options, key):
 
 
 def test_explorer_config_takes_the_new_options():
-    from sde_torchrl.config.schemas import ExplorerConf
+    from sde_torchrl.config.schemas.policy import ExplorerConf
 
     conf = ExplorerConf(schedule="every_n_steps", every_n=4, rollout_steps=8, sharing="feature",
                         sigma_transform="exp")

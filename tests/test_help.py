@@ -11,7 +11,7 @@ import pytest
 from _helpers import REPO
 
 from sde_torchrl.config.help import GROUPS, option_names, setting_lines
-from sde_torchrl.config.schemas import TrainConf
+from sde_torchrl.config.schemas.train import TrainConf
 
 
 @pytest.fixture(scope="module")

@@ -31,7 +31,7 @@ from _helpers import (
 )
 
 from sde_torchrl.config.build import build_trainer
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.checkpoint import content_digest, load_checkpoint
 from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.jobs.run_dir import RunDirectory, read_summary

@@ -71,7 +71,7 @@ def test_every_sweep_requests_what_its_shards_are_estimated_to_use(sweep, launch
     from omegaconf import OmegaConf
 
     from sde_torchrl.config.compose import compose
-    from sde_torchrl.config.schemas import validate
+    from sde_torchrl.config.schemas.train import validate
     from sde_torchrl.jobs.resources import GB, estimate_memory, estimate_minutes
 
     overrides = [f"+experiment={sweep}", f"hydra/launcher={launcher}", "max_memory_gb=1000"]

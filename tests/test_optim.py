@@ -9,7 +9,8 @@ import pytest
 import torch
 from _helpers import Crash, build, compose_config, crash_at, read_rows
 
-from sde_torchrl.config.schemas import describe_error, validate
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.trainers.optim import LearningRateSchedule, lr_factor, make_optimizer
 
 OPTIONS = {

@@ -24,7 +24,7 @@ import sde_torchrl.modules.pgpe
 import sde_torchrl.objectives.pgpe
 from sde_torchrl import LinearActor, MLPActor, SDEParams, make_minimize_env, make_sde_actor
 from sde_torchrl.collectors.rollout import collect_episodes
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.envs.minimize import expected_linear_return
 from sde_torchrl.modules.pgpe import ParameterExplorer
 from sde_torchrl.objectives.estimators import EpisodeLogLikelihood, EpisodesError, episode_scores

@@ -14,15 +14,11 @@ from _helpers import compose_config, own_stderr_lines, read_rows, run_cli, summa
 from tensordict import TensorDict
 from test_checkpoint import rows_in, start_and_signal
 
-from sde_torchrl.config.schemas import (
-    A2CConf,
-    ExplorerConf,
-    GaussianExplorerConf,
-    PPOConf,
-    RMSpropOptimizerConf,
-    describe_error,
-    validate,
-)
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.algorithms import A2CConf, PPOConf
+from sde_torchrl.config.schemas.optimizers import RMSpropOptimizerConf
+from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.checkpoint import load_checkpoint
 from sde_torchrl.jobs.run_dir import read_finished_run
 

@@ -11,7 +11,8 @@ import time
 import pytest
 from _helpers import REPO, build, compose_config, own_stderr_lines, run_cli
 
-from sde_torchrl.config.schemas import describe_error, validate
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.resources import GB, estimate_memory, launcher_request
 from sde_torchrl.trainers import trainer as trainer_module
 

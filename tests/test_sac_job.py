@@ -14,7 +14,10 @@ import torch
 from _helpers import compose_config, own_stderr_lines, read_rows, run_cli, summary_without_wall
 from test_checkpoint import rows_in, start_and_signal
 
-from sde_torchrl.config.schemas import ExplorerConf, GaussianExplorerConf, SACConf, describe_error, validate
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.algorithms import SACConf
+from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.checkpoint import load_checkpoint
 from sde_torchrl.jobs.run_dir import read_finished_run
 

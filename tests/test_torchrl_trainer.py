@@ -91,7 +91,7 @@ def test_the_example_config_is_torchrl_s_but_for_its_two_sde_lines(tmp_path):
 def test_our_conf_and_torchrls_configs_compose_in_one_process(tmp_path):
     from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
     from sde_torchrl.config.compose import compose as compose_ours
-    from sde_torchrl.config.schemas import validate
+    from sde_torchrl.config.schemas.train import validate
 
     register_torchrl_configs()  # TorchRL's env/gym, optimizer/adam, logger/csv, ... are in the store
     ours = compose_ours(["algorithm=ppo", "env=gym", "algorithm.n_steps=8", "algorithm.batch_size=4", "updates=1",

@@ -41,7 +41,7 @@ from omegaconf import OmegaConf
 
 from sde_torchrl.config.build import build_trainer
 from sde_torchrl.config.compose import compose
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.envs.ballcatch.models import ARM_MODELS
 from sde_torchrl.envs.ballcatch.outcomes import catch_outcomes
 from sde_torchrl.jobs.checkpoint import config_differences, result_config

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from sde_torchrl.config.build import build_trainer
 from sde_torchrl.config.compose import compose
-from sde_torchrl.config.schemas import validate
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.trainers.summary import per_step_factor
 
 

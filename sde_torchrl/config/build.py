@@ -1,6 +1,6 @@
 """From a composed Hydra config to a ready :class:`~sde_torchrl.trainers.trainer.Trainer`.
 
-The config is checked and typed once (:func:`~sde_torchrl.config.schemas.validate`); its groups ``env``,
+The config is checked and typed once (:func:`~sde_torchrl.config.schemas.train.validate`); its groups ``env``,
 ``actor``, ``explorer``, ``estimator``, ``optimizer`` and ``logger`` each hold a ``_target_`` and its options.
 This module supplies what only the job knows (batch sizes, the number of runs, dimensions read
 off the env, per-run random streams) and wires the pieces.
@@ -19,7 +19,9 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import TransformedEnv
 
-from sde_torchrl.config.schemas import PGPEExplorerConf, SACConf, TrainConf, loop_settings, validate
+from sde_torchrl.config.schemas.algorithms import SACConf
+from sde_torchrl.config.schemas.policy import PGPEExplorerConf
+from sde_torchrl.config.schemas.train import TrainConf, loop_settings, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.jobs.heap import fix_mmap_threshold
 from sde_torchrl.jobs.resources import keeps_step_scores
@@ -71,7 +73,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
     Args:
         cfg: the composed config (see ``conf/config.yaml``), or the :class:`TrainConf` that
-            :func:`~sde_torchrl.config.schemas.validate` made of it.
+            :func:`~sde_torchrl.config.schemas.train.validate` made of it.
         out_dir: where the TorchRL logger writes (the run directory).
 
     Returns:
@@ -131,7 +133,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
     """Warns when ENAC's regression on ``[ψ, 1]`` has fewer episodes than unknowns.
 
-    Not refused, unlike REINFORCE on one episode (:class:`~sde_torchrl.config.schemas.TrainConf`): the
+    Not refused, unlike REINFORCE on one episode (:class:`~sde_torchrl.config.schemas.train.TrainConf`): the
     minimum-norm solution ENAC then takes interpolates the returns and is not zero, only noisy,
     and the parameter count is known only once the policy is built.
 

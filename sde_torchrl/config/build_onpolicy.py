@@ -28,7 +28,9 @@ from torchrl.modules import MLP, ValueOperator
 from torchrl.objectives.value import GAE
 
 from sde_torchrl.collectors.steps import StepCollector
-from sde_torchrl.config.schemas import A2CConf, ExplorerConf, GaussianExplorerConf, TrainConf
+from sde_torchrl.config.schemas.algorithms import A2CConf
+from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf
+from sde_torchrl.config.schemas.train import TrainConf
 from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.envs.vector import GymVectorEnv
 from sde_torchrl.modules.actors import LatentMLPActor, MLPActor
@@ -82,7 +84,7 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
     """Builds envs, policy, critic, loss, optimiser and logger of an ``algorithm=ppo`` or ``a2c`` job.
 
     Args:
-        conf: the checked config (:func:`~sde_torchrl.config.schemas.validate`).
+        conf: the checked config (:func:`~sde_torchrl.config.schemas.train.validate`).
         out_dir: where the TorchRL logger writes (the run directory).
 
     Returns:
@@ -90,7 +92,7 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
 
     Examples:
         >>> from sde_torchrl.config.compose import compose
-        >>> from sde_torchrl.config.schemas import validate
+        >>> from sde_torchrl.config.schemas.train import validate
         >>> conf = validate(compose(["algorithm=ppo", "env=gym", "algorithm.n_steps=8", "algorithm.batch_size=4",
         ...                          "updates=1", "eval_episodes=1", "env.episode_length=10", "logger=none"]))
         >>> trainer = build_onpolicy_trainer(conf)

@@ -24,7 +24,8 @@ from torchrl.envs import Compose, RewardSum, TransformedEnv
 
 from sde_torchrl.collectors.steps import StepCollector
 from sde_torchrl.config.build_onpolicy import make_env
-from sde_torchrl.config.schemas import ExplorerConf, TrainConf
+from sde_torchrl.config.schemas.policy import ExplorerConf
+from sde_torchrl.config.schemas.train import TrainConf
 from sde_torchrl.modules.sac_actor import make_sac_networks
 from sde_torchrl.modules.sde_actor import action_bounds
 from sde_torchrl.trainers.offpolicy import OffPolicySchedule, SACTrainer, UniformActions
@@ -48,7 +49,7 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
     """Builds envs, networks, loss, optimisers, replay buffer and logger of an ``algorithm=sac`` job.
 
     Args:
-        conf: the checked config (:func:`~sde_torchrl.config.schemas.validate`).
+        conf: the checked config (:func:`~sde_torchrl.config.schemas.train.validate`).
         out_dir: where the TorchRL logger writes (the run directory).
 
     Returns:
@@ -56,7 +57,7 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
 
     Examples:
         >>> from sde_torchrl.config.compose import compose
-        >>> from sde_torchrl.config.schemas import validate
+        >>> from sde_torchrl.config.schemas.train import validate
         >>> conf = validate(compose(["algorithm=sac", "env=gym", "algorithm.learning_starts=4",
         ...                          "algorithm.train_freq=4", "algorithm.batch_size=4", "updates=2",
         ...                          "eval_episodes=1", "env.episode_length=10", "logger=none"]))

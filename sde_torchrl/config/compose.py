@@ -15,7 +15,7 @@ from hydra import initialize_config_dir
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig
 
-from sde_torchrl.config.schemas import register_resolvers
+from sde_torchrl.config.registration import register_resolvers
 
 #: ``conf/`` beside the package: where a clone installed in editable mode keeps its config tree.
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"

@@ -1,6 +1,6 @@
 """What ``python train.py --help`` shows: the groups a user chooses from, each with its options
 as ``conf/`` holds them, and every top-level setting with its default and what it does (read
-from :class:`~sde_torchrl.config.schemas.TrainConf`'s docstring, so the two cannot drift).
+from :class:`~sde_torchrl.config.schemas.train.TrainConf`'s docstring, so the two cannot drift).
 
 The internal ``schema/*`` groups (the typed schemas behind the options) are left out; Hydra's own
 listing stays one flag away (``--hydra-help``).
@@ -16,7 +16,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from sde_torchrl.config.schemas import TrainConf
+from sde_torchrl.config.schemas.train import TrainConf
 
 #: The groups a user chooses from, in the order a job is put together, and what each chooses.
 GROUPS = {

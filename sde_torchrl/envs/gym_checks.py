@@ -1,6 +1,6 @@
 """What ``env=gym`` needs of a gymnasium env, checked with gymnasium alone (no torch).
 
-The config schema (:class:`~sde_torchrl.config.schemas.GymEnvConf`) runs :func:`check_gym_env` on a
+The config schema (:class:`~sde_torchrl.config.schemas.envs.GymEnvConf`) runs :func:`check_gym_env` on a
 registered id before anything is built, and :class:`~sde_torchrl.envs.gym.GymRunsEnv` runs
 :func:`check_spaces` and :func:`check_time_limit` on the env it builds (``"module:Env-v0"`` ids,
 Python callers). Both raise :class:`~sde_torchrl.utils.checks.ArgumentError` naming the config key, so

@@ -191,7 +191,7 @@ def keeps_step_scores(conf: Any) -> bool:
 
 
 def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
-    """The memory a job with config ``conf`` (a :class:`~sde_torchrl.config.schemas.TrainConf`) holds.
+    """The memory a job with config ``conf`` (a :class:`~sde_torchrl.config.schemas.train.TrainConf`) holds.
 
     Args:
         conf: the job's config (``runs``, ``episodes_per_update``, ``episode_queue``,

@@ -10,7 +10,7 @@ from sde_torchrl.utils.checks import ArgumentError, is_finite_number, multiple_o
 @dataclass(frozen=True)
 class TrainingSettings:
     """What one training job does: the one home of these fields' rules (the config's
-    :class:`~sde_torchrl.config.schemas.TrainConf` has them checked here).
+    :class:`~sde_torchrl.config.schemas.train.TrainConf` has them checked here).
 
     Attributes:
         updates: number of policy updates.
