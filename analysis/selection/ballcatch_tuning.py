@@ -61,14 +61,20 @@ CANDIDATES = {
     "C11": ("C7, σ̂₀ = e⁻⁴", lambda a: [*CANDIDATES["C7"][1](a), "explorer.init_param=-4"]),
     "C12": ("C7, scaled observation and a constant feature", lambda a: [*CANDIDATES["C7"][1](a),
                                                                        "env.observation=scaled"]),
+    "C13": ("C10, σ̂ fixed at e⁻³", lambda a: [*CANDIDATES["C10"][1](a), "explorer.learn_sigma=false"]),
 }
 #: the candidates that switch whether σ̂ is learned (fixed where the method's command learns it).
 SIGMA_SWITCHED = ("C9",)
 #: the candidates each round chooses among, in the order that breaks its last tie
-#: (learner_selection.md; rounds 2 and 3 added on 2026-12-03).
-ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)[:9], 3: ["C7", "C1", "C10", "C11", "C12"]}
-#: round → (tuning seed, runs per job, folder under the tuning directory).
-ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), 3: (3000, 16, "round3")}
+#: (learner_selection.md; rounds 2 and 3 added on 2026-12-03, round 4 on 2026-12-04).
+ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)[:9], 3: ["C7", "C1", "C10", "C11", "C12"],
+          4: ["C7", "C1", "C10", "C11", "C12", "C13"]}
+#: round → (tuning seed, runs per job, folder under the tuning directory); round 4 adds its
+#: candidate to round 3's jobs on the same seed.
+ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), 3: (3000, 16, "round3"), 4: (3000, 16, "round3")}
+#: candidates that are another candidate's job for the methods whose command fixes σ̂ (ENAC):
+#: C13 fixes σ̂ at e⁻³, which C10 already does there.
+SAME_WHERE_SIGMA_FIXED = {"C13": "C10"}
 
 
 def job_overrides(method: str, candidate: str, round_: int = 1) -> list[str]:
@@ -99,10 +105,24 @@ def jobs(out: Path, methods: list[str], candidates: list[str], round_: int = 1) 
         ['enac_sde/C1', 'enac_sde/C2']
         >>> [str(job.run_dir) for job in jobs(Path("tuning"), ["pgpe"], ["C7"], round_=3)]
         ['tuning/round3/pgpe/C7']
+        >>> [job.name for job in jobs(Path("tuning"), ["enac_sde", "pgpe"], ["C13"], round_=4)]
+        ['pgpe/C13']
     """
     folder = out / ROUND_JOBS[round_][2]
     return [TrainJob(f"{m}/{c}", tuple(job_overrides(m, c, round_)), folder / m / c)
-            for m in methods for c in candidates]
+            for m in methods for c in candidates if job_candidate(m, c) == c]
+
+
+def job_candidate(method: str, candidate: str) -> str:
+    """The candidate whose job stands for ``candidate`` in ``method``: itself, or for a method
+    whose command fixes σ̂ the candidate it equals there (``SAME_WHERE_SIGMA_FIXED``).
+
+    Examples:
+        >>> job_candidate("enac_sde", "C13"), job_candidate("reinforce_sde", "C13")
+        ('C10', 'C13')
+    """
+    learns_sigma = METHODS[method][3]
+    return candidate if learns_sigma else SAME_WHERE_SIGMA_FIXED.get(candidate, candidate)
 
 
 def final_evaluations(run_dir: Path) -> list[float] | None:
