@@ -67,13 +67,14 @@ def test_selection_counts_catches_then_mean_then_order():
 
 @pytest.mark.parametrize("method, experiment, round_", [
     ("reinforce_sde", "ballcatch", 3), ("reinforce_rex", "ballcatch_rex", 3),
-    ("enac_sde", "ballcatch_enac", 2), ("enac_rex", "ballcatch_enac_rex", 2), ("gpomdp_sde", "ballcatch_gpomdp", 2),
+    ("enac_sde", "ballcatch_enac", 3), ("enac_rex", "ballcatch_enac_rex", 3), ("gpomdp_sde", "ballcatch_gpomdp", 2),
     ("pgpe", "ballcatch_pgpe", 2),
 ])
 def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, round_):
     """+experiment=ballcatch (ballcatch_rex, ...) is the candidate docs/ballcatch/tuning.json chose
-    in the round whose rerun sweep is committed (REINFORCE + SDE and + REX: round 3's; the others:
-    round 2's, their reruns not committed yet), but for the tuning job's own seed, runs and bookkeeping."""
+    in the round whose rerun sweep is committed (REINFORCE and ENAC, each with SDE and REX: round
+    3's; the others: round 2's, their reruns not committed yet), but for the tuning job's own seed,
+    runs and bookkeeping."""
     from _helpers import REPO
     from omegaconf import OmegaConf
 
@@ -90,7 +91,8 @@ def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, roun
 
 
 @pytest.mark.parametrize("method, experiment", [("reinforce_sde", "ballcatch_sigma3_sweep"),
-                                                ("reinforce_rex", "ballcatch_rex_scaled_sweep")])
+                                                ("reinforce_rex", "ballcatch_rex_scaled_sweep"),
+                                                ("enac_sde", "ballcatch_enac_sigma3_sweep")])
 def test_the_rerun_sweep_is_round_three_s_choice_on_the_rules_seed(method, experiment):
     """The reported rerun at a method's round-3 choice: that candidate's job but on seed 3, in
     2 shards of 50 runs (learner_selection.md, round 3, "What follows")."""
