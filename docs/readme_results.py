@@ -1,8 +1,9 @@
 """The README's results summary, written from the result files the analysis scripts commit.
 
 The README holds a short table of the headline results between the lines ``<!-- results:start -->``
-and ``<!-- results:end -->``: one row per measure, one measure per cell (ours, the baseline's, the
-paper's where it states one), and a short legend under it. This script writes that block from
+and ``<!-- results:end -->``: one row per measure, one measure per cell (each method's value and its
+interval in their own columns, the paper's where it states one), and a one-line legend under it
+saying what each column is. This script writes that block from
 ``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
 (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_selected/fig6.json``,
 ``methods_selected/methods.json``, ``selected/fig5.json``), the quick start's run
@@ -29,12 +30,13 @@ README = DOCS.parent / "README.md"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
 NONE = "—"  # no such number (the paper's, or a baseline's)
+HEADER = ("result", "methods", "measure", "first", "95 % interval", "second", "95 % interval", "paper: first",
+          "paper: second")
 LEGEND = (
-    "A catch: a mean reward per step of at least −1.1 (a good catch: −1.0). *Reaching* a catch: some "
-    "evaluation during training did; *ending* with one: the last evaluation did; *final policies catching "
-    "on 20 episodes*: the final policy's mean over 20 fresh episodes did. Percentages are of runs, with "
-    "their 95 % Wilson interval; ratios carry a 95 % bootstrap interval over seeds; ± is the standard "
-    "deviation over seeds, their number in parentheses. —: no such number."
+    "*methods*: the two compared, first vs second; *first*, *second*: our value for each (a ratio or count "
+    "comparing the two is under *first*), its 95 % interval beside it (Wilson for a share of runs, bootstrap "
+    "over seeds for a ratio); *paper*: the paper's value for the same measure; a catch: a mean reward per step "
+    "of at least −1.1 (a good catch: −1.0); —: no such number."
 )
 
 
@@ -42,15 +44,30 @@ def _load(path: str) -> dict:
     return json.loads((DOCS / path).read_text())
 
 
-def _percent(explorer: dict, which: str = "best") -> str:
+def _share(explorer: dict, which: str = "best") -> tuple[str, str]:
+    """A share of runs at a catch and its Wilson interval: ``("24 %", "[14, 37]")``."""
     runs, count = explorer["runs"], explorer[which][CATCH]
     low, high = explorer[f"{which}_interval"][CATCH]
-    return f"{round(100 * count / runs)} % [{round(100 * low)}, {round(100 * high)}]"
+    return f"{round(100 * count / runs)} %", f"[{round(100 * low)}, {round(100 * high)}]"
 
 
-def _held(arm: dict, key: str) -> str:
+def _held(arm: dict, key: str) -> tuple[str, str]:
     low, high = arm[f"{key}_interval"]
-    return f"{round(100 * arm[key] / arm['runs'])} % [{round(100 * low)}, {round(100 * high)}]"
+    return f"{round(100 * arm[key] / arm['runs'])} %", f"[{round(100 * low)}, {round(100 * high)}]"
+
+
+def _ratio(ratio: dict) -> tuple[str, str]:
+    """A ratio over seeds and its bootstrap interval: ``("0.97×", "[0.91, 1.05]")``."""
+    return f"{ratio['estimate']:.2f}×", f"[{ratio['low']:.2f}, {ratio['high']:.2f}]"
+
+
+def _difference(difference: dict) -> tuple[str, str]:
+    return f"{difference['estimate']:+.1f}", f"[{difference['low']:+.1f}, {difference['high']:+.1f}]"
+
+
+def _mean_of(first: list[float], second: list[float]) -> str:
+    seeds = {len(first), len(second)}
+    return f"mean of {seeds.pop()} seeds each" if len(seeds) == 1 else f"mean of {len(first)} and {len(second)} seeds"
 
 
 def summary() -> str:
@@ -73,96 +90,91 @@ def summary() -> str:
     sac = _load("sac/bench_sac.json")["mountaincar"]
     zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]
     ours_zoo, zoo_ratio = zoo["sde_compiled_policy"], zoo["sde_compiled_policy_over_sb3"]
-    zoo_final = _interval(zoo_ratio["final"]) if "final" in zoo_ratio else \
-        f"{zoo_ratio['final_difference']['estimate']:+.1f} [{zoo_ratio['final_difference']['low']:+.1f}, " \
-        f"{zoo_ratio['final_difference']['high']:+.1f}] (difference)"
+    zoo_final = ("first ÷ second", *_ratio(zoo_ratio["final"])) if "final" in zoo_ratio else \
+        ("first − second", *_difference(zoo_ratio["final_difference"]))
 
-    def paper_percent(explorer: dict, level: str = CATCH) -> str:
+    def paper_share(explorer: dict, level: str = CATCH) -> str:
         return f"{explorer['paper'][level]} %" if level in explorer.get("paper", {}) else NONE
 
-    def mean_sd(values: list[float]) -> str:
-        return f"{statistics.mean(values):.0f} ± {statistics.stdev(values):.0f} ({len(values)})"
+    def mean(values: list[float]) -> str:
+        return f"{statistics.mean(values):.0f}"
+
+    def catches(name: str, page: str, methods: str, counts: tuple[dict, dict], measure: str, which: str,
+                paper: bool = False) -> tuple:
+        first, second = counts
+        runs = {first["runs"], second["runs"]}
+        each = f"{runs.pop()} each" if len(runs) == 1 else f"{first['runs']} and {second['runs']}"
+        return (name, page, methods, f"{measure}, of {each}", *_share(first, which), *_share(second, which),
+                paper_share(first) if paper else NONE, paper_share(second) if paper else NONE)
 
     table1_page, fig_page = "docs/reproduce/table1.md", "docs/reproduce/fig5_6.md"
     methods_page, ppo_page, sac_page = "docs/reproduce/methods.md", "docs/reproduce/ppo.md", "docs/reproduce/sac.md"
-    fig5_sel, fig6_sel = "Fig. 5, each explorer's selected learner", "Fig. 6, each explorer's selected learner"
-    rows = [  # (result, page, measure, ours, baseline, paper: ours, paper: baseline)
-        ("Table 1, toy task", table1_page, "episodes REX needs ÷ episodes SDE needs, lowest to highest of "
-         f"{len(table1)} settings", f"{min(ours):.1f}× to {max(ours):.1f}×", NONE,
-         f"{min(paper):.1f}× to {max(paper):.1f}×", NONE),
-        ("Table 1, toy task", table1_page, "settings where SDE is significantly faster",
-         f"{faster} of {len(table1)}", NONE, NONE, NONE),
-        ("Fig. 5, REINFORCE, paper's settings", fig_page,
-         f"runs reaching a catch ({fig5['sde']['runs']} each)", f"SDE {_percent(fig5['sde'])}",
-         f"REX {_percent(fig5['rex'])}", paper_percent(fig5["sde"]), paper_percent(fig5["rex"])),
-        ("Fig. 6, ENAC, paper's settings", fig_page, f"runs reaching a catch ({fig6['sde']['runs']} each)",
-         f"SDE {_percent(fig6['sde'])}", f"REX {_percent(fig6['rex'])}", paper_percent(fig6["sde"]),
-         paper_percent(fig6["rex"])),
+    reaching, ending = "runs reaching a catch in training", "runs whose last evaluation is a catch"
+    on_20 = "final policies catching over 20 new balls"
+    sde_rex, needs = "SDE vs REX", "episodes REX needs ÷ episodes SDE needs"
+    rows = [  # (result, page, methods, measure, first, its interval, second, its interval, paper: first, paper: second)
+        ("Table 1, toy task", table1_page, sde_rex, f"{needs}, lowest of {len(table1)} settings", f"{min(ours):.1f}×",
+         NONE, NONE, NONE, f"{min(paper):.1f}×", NONE),
+        ("Table 1, toy task", table1_page, sde_rex, f"{needs}, highest of {len(table1)} settings", f"{max(ours):.1f}×",
+         NONE, NONE, NONE, f"{max(paper):.1f}×", NONE),
+        ("Table 1, toy task", table1_page, sde_rex, "settings where SDE is significantly faster",
+         f"{faster} of {len(table1)}", NONE, NONE, NONE, NONE, NONE),
+        catches("Fig. 5, REINFORCE, paper's settings", fig_page, sde_rex, (fig5["sde"], fig5["rex"]), reaching, "best",
+                paper=True),
+        catches("Fig. 6, ENAC, paper's settings", fig_page, sde_rex, (fig6["sde"], fig6["rex"]), reaching, "best",
+                paper=True),
     ]
-    for name, counts in ((fig5_sel, fig5_selected), (fig6_sel, fig6_selected)):
-        runs = counts["sde"]["runs"]
-        rows += [
-            (name, fig_page, f"runs ending with a catch ({runs} each)", f"SDE {_percent(counts['sde'], 'final')}",
-             f"REX {_percent(counts['rex'], 'final')}", NONE, NONE),
-            (name, fig_page, "final policies catching on 20 episodes", f"SDE {_percent(counts['sde'], 'final_policy')}",
-             f"REX {_percent(counts['rex'], 'final_policy')}", NONE, NONE),
-            (name, fig_page, "runs reaching a catch", f"SDE {_percent(counts['sde'])}",
-             f"REX {_percent(counts['rex'])}", paper_percent(counts["sde"]), paper_percent(counts["rex"])),
-        ]
+    for name, counts in (("Fig. 5, each explorer's selected learner", fig5_selected),
+                         ("Fig. 6, each explorer's selected learner", fig6_selected)):
+        pair = (counts["sde"], counts["rex"])
+        rows += [catches(name, fig_page, sde_rex, pair, ending, "final"),
+                 catches(name, fig_page, sde_rex, pair, on_20, "final_policy"),
+                 catches(name, fig_page, sde_rex, pair, reaching, "best", paper=True)]
     held_name = "Fig. 5, the earlier selected learners, arm held level (a diagnostic)"
+    held_runs = f"of {held['sde']['runs']} each" if held["sde"]["runs"] == held["rex"]["runs"] else \
+        f"of {held['sde']['runs']} and {held['rex']['runs']}"
     rows += [
-        (held_name, fig_page, f"final policies catching on 20 episodes ({held['sde']['runs']} each)",
-         f"SDE {_held(held['sde'], 'catches')}", f"REX {_held(held['rex'], 'catches')}",
-         f"{paper_percent(fig5_selected['sde'])} reach one in training", NONE),
-        (held_name, fig_page, "final policies making a good catch on 20 episodes",
-         f"SDE {_held(held['sde'], 'good_catches')}", f"REX {_held(held['rex'], 'good_catches')}",
-         f"{paper_percent(fig5_selected['sde'], '-1.0')} reach one in training", NONE),
+        (held_name, fig_page, sde_rex, f"{on_20}, {held_runs}", *_held(held["sde"], "catches"),
+         *_held(held["rex"], "catches"), NONE, NONE),
+        (held_name, fig_page, sde_rex, f"final policies making a good catch over 20 new balls, {held_runs}",
+         *_held(held["sde"], "good_catches"), *_held(held["rex"], "good_catches"), NONE, NONE),
     ]
+    seed_4242 = "`+experiment=ballcatch`, seed 4242"
     rows += [
-        ("`+experiment=ballcatch`, seed 4242", fig_page, f"runs ending with a catch ({selected['runs']})",
-         f"SDE {_percent(selected, 'final')}", NONE, NONE, NONE),
-        ("`+experiment=ballcatch`, seed 4242", fig_page, "runs reaching a catch", f"SDE {_percent(selected)}", NONE,
-         paper_percent(selected), NONE),
-        ("`+experiment=ballcatch`, the quick start's seed 0", fig_page, "final evaluation (mean reward per step)",
-         f"SDE {quick_start:.2f}", NONE, NONE, NONE),
-        ("Fig. 5's paper settings, other methods", methods_page,
-         f"runs reaching a catch ({methods['pgpe']['runs']} each)", f"PGPE {_percent(methods['pgpe'])}",
-         f"SDE {_percent(methods['sde'])}", NONE, NONE),
-        ("Fig. 5's paper settings, other methods", methods_page, "runs reaching a catch",
-         f"GPOMDP + SDE {_percent(methods['sde+gpomdp'])}", f"SDE {_percent(methods['sde'])}", NONE, NONE),
+        (seed_4242, fig_page, "SDE", f"{ending}, of {selected['runs']}", *_share(selected, "final"), NONE, NONE,
+         NONE, NONE),
+        (seed_4242, fig_page, "SDE", f"{reaching}, of {selected['runs']}", *_share(selected), NONE, NONE,
+         paper_share(selected), NONE),
+        ("`+experiment=ballcatch`, the quick start's seed 0", fig_page, "SDE",
+         "final evaluation, mean reward per step", f"{quick_start:.2f}", NONE, NONE, NONE, NONE, NONE),
+        catches("Fig. 5's paper settings, other methods", methods_page, "PGPE vs SDE",
+                (methods["pgpe"], methods["sde"]), reaching, "best"),
+        catches("Fig. 5's paper settings, other methods", methods_page, "GPOMDP + SDE vs SDE",
+                (methods["sde+gpomdp"], methods["sde"]), reaching, "best"),
     ]
-    both = {pgpe_selected["runs"], gpomdp_selected["runs"]}
-    each = f"{both.pop()} each" if len(both) == 1 else f"PGPE {pgpe_selected['runs']}, GPOMDP {gpomdp_selected['runs']}"
-    for measure, which in ((f"runs ending with a catch ({each})", "final"),
-                           ("final policies catching on 20 episodes", "final_policy"),
-                           ("runs reaching a catch", "best")):
-        rows.append(("Other methods at their selected learners", methods_page, measure,
-                     f"PGPE {_percent(pgpe_selected, which)}", f"GPOMDP + SDE {_percent(gpomdp_selected, which)}",
-                     NONE, NONE))
+    for measure, which in ((ending, "final"), (on_20, "final_policy"), (reaching, "best")):
+        rows.append(catches("Other methods at their selected learners", methods_page, "PGPE vs GPOMDP + SDE",
+                            (pgpe_selected, gpomdp_selected), measure, which))
+    ppo_seeds = _mean_of(ppo["sde"]["final"], ppo["sb3"]["final"])
+    zoo_name = f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps"
+    zoo_seeds = _mean_of(ours_zoo["final"], zoo["sb3"]["final"])
     rows += [
-        ("PPO, HalfCheetahBullet", ppo_page, "final return, mean ± sd (seeds)", f"SDE {mean_sd(ppo['sde']['final'])}",
-         f"SB3 gSDE {mean_sd(ppo['sb3']['final'])}", NONE, NONE),
-        ("PPO, HalfCheetahBullet", ppo_page, "final return, ours ÷ SB3's", _interval(ppo["sde_over_sb3"]["final"]),
-         NONE, NONE, NONE),
-        (f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps", sac_page,
-         "final deterministic return, mean ± sd (seeds)", f"SDE {mean_sd(ours_zoo['final'])}",
-         f"SB3 gSDE {mean_sd(zoo['sb3']['final'])}", NONE, NONE),
-        (f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps", sac_page,
-         "final deterministic return, ours ÷ SB3's", zoo_final, NONE, NONE, NONE),
-        (f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps", sac_page,
-         "env steps per second, ours ÷ SB3's", _interval(zoo_ratio["speed"]), NONE, NONE, NONE),
-        (f"SAC, MountainCarContinuous, {sac['sde']['steps']:,} steps", sac_page,
-         "late training return, ours ÷ SB3's", _interval(sac["sde_over_sb3"]["late"]), NONE, NONE, NONE),
+        ("PPO, HalfCheetahBullet", ppo_page, "SDE vs SB3 gSDE", f"final return, {ppo_seeds}", mean(ppo["sde"]["final"]),
+         NONE, mean(ppo["sb3"]["final"]), NONE, NONE, NONE),
+        ("PPO, HalfCheetahBullet", ppo_page, "SDE vs SB3 gSDE", "final return, first ÷ second",
+         *_ratio(ppo["sde_over_sb3"]["final"]), NONE, NONE, NONE, NONE),
+        (zoo_name, sac_page, "SDE vs SB3 gSDE", f"final deterministic return, {zoo_seeds}", mean(ours_zoo["final"]),
+         NONE, mean(zoo["sb3"]["final"]), NONE, NONE, NONE),
+        (zoo_name, sac_page, "SDE vs SB3 gSDE", f"final deterministic return, {zoo_final[0]}", *zoo_final[1:],
+         NONE, NONE, NONE, NONE),
+        (zoo_name, sac_page, "SDE vs SB3 gSDE", "env steps per second, first ÷ second", *_ratio(zoo_ratio["speed"]),
+         NONE, NONE, NONE, NONE),
+        (f"SAC, MountainCarContinuous, {sac['sde']['steps']:,} steps", sac_page, "SDE vs SB3 gSDE",
+         "late training return, first ÷ second", *_ratio(sac["sde_over_sb3"]["late"]), NONE, NONE, NONE, NONE),
     ]
-    lines = ["| result | measure | ours | baseline | paper: ours | paper: baseline |",
-             "| --- | --- | --- | --- | --- | --- |"]
-    lines += [f"| [{result}]({page}) | {measure} | {value} | {baseline} | {theirs} | {their_baseline} |"
-              for result, page, measure, value, baseline, theirs, their_baseline in rows]
+    lines = ["| " + " | ".join(HEADER) + " |", "| " + " | ".join("---" for _ in HEADER) + " |"]
+    lines += [f"| [{result}]({page}) | " + " | ".join(cells) + " |" for result, page, *cells in rows]
     return "\n".join(lines) + "\n\n" + LEGEND + "\n"
-
-
-def _interval(ratio: dict) -> str:
-    return f"{ratio['estimate']:.2f}× [{ratio['low']:.2f}, {ratio['high']:.2f}]"
 
 
 def replaced(text: str) -> str:

@@ -219,7 +219,7 @@ def test_sigterm_without_periodic_checkpoints_loses_nothing(tmp_path):
 
 def test_the_previous_checkpoint_is_a_copy_never_a_hard_link(tmp_path):
     """A job killed between keeping the previous checkpoint and renaming the new one in must not
-    leave both names on one file (issue 38 item 8): damaging one would damage both."""
+    leave both names on one file: damaging one would damage both."""
     from sde_torchrl.jobs.checkpoint import CHECKPOINT, PREVIOUS, keep_previous
 
     build("updates=3").train(tmp_path, checkpoint_period=1)
@@ -233,7 +233,7 @@ def test_the_previous_checkpoint_is_a_copy_never_a_hard_link(tmp_path):
 @pytest.mark.parametrize("multirun", [False, True])
 @pytest.mark.e2e
 def test_the_resume_line_pastes_back_as_it_is_printed(tmp_path, multirun):
-    """Issue 38 item 8: a path with a space is quoted for the shell, and a job of a multirun names
+    """A path with a space is quoted for the shell, and a job of a multirun names
     its sweep's directory (hydra.sweep.dir), not its own; the printed override, pasted back into
     the same command, resumes the job to its end."""
     import shlex

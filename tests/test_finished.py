@@ -1,7 +1,7 @@
-"""A finished run is final (issue 38): rerunning its command on its directory, with or without
+"""A finished run is final: rerunning its command on its directory, with or without
 its checkpoint, changes nothing; the reader checks what the job checks; sweep readers find jobs by
-their job record and refuse a sweep with a job that is not finished; and the issue's smaller
-items (run directories that cannot be made, a full disk while closing ``metrics.csv``)."""
+their job record and refuse a sweep with a job that is not finished; and the smaller
+cases around it (run directories that cannot be made, a full disk while closing ``metrics.csv``)."""
 
 from __future__ import annotations
 
@@ -242,7 +242,7 @@ def test_a_logger_folder_cannot_take_the_name_of_a_file_the_job_writes():
 
 @pytest.mark.parametrize("kind", ["dangling link", "link loop", "below a file"])
 def test_a_run_directory_that_cannot_be_made_is_a_config_error_in_one_line(tmp_path, kind):
-    """Issue 38 item 7: exit 2 and one line naming the path, instead of exit 1 with a raw OSError."""
+    """Exit 2 and one line naming the path, instead of exit 1 with a raw OSError."""
     (tmp_path / "file").write_text("x\n")
     path = {"dangling link": tmp_path / "dangling", "link loop": tmp_path / "loop",
             "below a file": tmp_path / "file" / "run"}[kind]
@@ -257,7 +257,7 @@ def test_a_run_directory_that_cannot_be_made_is_a_config_error_in_one_line(tmp_p
 
 def test_a_full_disk_while_closing_metrics_is_named_not_a_bare_os_error(tmp_path):
     """Rows left in the buffer by a full disk fail again when the file is closed: that second
-    ENOSPC must not replace the named DiskFullError (issue 38 item 8)."""
+    ENOSPC must not replace the named DiskFullError."""
     import subprocess as sp
 
     import torch

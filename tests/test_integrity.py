@@ -1,4 +1,4 @@
-"""Nothing lost, nothing silently wrong (issue 15): the run-directory lock, damaged files, the
+"""Nothing lost, nothing silently wrong: the run-directory lock, damaged files, the
 evaluation guard, strict summaries, logger CSV files and configurations that cannot learn."""
 
 from __future__ import annotations

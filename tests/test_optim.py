@@ -1,4 +1,4 @@
-"""The optimiser group (issue 22, item 1): eq. 1 by default, momentum and Adam, learning-rate
+"""The optimiser group: eq. 1 by default, momentum and Adam, learning-rate
 schedules; stacked runs stay independent and a resumed job steps as an uninterrupted one."""
 
 from __future__ import annotations

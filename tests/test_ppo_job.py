@@ -1,6 +1,6 @@
 """PPO and A2C from the command line (``algorithm=ppo|a2c``): the experiments compose, a short job
 writes its run directory, a SIGTERM then the same command equals an uninterrupted job, bad values
-are one line and exit 2 naming the key (issue 39, item 1)."""
+are one line and exit 2 naming the key."""
 
 from __future__ import annotations
 

@@ -60,19 +60,27 @@ def test_the_results_check_fails_on_a_changed_figure(monkeypatch, tmp_path):
 
 
 def _packed_cells(block: str) -> list[str]:
-    """The cells of the results table's rows that hold more than one measure (two intervals, or a list)."""
+    """The cells of the results table's rows that hold more than one measure: two intervals, a value
+    and its interval, a list, a range or a spread."""
     rows = [line for line in block.splitlines() if line.startswith("| ") and "---" not in line][1:]
     cells = [cell.strip() for row in rows for cell in row.strip("|").split(" | ")]
-    return [cell for cell in cells if cell.count("[") - cell.count("](") > 1 or ";" in cell or " / " in cell]
+    unlinked = {cell: re.sub(r"\[[^]]*\]\([^)]*\)", "", cell) for cell in cells}  # a link's text is no interval
+    return [cell for cell, text in unlinked.items() if text.count("[") > 1 or re.search(r"\d.*\[|;| / |±| to \d", text)]
 
 
 def test_each_cell_of_the_results_table_holds_one_measure_and_a_legend_follows():
     text = README.read_text()
     block = text[text.index(readme_results.START):text.index(readme_results.END)]
     assert not _packed_cells(block), _packed_cells(block)
-    assert readme_results.LEGEND in block.split("\n\n", 1)[1], "no legend under the results table"
-    packed = "| [x](p.md) | runs | SDE 24 % [14, 37], REX 2 % [0, 10] | — | — | — |"
-    assert _packed_cells(f"| a | b | c | d | e | f |\n{packed}\n") == ["SDE 24 % [14, 37], REX 2 % [0, 10]"]
+    header = block.splitlines()[1]
+    assert header == "| " + " | ".join(readme_results.HEADER) + " |"
+    legend = block.split("\n\n", 1)[1].strip()
+    assert legend == readme_results.LEGEND and "\n" not in legend, "no one-line legend under the results table"
+    for column in ("methods", "first", "second", "paper", "interval"):
+        assert column in legend, f"the legend does not say what {column!r} is"
+    for packed in ("SDE 24 % [14, 37], REX 2 % [0, 10]", "24 % [14, 37]", "2256 ± 167 (5)", "4.7× to 20.4×"):
+        assert _packed_cells(f"| a | b |\n| [x](p.md) | {packed} |\n") == [packed], packed
+    assert _packed_cells("| a | b | c |\n| [Fig. 5](p.md) | 24 % | [14, 37] |\n") == []
 
 
 def test_no_hand_typed_result_table_outside_the_generated_block():

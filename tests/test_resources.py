@@ -1,4 +1,4 @@
-"""Limits before work (issue 26, item 3): a job's memory is estimated from its sizes and a job
+"""Limits before work: a job's memory is estimated from its sizes and a job
 that cannot fit is refused at once, naming the estimate and the setting; a slow first update
 says what it is doing."""
 
@@ -82,7 +82,7 @@ def test_the_guides_memory_figures_are_the_estimates_and_the_measurements():
     assert shard and (int(shard[1]), int(shard[2])) == (request["mem_gb"], request["timeout_min"])
 
 
-# ------------------------------------------------ issue 38, item 6: the actor and every size setting
+# ------------------------------------------------ the actor and every size setting
 
 #: Max RSS (``/usr/bin/time -f %M``) of ``+experiment=minimize actor=mlp ... updates=2 eval_period=0``
 #: on this machine, GB.

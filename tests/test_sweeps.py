@@ -38,7 +38,7 @@ def test_joblib_shards_equal_one_process(tmp_path):
 
 
 def test_a_joblib_sweep_reports_each_job_s_failure_and_exits_non_zero(tmp_path):
-    """Jobs run in joblib's worker processes report back to the sweep's parent (issue 38 item 4):
+    """Jobs run in joblib's worker processes report back to the sweep's parent:
     a non-finite job (exit 1), a job whose directory is in use (exit 3), a finished job (its line)."""
     from _helpers import own_stderr_lines, run_cli
 
@@ -81,7 +81,7 @@ def _alive(pid: int) -> bool:
 
 
 def test_sigterm_to_a_joblib_sweep_checkpoints_its_jobs_and_leaves_no_orphan(tmp_path):
-    """Issue 38 item 5: SIGTERM to the parent of a real joblib sweep (two workers, three jobs)
+    """SIGTERM to the parent of a real joblib sweep (two workers, three jobs)
     reaches the running jobs, which checkpoint (a job that had not started does not start; one
     that was being built checkpoints after its first update); the parent exits 143 with each
     stopped job's resume line; no worker lives on or holds a run directory; the same command
