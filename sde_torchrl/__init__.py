@@ -24,6 +24,7 @@ _LAZY = {
     "BallCatchEnv": "sde_torchrl.envs.ballcatch.gym_env",
     "BatchedBallCatchEnv": "sde_torchrl.envs.ballcatch.batched",
     **dict.fromkeys(("catch_level", "catch_outcomes"), "sde_torchrl.envs.ballcatch.outcomes"),
+    "nonfinite_policy": "sde_torchrl.utils.nonfinite",
 }
 
 
@@ -60,4 +61,5 @@ __all__ = [
     "expln_inverse",
     "make_minimize_env",
     "make_sde_actor",
+    "nonfinite_policy",
 ]

@@ -19,6 +19,7 @@ from sde_torchrl import (
     SDEActor,
     SDEParams,
     make_minimize_env,
+    nonfinite_policy,
 )
 from sde_torchrl.collectors.rollout import collect_episodes
 from sde_torchrl.objectives.estimators import (
@@ -62,7 +63,7 @@ def test_non_finite_input_names_the_key_the_episodes_and_the_fix(estimator_cls, 
         estimator_cls(policy)(episodes)
     message = str(info.value)
     assert message.startswith(f"episodes key {key!r}: NaN/inf in run 1 episode 2, run 1 episode 4;"), message
-    assert "allow_nonfinite=True" in message and info.value.key == key
+    assert 'with sde_torchrl.nonfinite_policy("guarded"):' in message and info.value.key == key
     assert isinstance(info.value, NonFiniteInputError) and isinstance(info.value, ValueError)
     assert "MKL" not in capfd.readouterr().out  # ENAC never reached lstsq
 
@@ -98,12 +99,13 @@ def test_finite_input_whose_scores_overflow_names_the_parameter():
 
 
 @pytest.mark.parametrize("estimator_cls", ESTIMATORS)
-def test_allow_nonfinite_gives_nan_for_the_runs_concerned_only(estimator_cls, capfd):
+def test_guarded_policy_gives_nan_for_the_runs_concerned_only(estimator_cls, capfd):
     policy = _policy()
     episodes = _episodes(policy)
     clean = estimator_cls(policy)(episodes)["gradient"]
     episodes["observation"][1, 2, 3] = float("nan")
-    gradient = estimator_cls(policy, allow_nonfinite=True)(episodes)["gradient"]
+    with nonfinite_policy("guarded"):
+        gradient = estimator_cls(policy)(episodes)["gradient"]
     assert torch.isnan(gradient[1]).all()
     if estimator_cls is ENACEstimator:  # runs are solved independently
         torch.testing.assert_close(gradient[0], clean[0], rtol=0, atol=0)
@@ -297,8 +299,8 @@ def test_minimize_env_refuses_non_finite_actions_naming_runs_and_episodes(runs, 
         env.step(td)
     with pytest.raises(NonFiniteInputError, match=rf"^action: NaN/inf in {entry};"):
         env.transition(td["observation"], td["action"])
-    env.allow_nonfinite = True
-    assert not torch.isfinite(env.step(td)["next", "observation"]).all()
+    with nonfinite_policy("guarded"):
+        assert not torch.isfinite(env.step(td)["next", "observation"]).all()
 
 
 

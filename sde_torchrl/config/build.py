@@ -17,7 +17,6 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictSequential
-from torchrl.envs import TransformedEnv
 
 from sde_torchrl.config.schemas.algorithms import SACConf
 from sde_torchrl.config.schemas.policy import PGPEExplorerConf
@@ -62,9 +61,6 @@ def build_env(conf: TrainConf, episodes: int, stream: str) -> Any:
     env = instantiate(conf.env, episodes=episodes, runs=conf.runs, first_run=conf.first_run, stream=stream,
                       device=conf.device)
     env.set_seed(conf.seed)
-    base = env.base_env if isinstance(env, TransformedEnv) else env
-    if hasattr(base, "allow_nonfinite"):  # MinimizeEnv: the trainer's FiniteGuard names a diverged run
-        base.allow_nonfinite = True
     return env
 
 
@@ -118,9 +114,9 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     env.append_transform(explorer.make_tensordict_primer())
     eval_env.append_transform(explorer.make_tensordict_primer())
 
-    # The trainer's FiniteGuard checks returns, scores and gradients itself and names the update:
-    # the estimator's own non-finite checks (for direct Python use) would only pre-empt it.
-    estimator = instantiate(conf.estimator, policy=policy, allow_nonfinite=True)
+    # The trainer collects and updates under the non-finite policy "guarded" (its FiniteGuard names
+    # the update): the estimator and the env need no option for it (sde_torchrl.utils.nonfinite).
+    estimator = instantiate(conf.estimator, policy=policy)
     warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
     optimizer, lr_schedule = make_optimizer(policy.parameters(), conf.lr, asdict(conf.optimizer), conf.updates)
     logger = None

@@ -15,7 +15,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TransformedEnv
 
-from sde_torchrl.utils.checks import ArgumentError, finite, finite_entries, one_of, positive_int
+from sde_torchrl.utils.checks import ArgumentError, finite, one_of, positive_int
+from sde_torchrl.utils.nonfinite import GUARDED_FIX, check_finite
 from sde_torchrl.utils.options import REWARD_STATES
 from sde_torchrl.utils.rng import RunStreams
 
@@ -45,10 +46,6 @@ class MinimizeEnv(EnvBase):
         first_run: global index of the first run (for seeding shards of a sweep).
         stream: random stream name, ``"env"`` for training or ``"eval_env"`` for evaluation.
         seed: seed applied at construction (``None``: seed 0; call :meth:`set_seed` to change).
-        allow_nonfinite: step NaN/infinite actions through (the states and rewards become
-            non-finite) instead of raising :class:`~sde_torchrl.utils.checks.NonFiniteInputError`.
-            The trainer sets it: its :class:`~sde_torchrl.trainers.guard.FiniteGuard` checks the
-            returns and names the update.
         device: where the states, actions and rewards live (the random draws are made on the
             CPU by the runs' streams and moved, so a seed gives the same noise on every device).
 
@@ -67,7 +64,7 @@ class MinimizeEnv(EnvBase):
         self, episodes: int = 10, *, dim: int = 1, x0: float | Sequence[float] = 5.0,
         x0_spread: float = 0.0, step_size: float = 0.1, noise_std: float = 0.5, reward_state: str = "noisy",
         runs: int | None = None, first_run: int = 0, stream: str = "env", seed: int | None = None,
-        allow_nonfinite: bool = False, device: torch.device | str = "cpu",
+        device: torch.device | str = "cpu",
     ) -> None:
         positive_int("episodes", episodes)
         positive_int("dim", dim)
@@ -82,7 +79,6 @@ class MinimizeEnv(EnvBase):
         batch = (episodes,) if runs is None else (runs, episodes)
         super().__init__(batch_size=torch.Size(batch), device=device)
         self.dim, self.runs, self.first_run, self.stream = dim, runs, first_run, stream
-        self.allow_nonfinite = allow_nonfinite
         self.x0 = torch.as_tensor(x0, dtype=torch.float32).expand(dim).clone().to(self.device)
         self.x0_spread, self.step_size, self.noise_std = float(x0_spread), float(step_size), float(noise_std)
         self.observation_spec = Composite(
@@ -122,15 +118,16 @@ class MinimizeEnv(EnvBase):
 
         Raises:
             ValueError: ``u`` is not shaped like ``x``.
-            NonFiniteInputError: ``u`` holds NaN or infinity (unless ``allow_nonfinite``),
-                naming the runs and episodes.
+            NonFiniteInputError: ``u`` holds NaN or infinity, naming the runs and episodes
+                (under the non-finite policy ``"raise"``, the default; under ``"guarded"``, the
+                trainer's, the states and rewards become non-finite and its guard names the
+                update: :mod:`sde_torchrl.utils.nonfinite`).
         """
         if u.shape != x.shape:
             raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
-        if not self.allow_nonfinite:
-            finite_entries("action", u, ("episode",) if self.runs is None else ("run", "episode"),
-                           "the policy produced them (a diverged policy: lower the learning rate or bound the "
-                           "gradient with max_grad_norm); pass allow_nonfinite=True to step them through")
+        check_finite("action", u, ("episode",) if self.runs is None else ("run", "episode"),
+                     "the policy produced them (a diverged policy: lower the learning rate or bound the "
+                     f"gradient with max_grad_norm); {GUARDED_FIX}")
         successor = x + self.step_size * u
         x_next = successor + self.noise_std * self._draw("normal", tuple(x.shape))
         scored = successor if self.reward_state == "noise_free" else x_next

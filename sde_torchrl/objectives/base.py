@@ -162,8 +162,11 @@ class GradientEstimator(LossModule):
             (:func:`rescale_largest_entry`, the authors' PyBrain learner's 1000); ``None``: off.
         episode_return: ``"mean"`` (the paper's text, section 2.1) or ``"sum"`` (the authors'
             PyBrain REINFORCE) of each episode's rewards (:func:`episode_returns`).
-        allow_nonfinite: let NaN/infinity in the episodes and estimates through instead of
-            raising :class:`NonFiniteEpisodesError` (the trainer's guard checks them itself).
+
+    NaN or infinity in the episodes, scores or gradient raise :class:`NonFiniteEpisodesError`
+    under the non-finite policy ``"raise"`` (the default) and give NaN estimates for the runs
+    concerned under ``"guarded"`` (the trainer's, whose guard checks them:
+    :mod:`sde_torchrl.utils.nonfinite`).
 
     Raises:
         ValueError: an option is not allowed.
@@ -172,14 +175,13 @@ class GradientEstimator(LossModule):
     tensor_keys: object
 
     def __init__(self, max_grad_norm: float | None = None, max_grad_entry: float | None = None,
-                 episode_return: str = "mean", allow_nonfinite: bool = False) -> None:
+                 episode_return: str = "mean") -> None:
         super().__init__()
         for name, bound in (("max_grad_norm", max_grad_norm), ("max_grad_entry", max_grad_entry)):
             if bound is not None and not bound > 0:
                 raise ValueError(f"{name} must be > 0 or None, got {bound!r}")
         one_of("episode_return", episode_return, EPISODE_RETURNS)
         self.max_grad_norm, self.max_grad_entry, self.episode_return = max_grad_norm, max_grad_entry, episode_return
-        self.allow_nonfinite = allow_nonfinite
 
     def learnable_parameters(self) -> dict[str, nn.Parameter]:
         """The parameters the gradient covers, in the order of its entries."""

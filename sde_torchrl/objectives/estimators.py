@@ -15,6 +15,7 @@ key and the fix, instead of a reshape error or a NaN gradient.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 from tensordict import TensorDictBase
@@ -32,7 +33,8 @@ from sde_torchrl.objectives.base import (
     NonFiniteEpisodesError,
     check_rewards_runs_and_inputs,
 )
-from sde_torchrl.utils.checks import batch_entries, one_of
+from sde_torchrl.utils.checks import one_of
+from sde_torchrl.utils.nonfinite import GUARDED_FIX, check_finite
 from sde_torchrl.utils.options import EPISODE_RETURNS
 
 #: The expected policy, as the errors name it.
@@ -295,17 +297,16 @@ class EpisodicEstimator(GradientEstimator):
         variance_weighted: the authors' "auto-alpha" scores: each action element's
             log-likelihood weighted by its constant variance ``σ_j²`` (see
             :class:`EpisodeLogLikelihood`).
-        allow_nonfinite: let NaN/infinity in the episodes, scores and gradient through (the
-            estimate is then NaN for the runs concerned) instead of raising
-            :class:`NonFiniteEpisodesError`. The trainer sets it: its
-            :class:`~sde_torchrl.trainers.guard.FiniteGuard` checks the same values and names the update.
 
     Input contract (:meth:`check_episodes`, at every forward pass): episodes shaped
     ``[*runs, N, T]`` with ``N, T >= 1``, features ``[*runs, N, T, S]`` and action samples
     ``[*runs, N, T, A]`` for the policy's ``S`` and ``A``, one whole episode per row (``is_init`` only at step 0,
     ``("next", "done")`` only at the last step, where the episodes carry them), the actor's
     floating-point inputs in the dtype of the policy's parameters, and finite values in every key
-    the estimator reads. Rows holding several episodes are refused, not split: split episodes
+    the estimator reads (under the non-finite policy ``"raise"``, the default; under ``"guarded"``,
+    which the trainer enters because its :class:`~sde_torchrl.trainers.guard.FiniteGuard` checks the
+    same values and names the update, NaN or infinity give NaN estimates for the runs concerned:
+    :mod:`sde_torchrl.utils.nonfinite`). Rows holding several episodes are refused, not split: split episodes
     have different lengths, which neither the ``[*runs, N, T]`` batch nor the per-run ``N`` of
     the estimates can hold. The actor's inputs are not converted to the policy's dtype (the
     actor that collected the episodes would have refused them too); the exploration features
@@ -360,9 +361,8 @@ class EpisodicEstimator(GradientEstimator):
     def __init__(
         self, policy: SDEActor, max_grad_norm: float | None = None, *,
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
-        allow_nonfinite: bool = False,
     ) -> None:
-        super().__init__(max_grad_norm, max_grad_entry, episode_return, allow_nonfinite)
+        super().__init__(max_grad_norm, max_grad_entry, episode_return)
         self.log_likelihood = EpisodeLogLikelihood(policy, variance_weighted)
         self._tensor_keys = self.default_keys()
         self._set_in_keys()
@@ -420,8 +420,8 @@ class EpisodicEstimator(GradientEstimator):
                 policy's runs, features or action samples not shaped for the policy, an actor
                 input that is not floating point or in another dtype than the policy's
                 parameters, or a row holding more than one episode.
-            NonFiniteEpisodesError: NaN or infinity in a key the estimator reads (unless
-                ``allow_nonfinite``).
+            NonFiniteEpisodesError: NaN or infinity in a key the estimator reads (under the
+                non-finite policy ``"raise"``).
         """
         if not isinstance(episodes, TensorDictBase):
             raise TypeError(f"episodes: got {type(episodes).__name__}; expected a TensorDict shaped [*runs, N, T]")
@@ -455,17 +455,13 @@ class EpisodicEstimator(GradientEstimator):
                     f"through TorchRL's DoubleToFloat transform), or the policy: policy.to({value.dtype})", key)
         self._check_one_episode_per_row(episodes, keys.is_init, slice(1, None), "a new episode starts")
         self._check_one_episode_per_row(episodes, keys.done, slice(None, -1), "an episode ends")
-        if not self.allow_nonfinite:
-            labels = self._labels(episodes.batch_dims - 2)
-            for key in self.in_keys:
-                value = episodes.get(key)
-                if value.is_floating_point() and not bool(torch.isfinite(value).all()):
-                    bad = ~torch.isfinite(value).reshape(*shape[:-1], -1).all(-1)
-                    raise NonFiniteEpisodesError(
-                        f"episodes key {key!r}", batch_entries(bad, labels),
-                        "the estimate would be NaN for those runs. Find what produced it (a diverged env or "
-                        "policy: lower the learning rate or bound the gradient with max_grad_norm), drop or "
-                        "re-collect those episodes, or pass allow_nonfinite=True to get NaN estimates", key)
+        labels = self._labels(episodes.batch_dims - 2)
+        for key in self.in_keys:
+            check_finite(f"episodes key {key!r}", episodes.get(key), labels,
+                         "the estimate would be NaN for those runs. Find what produced it (a diverged env or "
+                         "policy: lower the learning rate or bound the gradient with max_grad_norm), drop or "
+                         f"re-collect those episodes, {GUARDED_FIX} and get NaN estimates",
+                         error=partial(NonFiniteEpisodesError, key=key))
 
     def _check_one_episode_per_row(self, episodes: TensorDictBase, key: NestedKey, steps: slice, what: str) -> None:
         """Refuses rows where the flags under ``key`` (if present) are set at ``steps``."""
@@ -491,18 +487,15 @@ class EpisodicEstimator(GradientEstimator):
 
     def _check_finite(self, what: str, values: dict[str, torch.Tensor], run_dims: int, per_episode: bool) -> None:
         """Raises :class:`NonFiniteEpisodesError` for the first parameter whose scores
-        (``[*runs, N, ...]``) or gradient (``[*runs, ...]``) hold NaN or infinity."""
+        (``[*runs, N, ...]``) or gradient (``[*runs, ...]``) hold NaN or infinity, under the
+        non-finite policy ``"raise"``."""
+        labels = self._labels(run_dims) if per_episode else self._labels(run_dims)[:-1]
         for name, value in values.items():
-            if not bool(torch.isfinite(value).all()):
-                kept = run_dims + per_episode
-                bad = ~torch.isfinite(value).reshape(*value.shape[:kept], -1).all(-1)
-                labels = self._labels(run_dims) if per_episode else self._labels(run_dims)[:-1]
-                where = batch_entries(bad, labels) if kept else "the batch"
-                raise NonFiniteEpisodesError(
-                    f"{what} of parameter {name}", where,
-                    "the episodes are finite but too large for the policy's dtype (the likelihood overflowed): "
-                    "scale the observations or rewards, lower the learning rate or bound the gradient with "
-                    "max_grad_norm, or pass allow_nonfinite=True to get NaN estimates", what)
+            check_finite(f"{what} of parameter {name}", value, labels,
+                         "the episodes are finite but too large for the policy's dtype (the likelihood overflowed): "
+                         "scale the observations or rewards, lower the learning rate or bound the gradient with "
+                         f"max_grad_norm, {GUARDED_FIX} and get NaN estimates",
+                         error=partial(NonFiniteEpisodesError, key=what))
 
     def forward(self, episodes: TensorDictBase) -> TensorDictBase:
         """Estimates one gradient per run from the episodes.
@@ -517,20 +510,18 @@ class EpisodicEstimator(GradientEstimator):
         Raises:
             EpisodesError: the episodes break the input contract (:meth:`check_episodes`).
             NonFiniteEpisodesError: NaN or infinity in the episodes, the scores or the gradient
-                (unless ``allow_nonfinite``).
+                (under the non-finite policy ``"raise"``).
         """
         self.check_episodes(episodes)
         returns = self.returns(episodes)
         run_dims = episodes.batch_dims - 2
         per_parameter, per_step = self.episode_and_step_scores(episodes)
         scores = flatten_scores(per_parameter, run_dims)
-        if not self.allow_nonfinite and not bool(torch.isfinite(scores).all()):
-            self._check_finite("scores", per_parameter, run_dims, per_episode=True)
+        self._check_finite("scores", per_parameter, run_dims, per_episode=True)
         gradient, diagnostics = self.estimate_from_episodes(episodes, scores, returns, per_step)
-        if not self.allow_nonfinite and not bool(torch.isfinite(gradient).all()):
-            sizes = [s[(0,) * (run_dims + 1)].numel() for s in per_parameter.values()]
-            self._check_finite("gradient", dict(zip(per_parameter, gradient.split(sizes, -1), strict=True)),
-                               run_dims, per_episode=False)
+        sizes = [s[(0,) * (run_dims + 1)].numel() for s in per_parameter.values()]
+        self._check_finite("gradient", dict(zip(per_parameter, gradient.split(sizes, -1), strict=True)),
+                           run_dims, per_episode=False)
         return self.surrogate(gradient, returns, run_dims, score_norm=scores.norm(dim=-1).mean(-1), **diagnostics)
 
 

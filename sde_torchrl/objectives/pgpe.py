@@ -27,6 +27,7 @@ symmetry): the counterpart of the authors' variance-weighted SDE scores (``Episo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 from tensordict import TensorDictBase
@@ -42,7 +43,7 @@ from sde_torchrl.objectives.base import (
     NonFiniteEpisodesError,
     check_rewards_runs_and_inputs,
 )
-from sde_torchrl.utils.checks import batch_entries
+from sde_torchrl.utils.nonfinite import GUARDED_FIX, check_finite
 
 
 def batch_mean_baseline(returns: torch.Tensor) -> torch.Tensor:
@@ -155,7 +156,10 @@ class PGPEEstimator(GradientEstimator):
         max_grad_entry: rescale a run's gradient whose largest (signed) entry exceeds this.
         episode_return: ``"mean"`` or ``"sum"`` of an episode's rewards.
         variance_weighted: the paper's step sizes ``α_i = α σ_i²`` (module docstring).
-        allow_nonfinite: let NaN/infinity through (the trainer's ``FiniteGuard`` checks them).
+
+    NaN or infinity in the episodes raise :class:`NonFiniteEpisodesError` under the non-finite
+    policy ``"raise"`` (the default) and give NaN estimates for the runs concerned under
+    ``"guarded"``, the trainer's (:mod:`sde_torchrl.utils.nonfinite`).
 
     Raises:
         TypeError: ``policy`` is not of that form.
@@ -195,9 +199,8 @@ class PGPEEstimator(GradientEstimator):
     def __init__(
         self, policy: TensorDictSequential, max_grad_norm: float | None = None, *,
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
-        allow_nonfinite: bool = False,
     ) -> None:
-        super().__init__(max_grad_norm, max_grad_entry, episode_return, allow_nonfinite)
+        super().__init__(max_grad_norm, max_grad_entry, episode_return)
         modules = list(policy.module) if isinstance(policy, TensorDictSequential) else []
         if len(modules) != 2 or not isinstance(modules[1], ParameterExplorer):
             raise TypeError(f"policy: got {type(policy).__name__}"
@@ -250,12 +253,12 @@ class PGPEEstimator(GradientEstimator):
     def check_episodes(self, episodes: TensorDictBase) -> None:
         """Episodes ``[*runs, N, T]`` holding the keys read, ``θ`` shaped ``[..., K]`` and the
         same at every step of a row (one whole episode per row), an even ``N`` for symmetric
-        sampling, finite values (unless ``allow_nonfinite``).
+        sampling, finite values (under the non-finite policy ``"raise"``).
 
         Raises:
             TypeError: ``episodes`` is not a TensorDict.
             EpisodesError: the episodes break that contract.
-            NonFiniteEpisodesError: NaN or infinity in a key read.
+            NonFiniteEpisodesError: NaN or infinity in a key read (under the non-finite policy ``"raise"``).
         """
         if not isinstance(episodes, TensorDictBase):
             raise TypeError(f"episodes: got {type(episodes).__name__}; expected a TensorDict shaped [*runs, N, T]")
@@ -276,14 +279,11 @@ class PGPEEstimator(GradientEstimator):
             raise EpisodesError(f"episodes key {key!r} has shape {tuple(theta.shape)}, expected {(*shape, size)}", key)
         if self.explorer.symmetric and shape[-2] % 2:
             raise EpisodesError(f"symmetric sampling pairs episodes 2k and 2k+1, but the batch holds N={shape[-2]}")
-        if not self.allow_nonfinite:
-            labels = ["run"] * self.explorer.run_dims + ["episode"]
-            for name in self.in_keys:
-                value = episodes.get(name).reshape(*shape[:-1], -1)
-                if not bool(torch.isfinite(value).all()):
-                    raise NonFiniteEpisodesError(
-                        f"episodes key {name!r}", batch_entries(~torch.isfinite(value).all(-1), labels),
-                        "the estimate would be NaN for those runs; re-collect them, or pass allow_nonfinite=True", name)
+        labels = ["run"] * self.explorer.run_dims + ["episode"]
+        for name in self.in_keys:
+            check_finite(f"episodes key {name!r}", episodes.get(name), labels,
+                         f"the estimate would be NaN for those runs; re-collect them, {GUARDED_FIX} and get NaN "
+                         "estimates", error=partial(NonFiniteEpisodesError, key=name))
         changes = (theta != theta[..., :1, :]) & torch.isfinite(theta)
         if bool(changes.any()):
             raise EpisodesError(f"episodes key {key!r} changes within a row: each row of [*runs, N, T] must be one "

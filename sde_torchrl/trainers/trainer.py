@@ -38,6 +38,7 @@ from sde_torchrl.trainers.optim import LearningRateSchedule
 from sde_torchrl.trainers.report import Reporter, close_logger
 from sde_torchrl.trainers.settings import TrainingSettings
 from sde_torchrl.trainers.summary import LoopState, exploration_state, final_levels, per_step_factor, summarize
+from sde_torchrl.utils.nonfinite import nonfinite_policy
 
 log = logging.getLogger(__name__)
 #: A session whose first update takes longer than this says what it is doing (a job is silent
@@ -80,7 +81,8 @@ class Trainer:
     def _rollout(self, env: EnvBase) -> TensorDictBase:
         """Whole episodes on ``env`` by the fastest path that gives ``env.rollout``'s episodes
         (:func:`~sde_torchrl.collectors.rollout.collect_episodes`; ``tensor_rollout=False`` forces ``env.rollout``)."""
-        return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
+        with nonfinite_policy("guarded"):  # a diverged policy's NaN actions: the guard names the update
+            return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
 
     def collect(self) -> TensorDictBase:
         """``N`` fresh exploratory episodes per run, ``[runs, N, T]``."""
@@ -101,13 +103,18 @@ class Trainer:
         learning rate, guarded against non-finite values; the statistics it returns (per-run
         mean return, gradient norm, exploration state) are on the CPU, whatever the device.
 
+        The estimator runs under the non-finite policy ``"guarded"``
+        (:mod:`sde_torchrl.utils.nonfinite`), as the rollouts do: its own checks step aside and
+        the guard, which knows the update, reports.
+
         Raises:
             NonFiniteError: for a non-finite episode return, score, gradient or (after the
                 step) parameter, naming the update, the runs and the parameter.
         """
-        self.guard.check_returns(update, self.estimator.returns(episodes))
-        out = self.estimator(episodes)
-        self.guard.check_estimate(update, out, episodes)
+        with nonfinite_policy("guarded"):
+            self.guard.check_returns(update, self.estimator.returns(episodes))
+            out = self.estimator(episodes)
+            self.guard.check_estimate(update, out, episodes)
         self.optimizer.zero_grad(set_to_none=True)
         out["loss_objective"].backward()
         if self.lr_schedule is not None:

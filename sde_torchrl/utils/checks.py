@@ -4,7 +4,8 @@ Every failed check raises :class:`ArgumentError`, whose message is one line
 ``<name>=<value>: <what is allowed>``, the same whether the value came from a Hydra override
 (``env.episode_length=-3: a positive integer``) or from Python (``episodes=0: a positive
 integer``). Batched tensor inputs (actions, episodes) that hold NaN or infinity raise
-:class:`NonFiniteInputError`, naming the input, the batch entries concerned and the fix.
+:class:`NonFiniteInputError`, naming the input, the batch entries concerned and the fix
+(:func:`~sde_torchrl.utils.nonfinite.check_finite`, under the non-finite policy).
 
 This module does not import torch (``train.py`` checks its config before torch is imported):
 the tensor checks only call the tensors' own methods.
@@ -72,34 +73,6 @@ def batch_entries(mask: Any, labels: Sequence[str], limit: int = 4) -> str:
     shown = ", ".join(" ".join(f"{label} {i}" for label, i in zip(labels, index, strict=True))
                       for index in hits[:limit])
     return shown + (f" (and {len(hits) - limit} more)" if len(hits) > limit else "")
-
-
-def finite_entries(name: str, value: Any, labels: Sequence[str], fix: str) -> None:
-    """Raises :class:`NonFiniteInputError` if a tensor holds NaN or infinity.
-
-    One fused check over the whole tensor; the entries are located only on failure.
-
-    Args:
-        name: the input, as the message names it.
-        value: a floating-point tensor whose leading dimensions are the batch, one per label.
-        labels: the name of each batch dimension (``("run", "episode")``).
-        fix: what to do about it.
-
-    Raises:
-        NonFiniteInputError: naming the batch entries that hold a NaN or an infinity.
-
-    Examples:
-        >>> import torch
-        >>> finite_entries("action", torch.tensor([[0.0], [float("nan")]]), ("episode",), "check the policy")
-        Traceback (most recent call last):
-        ...
-        sde_torchrl.utils.checks.NonFiniteInputError: action: NaN/inf in episode 1; check the policy
-    """
-    finite = value.isfinite()
-    if bool(finite.all()):
-        return
-    bad = ~finite.reshape(*value.shape[:len(labels)], -1).all(-1)
-    raise NonFiniteInputError(name, batch_entries(bad, labels), fix)
 
 
 def show(value: Any) -> str:

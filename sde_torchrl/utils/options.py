@@ -32,3 +32,6 @@ REWARD_STATES = ("noise_free", "noisy")
 EPISODE_RETURNS = ("sum", "mean")
 #: The learning rate over the updates.
 LR_SCHEDULES = ("constant", "linear", "cosine")
+#: What a NaN or an infinity does (:mod:`sde_torchrl.utils.nonfinite`): raise where it is found
+#: (the default), or pass, for a guard that checks the results itself (the trainer's).
+NONFINITE_POLICIES = ("raise", "guarded")
