@@ -69,8 +69,8 @@ def _sde_settings(conf, algorithm: str) -> dict[str, Any]:
                                 "SB3 squashes SAC's actions and not PPO's or A2C's")
     if not explorer.learn_sigma:
         raise UnmappableSetting("explorer.learn_sigma", False, "SB3 always learns the noise scale")
-    if isinstance(explorer, GaussianExplorerConf):
-        return {"use_sde": False}
+    if isinstance(explorer, GaussianExplorerConf):  # PPO's and A2C's log σ₀; SAC's comes from its own head
+        return {"use_sde": False, "policy_kwargs": {} if algorithm == "sac" else {"log_std_init": explorer.init_param}}
     if not isinstance(explorer, ExplorerConf):
         raise UnmappableSetting("explorer", type(explorer).__name__, "not an SDE or Gaussian explorer")
     if explorer.gaussian_init_param is not None:
