@@ -199,7 +199,11 @@ def test_a_folder_refuses_runs_at_another_fraction_or_overrides(tmp_path):
         run.open_folder(tmp_path, 0.01, ["eval_episodes=3"])
 
 
-def test_the_command_refuses_a_folder_of_another_fraction_before_training(tmp_path, capsys):
+def test_the_command_refuses_a_folder_of_another_fraction_before_training(tmp_path, capsys, monkeypatch):
+    def no_cell(*args, **kwargs):
+        raise AssertionError("the folder was not refused: a cell was composed")
+
+    monkeypatch.setattr(run, "compose_cell", no_cell)  # a broken refusal fails here rather than training
     run.open_folder(tmp_path, 0.01, [])
     code = cli.main(["run", "--fraction", "0.02", "--algorithms", "ppo", "--envs", "hopper", "--out", str(tmp_path)])
     assert code == 2
