@@ -173,6 +173,13 @@ def run_train_jobs(jobs: Sequence[TrainJob], workers: int, command: bool = False
     return failures
 
 
+def run_train_job(job: TrainJob, command: bool = False, keep_checkpoints: bool = True) -> str | None:
+    """Trains (or resumes) one job in this process, or as the ``train.py`` command (``command``),
+    for a pool of one's own (:class:`JobPool`) that also runs other kinds of jobs; its one-line
+    error, or ``None`` once it has finished."""
+    return (_run_command if command else _run_in_process)(job, keep_checkpoints)
+
+
 def _run_in_process(job: TrainJob, keep_checkpoints: bool) -> str | None:
     """Trains (or resumes) ``job`` in this worker process; its one-line error, or ``None``."""
     import torch

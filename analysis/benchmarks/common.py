@@ -26,13 +26,13 @@ from analysis.figures import binned_curve
 EVAL_EPISODES = 10
 
 
-def gym_make(env_id: str):
-    """``gymnasium.make(env_id)``, pybullet's envs registered first for a ``...Bullet...`` id."""
+def gym_make(env_id: str, **kwargs):
+    """``gymnasium.make(env_id, **kwargs)``, pybullet's envs registered first for a ``...Bullet...`` id."""
     import gymnasium as gym
 
     if "Bullet" in env_id:
         import pybullet_envs_gymnasium  # noqa: F401  (registers the Bullet envs)
-    return gym.make(env_id)
+    return gym.make(env_id, **kwargs)
 
 
 def first_episode_returns(reward: torch.Tensor, done: torch.Tensor) -> list[float]:
