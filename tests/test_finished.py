@@ -262,7 +262,7 @@ def test_a_full_disk_while_closing_metrics_is_named_not_a_bare_os_error(tmp_path
 
     import torch
 
-    from sde_torchrl.jobs.run_dir import MetricsFile, csv_lines, metric_rows
+    from sde_torchrl.jobs.run_dir import MetricsFile, csv_lines, metric_rows, update_statistics
     from sde_torchrl.utils.files import DiskFullError
 
     device = tmp_path / "device"
@@ -272,7 +272,9 @@ def test_a_full_disk_while_closing_metrics_is_named_not_a_bare_os_error(tmp_path
         pytest.skip(f"cannot mount a tmpfs here: {made.stderr.decode().strip()}")
     try:
         (device / "ballast").write_bytes(bytes(1024 * 1000))
-        rows = metric_rows(0, 0, 5, torch.full((2000,), -1.5), None, torch.ones(2000), torch.ones(3, 2000))
+        stats = {"return_mean": torch.full((2000,), -1.5), "grad_norm": torch.ones(2000),
+                 "exploration": torch.ones(3, 2000)}
+        rows = metric_rows(update_statistics(0, 0, 5, stats, None))
         with pytest.raises(DiskFullError, match=f"^{device / 'metrics.csv'} could not be written: no space left"):
             with MetricsFile(device / "metrics.csv", csv_lines([])) as metrics:
                 metrics.write(rows)

@@ -39,6 +39,7 @@ from typing import Any
 import torch
 from torchrl.checkpoint import GlobalRNGState
 
+from sde_torchrl.jobs.metrics import RECORDS
 from sde_torchrl.utils.files import DamagedFileError, write_atomically
 from sde_torchrl.utils.rng import RunStreams
 
@@ -340,7 +341,7 @@ def check_content(saved: dict[str, Any], policy: torch.nn.Module, updates: int |
             what = (f"{tuple(stored.shape)} {stored.dtype}" if isinstance(stored, torch.Tensor)
                     else type(stored).__name__)
             return f"its policy entry {name!r} is {what}, this job's is {tuple(tensor.shape)} {tensor.dtype}"
-    for key in ("returns", "grad_norms", "explorations"):
+    for key in (r.key for r in RECORDS):
         record = loop.get(key)
         if isinstance(record, torch.Tensor) and record.shape[:1] != (done,):
             return f"its {key} record has {record.shape[0] if record.dim() else 0} updates, not {done}"

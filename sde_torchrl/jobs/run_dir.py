@@ -20,12 +20,13 @@ refuses to): starting over means removing the directory. A directory without a s
 checkpoint starts a new job: :meth:`RunDirectory.start_new_job` removes the outputs of an
 earlier, unfinished or failed job there, so that no stale file is mistaken for this job's.
 
-Read back, beside the writer: :func:`read_metrics` is the one parser of ``metrics.csv`` (typed
-:class:`MetricRow` rows), and :func:`read_finished_run` / :func:`finished_runs` the one reader of
-a finished job (summary, config and rows), which refuses a directory a live job holds or whose
-files disagree; :func:`finished_runs` finds a sweep's jobs by the files a job writes
-(:data:`JOB_FILES`), so that a job killed before its first row is named, not skipped. The
-analysis scripts read run directories through them only.
+The columns of ``metrics.csv`` are declared once, in :mod:`sde_torchrl.jobs.metrics`. Read back,
+beside the writer: :func:`read_metrics` is the one parser of ``metrics.csv`` (typed
+:class:`~sde_torchrl.jobs.metrics.MetricRow` rows), and :func:`read_finished_run` /
+:func:`finished_runs` the one reader of a finished job (summary, config and rows), which refuses
+a directory a live job holds or whose files disagree; :func:`finished_runs` finds a sweep's jobs
+by the files a job writes (:data:`JOB_FILES`), so that a job killed before its first row is
+named, not skipped. The analysis scripts read run directories through them only.
 """
 
 from __future__ import annotations
@@ -41,9 +42,7 @@ from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
-
-import torch
+from typing import Any
 
 from sde_torchrl.jobs.checkpoint import (
     CHECKPOINT,
@@ -54,13 +53,22 @@ from sde_torchrl.jobs.checkpoint import (
     result_config,
 )
 from sde_torchrl.jobs.lock import LOCK, held_by, hold_run_directory, make_run_directory
+from sde_torchrl.jobs.metrics import (  # noqa: F401 - the metrics names this module has offered, re-exported
+    EXPLORATION_FIELDS,
+    METRIC_FIELDS,
+    REQUIRED_FIELDS,
+    MetricRow,
+    MetricsFormatError,
+    csv_lines,
+    metric_rows,
+    parse_metrics,
+    recorded_rows,
+    update_statistics,
+)
 from sde_torchrl.utils.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
 
 log = logging.getLogger(__name__)
 
-#: The exploration state after each update (:func:`~sde_torchrl.trainers.summary.exploration_state`).
-EXPLORATION_FIELDS = ("sigma_min", "sigma_max", "weight_max")
-METRIC_FIELDS = ("run", "update", "episodes", "return_mean", "eval_return", "grad_norm", *EXPLORATION_FIELDS)
 #: The files a job writes into its run directory, its job record ``job_config.json`` first: a
 #: directory holding any of them is a job's (:func:`job_directories`), whatever state it is in.
 JOB_FILES = ("job_config.json", LOCK, "metrics.csv", "summary.json", CHECKPOINT, "error.txt")
@@ -80,145 +88,45 @@ def episodes_after(update: int, episodes_per_update: int, episode_queue: int = 0
     return (update + 1) * episodes_per_update + max(episode_queue - episodes_per_update, 0)
 
 
-def metric_rows(
-    first_run: int, update: int, episodes: int, return_mean: torch.Tensor,
-    eval_return: torch.Tensor | None, grad_norm: torch.Tensor, exploration: torch.Tensor,
-) -> list[dict[str, Any]]:
-    """The ``metrics.csv`` rows of one update, one per run.
-
-    Args:
-        first_run: global index of the job's first run.
-        update: the update (0-based).
-        episodes: episodes each run has collected by its end.
-        return_mean: mean exploratory return per run ``[runs]``.
-        eval_return: mean deterministic return per run, or ``None`` (not evaluated).
-        grad_norm: gradient norm per run ``[runs]``.
-        exploration: the :data:`EXPLORATION_FIELDS` per run after the update, ``[3, runs]``.
-
-    Examples:
-        >>> metric_rows(2, 0, 10, torch.tensor([-1.5]), None, torch.tensor([0.25]),
-        ...             torch.tensor([[0.125], [0.5], [2.0]]))  # doctest: +NORMALIZE_WHITESPACE
-        [{'run': 2, 'update': 0, 'episodes': 10, 'return_mean': -1.5, 'eval_return': '', 'grad_norm': 0.25,
-          'sigma_min': 0.125, 'sigma_max': 0.5, 'weight_max': 2.0}]
-    """
-    runs = len(return_mean)
-    evals = [""] * runs if eval_return is None else eval_return.tolist()  # Python floats, one call per column
-    columns = zip(return_mean.tolist(), evals, grad_norm.tolist(), *exploration.tolist(), strict=True)
-    return [{
-        "run": first_run + r, "update": update, "episodes": episodes,
-        "return_mean": value, "eval_return": evaluated, "grad_norm": norm,
-        **dict(zip(EXPLORATION_FIELDS, scales, strict=True)),
-    } for r, (value, evaluated, norm, *scales) in enumerate(columns)]
-
-
-def recorded_rows(loop: Mapping[str, Any], first_run: int, episodes: Any) -> list[dict[str, Any]]:
-    """The ``metrics.csv`` rows a loop record holds (a checkpoint's ``loop``, or a
-    :class:`~sde_torchrl.trainers.summary.LoopState`'s fields): every update up to ``update``.
-
-    Args:
-        loop: ``update``, ``returns``, ``evals``, ``grad_norms`` and ``explorations``, each of
-            the last four indexable by update.
-        first_run: global index of the job's first run.
-        episodes: update → episodes each run has collected by its end.
-
-    Examples:
-        >>> loop = {"update": 1, "returns": torch.tensor([[-1.0]]), "evals": {},
-        ...         "grad_norms": torch.tensor([[2.0]]), "explorations": torch.tensor([[[0.5], [0.5], [1.0]]])}
-        >>> recorded_rows(loop, 3, lambda k: 10 * (k + 1))[0]["run"]
-        3
-    """
-    return [row for k in range(loop["update"])
-            for row in metric_rows(first_run, k, episodes(k), loop["returns"][k], loop["evals"].get(k),
-                                   loop["grad_norms"][k], loop["explorations"][k])]
-
-
-def csv_lines(rows: Sequence[dict[str, Any]], fields: Sequence[str] = METRIC_FIELDS) -> list[bytes]:
-    """The lines of a ``metrics.csv`` holding ``rows``, header first, byte for byte as
-    :class:`MetricsFile` writes them (``fields``: the columns of a file written before the last
-    ones were recorded; the rows' other entries are left out).
-
-    Examples:
-        >>> lines = csv_lines(metric_rows(0, 3, 40, torch.tensor([-1.0]), torch.tensor([-0.5]), torch.tensor([2.0]),
-        ...                               torch.tensor([[0.25], [0.5], [1.0]])))
-        >>> for line in lines:
-        ...     print(line.decode().rstrip())
-        run,update,episodes,return_mean,eval_return,grad_norm,sigma_min,sigma_max,weight_max
-        0,3,40,-1.0,-0.5,2.0,0.25,0.5,1.0
-    """
-    text = io.StringIO(newline="")
-    writer = csv.DictWriter(text, fieldnames=fields, extrasaction="raise" if fields == METRIC_FIELDS else "ignore")
-    writer.writeheader()
-    writer.writerows(rows)
-    return text.getvalue().encode().splitlines(keepends=True)
-
-
-class MetricRow(NamedTuple):
-    """One ``metrics.csv`` row, typed: one run after one update (:data:`METRIC_FIELDS`).
-
-    ``eval_return`` is ``None`` for an update without an evaluation; ``grad_norm`` and the
-    exploration state (:data:`EXPLORATION_FIELDS`) are ``None`` in files written before they were
-    recorded (their column is missing or empty).
-
-    Examples:
-        >>> row = MetricRow(run=0, update=3, episodes=40, return_mean=-1.0, eval_return=None)
-        >>> row.eval_return is None, row.sigma_min is None
-        (True, True)
-    """
-
-    run: int
-    update: int
-    episodes: int
-    return_mean: float
-    eval_return: float | None = None
-    grad_norm: float | None = None
-    sigma_min: float | None = None
-    sigma_max: float | None = None
-    weight_max: float | None = None
-
-
 def read_metrics(path: str | os.PathLike) -> list[MetricRow]:
     """Reads ``metrics.csv`` into typed rows, in file order (update by update, runs within an
-    update): the one parser of the file :class:`MetricsFile` writes.
+    update): the one parser of the file :class:`MetricsFile` writes
+    (:func:`~sde_torchrl.jobs.metrics.parse_metrics`).
 
     Args:
         path: the CSV file.
 
     Returns:
-        One :class:`MetricRow` per line after the header.
+        One :class:`~sde_torchrl.jobs.metrics.MetricRow` per line after the header.
 
     Raises:
         FileNotFoundError: there is no such file.
+        MetricsFormatError: its columns are not the metrics' (an unknown, missing or repeated one).
 
     Examples:
         >>> import tempfile
+        >>> import torch
         >>> path = Path(tempfile.mkdtemp()) / "metrics.csv"
-        >>> _ = path.write_bytes(b"".join(csv_lines(metric_rows(
-        ...     0, 0, 5, torch.tensor([-1.5, -2.0]), None, torch.tensor([0.5, 0.25]),
-        ...     torch.tensor([[0.125, 0.25], [0.5, 0.75], [1.0, 2.0]])))))
+        >>> stats = update_statistics(0, 0, 5, {"return_mean": torch.tensor([-1.5, -2.0]),
+        ...     "grad_norm": torch.tensor([0.5, 0.25]), "exploration": torch.tensor([[0.125, 0.25], [0.5, 0.75],
+        ...                                                                          [1.0, 2.0]])}, None)
+        >>> _ = path.write_bytes(b"".join(csv_lines(metric_rows(stats))))
         >>> [(row.run, row.return_mean, row.eval_return, row.sigma_max) for row in read_metrics(path)]
         [(0, -1.5, None, 0.5), (1, -2.0, None, 0.75)]
     """
     with open(path, newline="") as f:
-        return _typed_rows(csv.DictReader(f))
+        return parse_metrics(csv.reader(f), str(path))
 
 
 def read_metrics_text(text: str) -> list[MetricRow]:
     """:func:`read_metrics` of the file's text.
 
     Examples:
-        >>> [row.return_mean for row in read_metrics_text("run,update,episodes,return_mean\\r\\n0,0,5,-1.5\\r\\n")]
+        >>> [row.return_mean for row in read_metrics_text("run,update,episodes,return_mean,eval_return\\r\\n"
+        ...                                               "0,0,5,-1.5,\\r\\n")]
         [-1.5]
     """
-    return _typed_rows(csv.DictReader(io.StringIO(text, newline="")))
-
-
-def _typed_rows(reader: csv.DictReader) -> list[MetricRow]:
-    def number(text: str | None) -> float | None:
-        return float(text) if text else None
-
-    return [MetricRow(int(row["run"]), int(row["update"]), int(row["episodes"]), float(row["return_mean"]),
-                      *(number(row.get(name)) for name in METRIC_FIELDS[4:]))
-            for row in reader]
+    return parse_metrics(csv.reader(io.StringIO(text, newline="")))
 
 
 class RunDirectory:
@@ -354,7 +262,7 @@ class RunDirectory:
             return json.loads(self.job_config.read_text())
         return result_config(job.summary.get("config"))
 
-    def check_metrics(self, rows: Sequence[dict[str, Any]], finished: bool) -> None:
+    def check_metrics(self, rows: Sequence[MetricRow], finished: bool) -> None:
         """Checks that ``metrics.csv`` begins with exactly ``rows`` (what the checkpoint recorded)
         and, for a finished job, holds nothing more; a missing file is rebuilt from ``rows``.
 
@@ -379,7 +287,7 @@ class RunDirectory:
                 f"delete it and run the job again: its {len(rows)} rows (every update up to the "
                 f"checkpoint) are rebuilt from {CHECKPOINT}, nothing is lost"))
 
-    def open_metrics(self, rows: Sequence[dict[str, Any]]) -> MetricsFile:
+    def open_metrics(self, rows: Sequence[MetricRow]) -> MetricsFile:
         """``metrics.csv`` cut back to ``rows`` (checked by :meth:`check_metrics`) and continued."""
         return MetricsFile(self.metrics, csv_lines(rows))
 
@@ -392,7 +300,7 @@ class RunDirectory:
                 write_atomically(path, lambda f, kept=kept: f.writelines(kept))
 
     def _logger_csv_files(self) -> list[Path]:
-        return sorted(self.path.glob("*/scalars/*.csv"))
+        return sorted(self.path.glob("*/scalars/**/*.csv"))  # a namespaced key ("train/...") is a subfolder
 
 
 class UnfinishedRunError(DamagedFileError):
@@ -637,11 +545,11 @@ def _parse_rows(data: bytes) -> tuple[list[MetricRow], str | None]:
         text = data.decode()
         header = next(csv.reader(io.StringIO(text, newline="")), [])
         rows = read_metrics_text(text)
-    except (ValueError, KeyError, TypeError, csv.Error) as error:
+    except (ValueError, KeyError, TypeError, csv.Error) as error:  # MetricsFormatError is a ValueError
         return [], f"metrics.csv cannot be read ({type(error).__name__}: {error})"
-    if tuple(header) != METRIC_FIELDS[:len(header)] or len(header) < 5:
+    if tuple(header) != METRIC_FIELDS[:len(header)] or len(header) < len(REQUIRED_FIELDS):
         return rows, f"metrics.csv's header is not {','.join(METRIC_FIELDS)}"
-    expected = csv_lines([row._asdict() for row in rows], fields=tuple(header))
+    expected = csv_lines(rows, fields=tuple(header))
     lines = data.splitlines(keepends=True)
     for i, (have, want) in enumerate(zip(lines, expected, strict=False)):
         if have != want:
@@ -770,14 +678,14 @@ def read_summary(path: str | os.PathLike) -> dict[str, Any]:
     return summary
 
 
-def _first_difference(lines: list[bytes], expected: list[bytes], rows: Sequence[dict[str, Any]]) -> str | None:
+def _first_difference(lines: list[bytes], expected: list[bytes], rows: Sequence[MetricRow]) -> str | None:
     """What is wrong with the first line of ``lines`` that differs from ``expected``, if any."""
     for i, (have, want) in enumerate(zip(lines, expected, strict=False)):
         if have == want:
             continue
         if i == 0:
             return f"its header is not {','.join(METRIC_FIELDS)}"
-        row = f"row {i} (run {rows[i - 1]['run']}, update {rows[i - 1]['update']})"
+        row = f"row {i} (run {rows[i - 1].run}, update {rows[i - 1].update})"
         if want.startswith(have):
             return f"{row} is cut short"
         return f"{row} differs from what {CHECKPOINT} recorded"
@@ -816,10 +724,12 @@ class MetricsFile:
 
     Examples:
         >>> import tempfile
+        >>> import torch
         >>> path = Path(tempfile.mkdtemp()) / "metrics.csv"
         >>> with MetricsFile(path, csv_lines([])) as metrics:
-        ...     metrics.write(metric_rows(0, 0, 5, torch.tensor([-1.0]), None, torch.tensor([2.0]),
-        ...                               torch.tensor([[0.5], [0.5], [1.0]])))
+        ...     metrics.write(metric_rows(update_statistics(0, 0, 5, {
+        ...         "return_mean": torch.tensor([-1.0]), "grad_norm": torch.tensor([2.0]),
+        ...         "exploration": torch.tensor([[0.5], [0.5], [1.0]])}, None)))
         >>> path.read_text().splitlines()[1]
         '0,0,5,-1.0,,2.0,0.5,0.5,1.0'
     """
@@ -827,16 +737,16 @@ class MetricsFile:
     def __init__(self, path: Path, kept: list[bytes]) -> None:
         self.path, self.kept = path, kept
         self._file: Any = None
-        self._writer: csv.DictWriter | None = None
+        self._writer: Any = None
 
     def __enter__(self) -> MetricsFile:
         if not self.path.exists() or self.path.stat().st_size != sum(map(len, self.kept)):
             write_atomically(self.path, lambda f: f.writelines(self.kept))
         self._file = open(self.path, "a", newline="")
-        self._writer = csv.DictWriter(self._file, fieldnames=METRIC_FIELDS)
+        self._writer = csv.writer(self._file)  # rows are MetricRows, in METRIC_FIELDS order; None is an empty cell
         return self
 
-    def write(self, rows: list[dict[str, Any]]) -> None:
+    def write(self, rows: list[MetricRow]) -> None:
         """Appends rows and flushes them to the OS.
 
         Raises:

@@ -45,7 +45,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from sde_torchrl.collectors.steps import StepCollector
 from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.jobs.checkpoint import job_streams, restore_job, save_job
-from sde_torchrl.jobs.run_dir import RunDirectory, metric_rows
+from sde_torchrl.jobs.metrics import MetricRow, metric_rows, recorded_rows, update_statistics
+from sde_torchrl.jobs.run_dir import RunDirectory
 from sde_torchrl.trainers.guard import NonFiniteError
 from sde_torchrl.trainers.interrupt import DeferredInterrupt
 from sde_torchrl.trainers.optim import LearningRateSchedule
@@ -231,24 +232,22 @@ class OnPolicyTrainer:
         s = self.settings
         session_start, session_wall = time.perf_counter(), state.wall_s
         reporter = Reporter(self.logger, s.updates, state.update, s.steps_per_update, progress)
-        with run_dir.open_metrics(self._rows(vars(state))) as metrics, DeferredInterrupt() as interrupt:
+        with run_dir.open_metrics(self._rows(state)) as metrics, DeferredInterrupt() as interrupt:
             try:
                 for k in range(state.update, s.updates):
                     stats = self.update(k)
                     self.episodes.append(self.returns.count)
-                    state.returns.append(stats["return_mean"])
-                    state.grad_norms.append(stats["grad_norm"])
-                    state.explorations.append(stats["exploration"])
+                    state.add(stats)
                     is_last = k == s.updates - 1
                     eval_return = None
                     if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
                         eval_return = state.evals[k] = self.evaluate()
                         self._check(k, "evaluation return", eval_return)
-                    metrics.write(metric_rows(s.first_run, k, self.returns.count, stats["return_mean"], eval_return,
-                                              stats["grad_norm"], stats["exploration"]))
+                    statistics = update_statistics(s.first_run, k, self.returns.count, stats, eval_return)
+                    metrics.write(metric_rows(statistics))
                     state.update, state.finished = k + 1, is_last
                     state.wall_s = session_wall + time.perf_counter() - session_start
-                    reporter.update(k, (k + 1) * s.steps_per_update, stats["return_mean"], eval_return)
+                    reporter.update(k, (k + 1) * s.steps_per_update, statistics)
                     if is_last:
                         break
                     if interrupt.requested or (period and state.update % period == 0):
@@ -261,11 +260,9 @@ class OnPolicyTrainer:
             metrics.sync()
         self._save(run_dir, state, config)
 
-    def _rows(self, loop: dict[str, Any]) -> list[dict[str, Any]]:
-        """The ``metrics.csv`` rows of the updates a loop record holds."""
-        return [row for k in range(loop["update"])
-                for row in metric_rows(self.settings.first_run, k, self.episodes[k], loop["returns"][k],
-                                       loop["evals"].get(k), loop["grad_norms"][k], loop["explorations"][k])]
+    def _rows(self, state: LoopState) -> list[MetricRow]:
+        """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
+        return recorded_rows(state.record(), self.settings.first_run, self.episodes.__getitem__)
 
     def _streams(self) -> dict[str, Any]:
         return job_streams(self.modules, self.env, self.eval_env)
@@ -296,7 +293,7 @@ class OnPolicyTrainer:
                            streams=self._streams(), updates=self.settings.updates)
         rollout, self.episodes = loop.pop("rollout"), loop.pop("episodes").tolist()
         state = LoopState.from_state_dict(loop)
-        run_dir.check_metrics(self._rows(vars(state)), state.finished)
+        run_dir.check_metrics(self._rows(state), state.finished)
         if not state.finished:
             run_dir.summary.unlink(missing_ok=True)
             self._restore_rollout(rollout)

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from typing import Any
 
-import torch
-
+from sde_torchrl.jobs.metrics import logged_values
 from sde_torchrl.trainers.progress import Progress, RateMeter
 
 log = logging.getLogger("sde_torchrl.trainers.trainer")
@@ -16,7 +16,8 @@ class Reporter:
     """Reports each update of a job.
 
     Args:
-        logger: optional TorchRL logger (``log_scalar``) for run-averaged curves.
+        logger: optional TorchRL logger (``log_scalar``) for run-averaged curves: the metrics
+            that name a logger key (:func:`~sde_torchrl.jobs.metrics.logged_values`).
         updates: the job's number of updates.
         done: updates already done (a resumed job).
         steps_per_update: env steps of one update (all runs), for the speed figure.
@@ -27,8 +28,9 @@ class Reporter:
 
     Examples:
         >>> import torch
+        >>> from sde_torchrl.jobs.metrics import update_statistics
         >>> reporter = Reporter(None, updates=2, done=0, steps_per_update=100)
-        >>> reporter.update(0, episodes=10, return_mean=torch.tensor([-1.0]), eval_return=None)
+        >>> reporter.update(0, 10, update_statistics(0, 0, 10, {"return_mean": torch.tensor([-1.0])}, None))
         >>> reporter.close()
     """
 
@@ -39,14 +41,19 @@ class Reporter:
         self.bar = Progress(updates, done, enabled=progress)
         self.rate = RateMeter()
 
-    def update(self, k: int, episodes: int, return_mean: torch.Tensor, eval_return: torch.Tensor | None) -> None:
-        """Update ``k`` (0-based) is done; ``episodes`` per run so far is the curves' x axis."""
+    def update(self, k: int, step: int, statistics: Mapping[str, Any]) -> None:
+        """Update ``k`` (0-based) is done.
+
+        Args:
+            k: the update.
+            step: the curves' x axis (episodes per run, or env steps, so far).
+            statistics: the update's statistics (:func:`~sde_torchrl.jobs.metrics.update_statistics`).
+        """
         speed = self.rate.add(self.steps_per_update)
-        mean = float(return_mean.mean())
+        mean, eval_return = float(statistics["return_mean"].mean()), statistics["eval_return"]
         if self.logger is not None:
-            self.logger.log_scalar("return_mean", mean, step=episodes)
-            if eval_return is not None:
-                self.logger.log_scalar("eval_return", float(eval_return.mean()), step=episodes)
+            for key, value in logged_values(statistics).items():
+                self.logger.log_scalar(key, value, step=step)
         if eval_return is not None:
             evaluation = float(eval_return.mean())
             per_step = "" if self.per_step == 1.0 else \

@@ -9,6 +9,8 @@ from typing import Any
 import torch
 from torch import nn
 
+from sde_torchrl.jobs.metrics import RECORDS
+
 
 @dataclass
 class LoopState:
@@ -17,11 +19,12 @@ class LoopState:
     Attributes:
         update: updates done.
         reached: per run, whether an update's mean return exceeded ``r_lim``.
-        returns: per update, the mean exploratory return of each run ``[runs]``.
-        grad_norms: per update, each run's gradient norm ``[runs]``.
-        explorations: per update, each run's :func:`exploration_state` after it, ``[3, runs]``
-            (with ``returns``, ``grad_norms`` and ``evals``, what ``metrics.csv`` is verified
-            against, and rebuilt from).
+        records: per update, the statistics :data:`~sde_torchrl.jobs.metrics.RECORDS` declares,
+            under their checkpoint keys: ``returns``, the mean exploratory return of each run
+            ``[runs]`` (also :attr:`returns`); ``grad_norms``, each run's gradient norm ``[runs]``;
+            ``explorations``, each run's :func:`exploration_state` after it, ``[3, runs]``. With
+            ``evals``, what ``metrics.csv`` is verified against, and rebuilt from
+            (:meth:`record`, :func:`~sde_torchrl.jobs.metrics.recorded_rows`).
         evals: update index → mean deterministic return of each run ``[runs]``.
         wall_s: training time of earlier sessions of this job (resumed jobs).
         finished: the job ran to its end.
@@ -29,36 +32,52 @@ class LoopState:
 
     Examples:
         >>> state = LoopState(update=0, reached=torch.zeros(2, dtype=torch.bool))
-        >>> LoopState.from_state_dict(state.state_dict()).update
-        0
+        >>> state.add({"return_mean": torch.tensor([-1.0, -2.0]), "grad_norm": torch.ones(2),
+        ...            "exploration": torch.ones(3, 2)})
+        >>> state.update = 1
+        >>> restored = LoopState.from_state_dict(state.state_dict())
+        >>> restored.update, restored.returns
+        (1, [tensor([-1., -2.])])
     """
 
     update: int
     reached: torch.Tensor
-    returns: list[torch.Tensor] = field(default_factory=list)
-    grad_norms: list[torch.Tensor] = field(default_factory=list)
-    explorations: list[torch.Tensor] = field(default_factory=list)
+    records: dict[str, list[torch.Tensor]] = field(default_factory=lambda: {r.key: [] for r in RECORDS})
     evals: dict[int, torch.Tensor] = field(default_factory=dict)
     wall_s: float = 0.0
     finished: bool = False
     queue: dict[str, Any] | None = None
 
+    @property
+    def returns(self) -> list[torch.Tensor]:
+        """Per update, the mean exploratory return of each run ``[runs]``."""
+        return self.records["returns"]
+
+    def add(self, statistics: dict[str, torch.Tensor]) -> None:
+        """Keeps an update's :data:`~sde_torchrl.jobs.metrics.RECORDS` statistics (what the
+        trainer's update returned)."""
+        for record in RECORDS:
+            self.records[record.key].append(statistics[record.statistic])
+
+    def record(self) -> dict[str, Any]:
+        """What :func:`~sde_torchrl.jobs.metrics.recorded_rows` reads: ``update``, ``evals`` and
+        the per-update records (as a checkpoint's ``loop`` holds them, unstacked)."""
+        return {"update": self.update, "evals": self.evals, **self.records}
+
     def state_dict(self) -> dict[str, Any]:
         """The state as tensors and plain data; the per-update records stacked, ``[updates, runs]``
         (one tensor each: a checkpoint stays small and quick to write after thousands of updates)."""
-        empty = self.reached.new_zeros((0, len(self.reached)), dtype=torch.float32)
-        return {"update": self.update, "reached": self.reached.clone(),
-                "returns": torch.stack(self.returns) if self.returns else empty,
-                "grad_norms": torch.stack(self.grad_norms) if self.grad_norms else empty,
-                "explorations": (torch.stack(self.explorations) if self.explorations
-                                 else empty.new_zeros((0, 3, len(self.reached)))),
+        runs = len(self.reached)
+        records = {r.key: (torch.stack(self.records[r.key]) if self.records[r.key]
+                           else self.reached.new_zeros((0, *r.shape, runs), dtype=torch.float32)) for r in RECORDS}
+        return {"update": self.update, "reached": self.reached.clone(), **records,
                 "evals": {k: v.clone() for k, v in self.evals.items()},
                 "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue}
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any]) -> LoopState:
-        records = {key: list(state[key].unbind(0)) for key in ("returns", "grad_norms", "explorations")}
-        return cls(**{**state, **records})
+        records = {r.key: list(state[r.key].unbind(0)) for r in RECORDS}
+        return cls(**{key: value for key, value in state.items() if key not in records}, records=records)
 
 
 def exploration_state(policy: nn.Module, runs: int) -> torch.Tensor:

@@ -29,7 +29,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from sde_torchrl.collectors.episode_queue import EpisodeQueue
 from sde_torchrl.collectors.rollout import collect_episodes
 from sde_torchrl.jobs.checkpoint import job_streams, restore_job, result_config, save_job
-from sde_torchrl.jobs.run_dir import FinishedRun, RunDirectory, episodes_after, metric_rows, recorded_rows
+from sde_torchrl.jobs.metrics import MetricRow, metric_rows, recorded_rows, update_statistics
+from sde_torchrl.jobs.run_dir import FinishedRun, RunDirectory, episodes_after
 from sde_torchrl.objectives.estimators import EpisodicEstimator
 from sde_torchrl.objectives.pgpe import PGPEEstimator
 from sde_torchrl.trainers.guard import FiniteGuard
@@ -198,20 +199,18 @@ class Trainer:
                     episodes = self.queue.next_batch(self.collect) if self.queue else self.collect()
                     stats = self.update(episodes, k)
                     notice.cancel()
-                    state.returns.append(stats["return_mean"])
-                    state.grad_norms.append(stats["grad_norm"])
-                    state.explorations.append(stats["exploration"])
+                    state.add(stats)
                     if s.r_lim is not None:
                         state.reached |= stats["return_mean"] > s.r_lim
                     is_last = k == s.updates - 1 or (s.stop_at_threshold and bool(state.reached.all()))
                     eval_return = None
                     if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
                         eval_return = state.evals[k] = self.guard.check_evaluation(k, self.evaluate())
-                    metrics.write(self._rows(k, stats["return_mean"], eval_return, stats["grad_norm"],
-                                             stats["exploration"]))
+                    statistics = update_statistics(s.first_run, k, self.episodes_after(k), stats, eval_return)
+                    metrics.write(metric_rows(statistics))
                     state.update, state.finished = k + 1, is_last
                     state.wall_s = session_wall + time.perf_counter() - session_start
-                    reporter.update(k, self.episodes_after(k), stats["return_mean"], eval_return)
+                    reporter.update(k, self.episodes_after(k), statistics)
                     if is_last:
                         break
                     if interrupt.requested or (period and state.update % period == 0):
@@ -234,15 +233,9 @@ class Trainer:
                 f"{episodes} episodes of {s.episode_length} steps for each of {self.runs} runs"
                 f"{' (the episode queue is filled first)' if fill else ''}, then estimating the gradient")
 
-    def _rows(self, k: int, return_mean: torch.Tensor, eval_return: torch.Tensor | None,
-              grad_norm: torch.Tensor, exploration: torch.Tensor) -> list[dict[str, Any]]:
-        """The ``metrics.csv`` rows of update ``k``, one per run."""
-        return metric_rows(self.settings.first_run, k, self.episodes_after(k), return_mean, eval_return, grad_norm,
-                           exploration)
-
-    def _recorded_rows(self, state: LoopState) -> list[dict[str, Any]]:
+    def _recorded_rows(self, state: LoopState) -> list[MetricRow]:
         """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
-        return recorded_rows(vars(state), self.settings.first_run, self.episodes_after)
+        return recorded_rows(state.record(), self.settings.first_run, self.episodes_after)
 
     def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
         if self.queue is not None:
