@@ -4,6 +4,7 @@ docs/ballcatch/learner_selection.md)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from _helpers import compose_config
@@ -51,6 +52,44 @@ def test_round_three_jobs_change_only_what_their_rule_says(method):
         conf = validate(compose_config(*tuning.job_overrides(method, candidate, round_=3)))
         assert (conf.seed, conf.runs, conf.updates, conf.env.model) == (3000, 16, 500, "pybrain"), candidate
     assert tuning.ROUNDS[3] == ["C7", "C1", "C10", "C11", "C12"]  # the rule's order, which breaks the last tie
+
+
+@pytest.mark.parametrize("method", list(tuning.METHODS))
+def test_round_four_adds_c10_with_sigma_fixed_on_round_three_s_seed(method):
+    """Round 4 (learner_selection.md, 2026-12-04): C13 is C10's job with σ̂ fixed at e⁻³, on round
+    3's seed and runs; for ENAC, whose command fixes σ̂ already, it is C10's job and is not run."""
+    c10 = validate(compose_config(*tuning.job_overrides(method, "C10", round_=3)))
+    c13 = validate(compose_config(*tuning.job_overrides(method, "C13", round_=4)))
+    assert (c13.explorer.init_param, c13.explorer.learn_sigma) == (-3.0, False)
+    assert (c13.seed, c13.runs, c13.updates) == (3000, 16, 500)
+    assert (c13.optimizer, c13.lr, c13.estimator, c13.env) == (c10.optimizer, c10.lr, c10.estimator, c10.env)
+    fixes_sigma = not tuning.METHODS[method][3]
+    assert (c13 == c10) == fixes_sigma
+    assert tuning.job_candidate(method, "C13") == ("C10" if fixes_sigma else "C13")
+    assert [job.name for job in tuning.jobs(Path("t"), [method], ["C13"], round_=4)] == \
+        ([] if fixes_sigma else [f"{method}/C13"])
+    assert tuning.ROUNDS[4] == [*tuning.ROUNDS[3], "C13"]  # C13 wins only by beating round 3's choice
+
+
+def test_round_four_chooses_once_its_six_jobs_have_run(tmp_path):
+    import shutil
+
+    from _helpers import REPO
+
+    committed = REPO / "docs" / "ballcatch" / "tuning" / "round3" / "reinforce_sde"
+    folder = tmp_path / "round3" / "reinforce_sde"
+    for candidate in tuning.ROUNDS[3]:
+        shutil.copytree(committed / candidate, folder / candidate)
+    numbers = tuning.round3_numbers(tmp_path / "round3")["methods"]["reinforce_sde"]
+    assert (numbers["chosen"], numbers["chosen_round4"]) == ("C10", None)
+    shutil.copytree(committed / "C10", folder / "C13")  # equal to C10: the tie goes to the earlier candidate
+    assert tuning.round3_numbers(tmp_path / "round3")["methods"]["reinforce_sde"]["chosen_round4"] == "C10"
+    shutil.rmtree(folder / "C13")
+    shutil.copytree(REPO / "docs" / "ballcatch" / "tuning" / "round3" / "enac_sde" / "C10", folder / "C13")
+    numbers = tuning.round3_numbers(tmp_path / "round3")["methods"]["reinforce_sde"]  # 13 catches to C10's 12
+    assert (numbers["chosen"], numbers["chosen_round4"]) == ("C10", "C13")
+    text = "\n".join(tuning.round3_markdown(tuning.round3_numbers(tmp_path / "round3")))
+    assert "Round 4 changes the choice of: REINFORCE + SDE C10 → C13" in text
 
 
 def test_round_three_counts_good_catches_before_the_mean():

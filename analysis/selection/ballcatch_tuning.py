@@ -194,42 +194,59 @@ def candidate_numbers(finals: list[float] | None) -> dict | None:
 
 
 def round3_numbers(folder: Path) -> dict:
-    """Round 3's jobs under ``folder`` (``<method>/<candidate>``) and each method's choice, made
-    once all its candidates have finished or failed (more catches, then good catches, then the
-    mean; a failed job counts as no catch)."""
+    """Rounds 3 and 4's jobs under ``folder`` (``<method>/<candidate>``, one seed) and each method's
+    choice in each round, made once all its candidates of that round have finished or failed
+    (more catches, then good catches, then the mean; a failed job counts as no catch)."""
     seed, runs, _ = ROUND_JOBS[3]
     methods = {}
     for method, (label, *_) in METHODS.items():
-        results = {c: final_evaluations(folder / method / c) for c in ROUNDS[3]}
+        results = {c: final_evaluations(folder / method / job_candidate(method, c)) for c in ROUNDS[4]}
         if all(r is None for r in results.values()):
             continue
-        complete = all(any((folder / method / c / name).exists() for name in ("summary.json", "error.txt"))
-                       for c in ROUNDS[3])  # finished or failed; a running job has neither
-        methods[method] = {"label": label, "chosen": select(results, good_catches=True) if complete else None,
+
+        def chosen(round_: int) -> str | None:
+            complete = all(any((folder / method / job_candidate(method, c) / name).exists()
+                               for name in ("summary.json", "error.txt"))
+                           for c in ROUNDS[round_])  # finished or failed; a running job has neither
+            return select({c: results[c] for c in ROUNDS[round_]}, good_catches=True) if complete else None
+
+        methods[method] = {"label": label, "chosen": chosen(3), "chosen_round4": chosen(4),
+                           "same_as": {c: job_candidate(method, c) for c in ROUNDS[4] if job_candidate(method, c) != c},
                            "candidates": {c: candidate_numbers(r) for c, r in results.items()}}
     return {"seed": seed, "runs": runs, "methods": methods}
 
 
 def round3_markdown(numbers: dict) -> list[str]:
-    """Round 3's table: one row per candidate, one column per method that ran any of its jobs."""
+    """Rounds 3 and 4's table: one row per candidate, one column per method that ran any of its jobs."""
     methods = numbers["methods"]
     if not methods:
         return []
-    lines = ["", f"## Round 3 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
-             "The same cells; ‡: the method's choice in round 3 (most final catches, then good catches, then the "
-             "mean), made once all five of its candidates have run.", "",
+    lines = ["", f"## Rounds 3 and 4 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
+             "The same cells; ‡: the method's choice in round 3 (C7, C1, C10, C11, C12: most final catches, then "
+             "good catches, then the mean), §: its choice in round 4 (the same with C13), each made once all of "
+             "that round's candidates have run; = C10: the same job (the method fixes σ̂ already).", "",
              "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
              "| --- |" + " --- |" * len(methods)]
-    for candidate in ROUNDS[3]:
+    for candidate in ROUNDS[4]:
         cells = []
         for m in methods.values():
             c = m["candidates"][candidate]
             cell = "-" if c is None else f"{c['catches']} / {c['good_catches']}, {c['mean_final']:.2f}"
-            cells.append(f"{cell} ‡" if m["chosen"] == candidate else cell)
+            if candidate in m.get("same_as", {}):
+                cell = f"= {m['same_as'][candidate]}"
+            marks = [mark for key, mark in (("chosen", "‡"), ("chosen_round4", "§")) if m.get(key) == candidate]
+            cells.append(" ".join([cell, *marks]))
         lines.append(f"| {candidate}: {CANDIDATES[candidate][0]} | " + " | ".join(cells) + " |")
-    waiting = [m["label"] for m in methods.values() if m["chosen"] is None]
-    if waiting:
-        lines += ["", f"Not chosen yet in round 3, its candidates not all run: {', '.join(waiting)}."]
+    for round_, key in ((3, "chosen"), (4, "chosen_round4")):
+        waiting = [m["label"] for m in methods.values() if m.get(key) is None]
+        if waiting:
+            lines += ["", f"Not chosen yet in round {round_}, its candidates not all run: {', '.join(waiting)}."]
+    changed = [f"{m['label']} {m['chosen']} → {m['chosen_round4']}" for m in methods.values()
+               if m.get("chosen_round4") not in (None, m["chosen"])]
+    decided = [m for m in methods.values() if m.get("chosen_round4") is not None]
+    if decided:
+        lines += ["", "Round 4 changes the choice of: " + (", ".join(changed) if changed else "no method") +
+                  f" (of the {len(decided)} methods it has decided)."]
     return lines
 
 
