@@ -204,16 +204,19 @@ def round3_numbers(folder: Path) -> dict:
         if all(r is None for r in results.values()):
             continue
 
-        def chosen(round_: int) -> str | None:
-            complete = all(any((folder / method / job_candidate(method, c) / name).exists()
-                               for name in ("summary.json", "error.txt"))
-                           for c in ROUNDS[round_])  # finished or failed; a running job has neither
-            return select({c: results[c] for c in ROUNDS[round_]}, good_catches=True) if complete else None
-
-        methods[method] = {"label": label, "chosen": chosen(3), "chosen_round4": chosen(4),
+        chosen = [round_choice(folder, method, results, round_) for round_ in (3, 4)]
+        methods[method] = {"label": label, "chosen": chosen[0], "chosen_round4": chosen[1],
                            "same_as": {c: job_candidate(method, c) for c in ROUNDS[4] if job_candidate(method, c) != c},
                            "candidates": {c: candidate_numbers(r) for c, r in results.items()}}
     return {"seed": seed, "runs": runs, "methods": methods}
+
+
+def round_choice(folder: Path, method: str, results: dict[str, list[float] | None], round_: int) -> str | None:
+    """``method``'s choice in round ``round_`` among ``results``, or ``None`` while one of the
+    round's jobs under ``folder`` has neither finished nor failed (a running job has neither file)."""
+    complete = all(any((folder / method / job_candidate(method, c) / name).exists()
+                       for name in ("summary.json", "error.txt")) for c in ROUNDS[round_])
+    return select({c: results[c] for c in ROUNDS[round_]}, good_catches=True) if complete else None
 
 
 def round3_markdown(numbers: dict) -> list[str]:
