@@ -5,7 +5,7 @@ and ``<!-- results:end -->``: one row per measure, one measure per cell (each me
 interval in their own columns, the paper's where it states one), and a one-line legend under it
 saying what each column is. This script writes that block from
 ``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
-(``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_selected/fig6.json``,
+(``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
 ``methods_selected/methods.json``, ``selected/fig5.json``), the quick start's run
 (``docs/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
 ``docs/sac/bench_sac.json`` and ``docs/sac/zoo_budget/bench_sac.json``, so that no figure in the
@@ -29,6 +29,7 @@ DOCS = Path(__file__).resolve().parent
 README = DOCS.parent / "README.md"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
+GOOD_CATCH = "-1.0"  # its "good catch" level
 NONE = "—"  # no such number (the paper's, or a baseline's)
 HEADER = ("result", "methods", "measure", "first", "95 % interval", "second", "95 % interval", "paper: first",
           "paper: second")
@@ -44,10 +45,10 @@ def _load(path: str) -> dict:
     return json.loads((DOCS / path).read_text())
 
 
-def _share(explorer: dict, which: str = "best") -> tuple[str, str]:
-    """A share of runs at a catch and its Wilson interval: ``("24 %", "[14, 37]")``."""
-    runs, count = explorer["runs"], explorer[which][CATCH]
-    low, high = explorer[f"{which}_interval"][CATCH]
+def _share(explorer: dict, which: str = "best", level: str = CATCH) -> tuple[str, str]:
+    """A share of runs at ``level`` (a catch) and its Wilson interval: ``("24 %", "[14, 37]")``."""
+    runs, count = explorer["runs"], explorer[which][level]
+    low, high = explorer[f"{which}_interval"][level]
     return f"{round(100 * count / runs)} %", f"[{round(100 * low)}, {round(100 * high)}]"
 
 
@@ -80,7 +81,7 @@ def summary() -> str:
     methods = _load("ballcatch/methods.json")["explorers"]
     selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
     fig5_selected = _load("ballcatch/fig5_seed3/fig5.json")["explorers"]
-    fig6_selected = _load("ballcatch/fig6_selected/fig6.json")["explorers"]
+    fig6_selected = _load("ballcatch/fig6_seed3/fig6.json")["explorers"]
     reevaluation = _load("ballcatch/reevaluation.json")["explorers"]
     held = {explorer: arms["pybrain_held"] for explorer, arms in reevaluation.items()}
     methods_selected = _load("ballcatch/methods_selected/methods.json")["explorers"]
@@ -100,16 +101,18 @@ def summary() -> str:
         return f"{statistics.mean(values):.0f}"
 
     def catches(name: str, page: str, methods: str, counts: tuple[dict, dict], measure: str, which: str,
-                paper: bool = False) -> tuple:
+                paper: bool = False, level: str = CATCH) -> tuple:
         first, second = counts
         runs = {first["runs"], second["runs"]}
         each = f"{runs.pop()} each" if len(runs) == 1 else f"{first['runs']} and {second['runs']}"
-        return (name, page, methods, f"{measure}, of {each}", *_share(first, which), *_share(second, which),
-                paper_share(first) if paper else NONE, paper_share(second) if paper else NONE)
+        return (name, page, methods, f"{measure}, of {each}", *_share(first, which, level),
+                *_share(second, which, level), paper_share(first, level) if paper else NONE,
+                paper_share(second, level) if paper else NONE)
 
     table1_page, fig_page = "docs/reproduce/table1.md", "docs/reproduce/fig5_6.md"
     methods_page, ppo_page, sac_page = "docs/reproduce/methods.md", "docs/reproduce/ppo.md", "docs/reproduce/sac.md"
     reaching, ending = "runs reaching a catch in training", "runs whose last evaluation is a catch"
+    ending_good = "runs whose last evaluation is a good catch"
     on_20 = "final policies catching over 20 new balls"
     sde_rex, needs = "SDE vs REX", "episodes REX needs ÷ episodes SDE needs"
     rows = [  # (result, page, methods, measure, first, its interval, second, its interval, paper: first, paper: second)
@@ -128,6 +131,7 @@ def summary() -> str:
                          ("Fig. 6, each explorer's selected learner", fig6_selected)):
         pair = (counts["sde"], counts["rex"])
         rows += [catches(name, fig_page, sde_rex, pair, ending, "final"),
+                 catches(name, fig_page, sde_rex, pair, ending_good, "final", level=GOOD_CATCH),
                  catches(name, fig_page, sde_rex, pair, on_20, "final_policy"),
                  catches(name, fig_page, sde_rex, pair, reaching, "best", paper=True)]
     held_name = "Fig. 5, the earlier selected learners, arm held level (a diagnostic)"

@@ -30,6 +30,9 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                    BALLCATCH / "fig5_seed3", ("fig5.md", "fig5.json")),
     "fig6_selected": (fig6, [str(BALLCATCH / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig6_selected", ("fig6.md", "fig6.json")),
+    "fig6_seed3": (fig6, [str(BALLCATCH / "runs" / "fig6_seed3" / "sde"),
+                          str(BALLCATCH / "runs" / "fig6_selected" / "rex")],
+                   BALLCATCH / "fig6_seed3", ("fig6.md", "fig6.json")),
     "methods_selected": (fig5, [*(str(BALLCATCH / "runs" / folder) for folder in
                                     ("fig5_selected/sde", "fig5_selected/rex", "methods_selected/gpomdp",
                                      "methods_selected/pgpe")),
