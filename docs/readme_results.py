@@ -7,7 +7,7 @@ saying what each column is. This script writes that block from
 ``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
 (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
 ``methods_selected/methods.json``, ``selected/fig5.json``), the quick start's run
-(``docs/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
+(``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
 ``docs/sac/bench_sac.json`` and ``docs/sac/zoo_budget/bench_sac.json``, so that no figure in the
 README is typed by hand::
 
@@ -86,7 +86,7 @@ def summary() -> str:
     held = {explorer: arms["pybrain_held"] for explorer, arms in reevaluation.items()}
     methods_selected = _load("ballcatch/methods_selected/methods.json")["explorers"]
     gpomdp_selected, pgpe_selected = methods_selected["sde+gpomdp"], methods_selected["pgpe"]
-    quick_start = _load("ballcatch/runs/selected/seed0/summary.json")["final_eval_return"][0]
+    quick_start = _load("../results/ballcatch/runs/selected/seed0/summary.json")["final_eval_return"][0]
     ppo = _load("ppo/bench_ppo.json")
     sac = _load("sac/bench_sac.json")["mountaincar"]
     zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]

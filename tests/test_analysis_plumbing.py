@@ -23,7 +23,7 @@ from analysis.paper import ballcatch_scores, fig5
 from analysis.selection import ballcatch_tuning
 from sde_torchrl.jobs.run_dir import MetricRow, finished_runs, read_finished_run, read_metrics
 
-RUNS = REPO / "docs" / "ballcatch" / "runs"
+RUNS = REPO / "results" / "ballcatch" / "runs"
 
 
 def _plain_rows(path):
@@ -72,7 +72,7 @@ TINY = ("+experiment=minimize", "runs=2", "updates=3", "episodes_per_update=2", 
 
 def test_the_runner_skips_finished_jobs_runs_the_others_and_reports_failures_by_name(tmp_path):
     finished = tmp_path / "finished"
-    shutil.copytree(REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", finished)
+    shutil.copytree(REPO / "results" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", finished)
     before = {p.name: p.read_bytes() for p in finished.iterdir() if p.is_file()}
     jobs = [runner.TrainJob("finished", ("+experiment=minimize",), finished),
             runner.TrainJob("fresh", TINY, tmp_path / "fresh", cost=1),

@@ -46,7 +46,7 @@ def test_gravity_torques_agree_with_the_simulators_inverse_dynamics():
         assert abs(simulated) == pytest.approx(by_hand[joint], rel=0.02), joint
 
 
-FIG5_SELECTED = DOCS / "runs" / "fig5_selected"
+FIG5_SELECTED = DOCS.parents[1] / "results" / "ballcatch" / "runs" / "fig5_selected"
 
 
 def test_the_reevaluation_page_is_its_scripts_output_from_the_committed_files(tmp_path):
@@ -74,7 +74,7 @@ def test_behaviours_read_the_balls_position_under_a_scaled_observation(monkeypat
     catches (R ≥ −1.1) must not be counted as dropped."""
     from sde_torchrl.jobs.run_dir import finished_runs
 
-    job = finished_runs(DOCS / "runs" / "fig5_seed3" / "rex" / "0")[0]
+    job = finished_runs(DOCS.parents[1] / "results" / "ballcatch" / "runs" / "fig5_seed3" / "rex" / "0")[0]
     assert job.summary["config"]["env"]["observation"] == "scaled"
     returns = json.loads((job.path / "final_policy.json").read_text())["final_policy_return"]
     run = next(r for r, value in enumerate(returns) if value >= -1.1)

@@ -76,7 +76,7 @@ def test_round_four_chooses_once_its_six_jobs_have_run(tmp_path):
 
     from _helpers import REPO
 
-    committed = REPO / "docs" / "ballcatch" / "tuning" / "round3" / "reinforce_sde"
+    committed = REPO / "results" / "ballcatch" / "tuning" / "round3" / "reinforce_sde"
     folder = tmp_path / "round3" / "reinforce_sde"
     for candidate in tuning.ROUNDS[3]:
         shutil.copytree(committed / candidate, folder / candidate)
@@ -85,7 +85,7 @@ def test_round_four_chooses_once_its_six_jobs_have_run(tmp_path):
     shutil.copytree(committed / "C10", folder / "C13")  # equal to C10: the tie goes to the earlier candidate
     assert tuning.round3_numbers(tmp_path / "round3")["methods"]["reinforce_sde"]["chosen_round4"] == "C10"
     shutil.rmtree(folder / "C13")
-    shutil.copytree(REPO / "docs" / "ballcatch" / "tuning" / "round3" / "enac_sde" / "C10", folder / "C13")
+    shutil.copytree(REPO / "results" / "ballcatch" / "tuning" / "round3" / "enac_sde" / "C10", folder / "C13")
     numbers = tuning.round3_numbers(tmp_path / "round3")["methods"]["reinforce_sde"]  # 13 catches to C10's 12
     assert (numbers["chosen"], numbers["chosen_round4"]) == ("C10", "C13")
     text = "\n".join(tuning.round3_markdown(tuning.round3_numbers(tmp_path / "round3")))
@@ -153,7 +153,7 @@ def test_a_method_is_chosen_for_only_once_its_whole_grid_has_run(tmp_path):
 
     from _helpers import REPO
 
-    committed = REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde"
+    committed = REPO / "results" / "ballcatch" / "tuning" / "reinforce_sde"
     for candidate in ("C1", "C7"):
         shutil.copytree(committed / candidate, tmp_path / "tuning" / "reinforce_sde" / candidate)
     numbers = tuning.report(tmp_path / "tuning", tmp_path / "out")
@@ -168,7 +168,7 @@ def test_round_two_chooses_among_all_nine_and_leaves_round_one_as_it_was(tmp_pat
 
     from _helpers import REPO
 
-    committed = REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde"
+    committed = REPO / "results" / "ballcatch" / "tuning" / "reinforce_sde"
     for candidate in tuning.ROUNDS[1]:
         shutil.copytree(committed / candidate, tmp_path / "tuning" / "reinforce_sde" / candidate)
     numbers = tuning.report(tmp_path / "tuning", tmp_path / "out")["methods"]["reinforce_sde"]
@@ -189,7 +189,7 @@ def test_run_leaves_a_finished_job_as_it_is(tmp_path):
     from _helpers import REPO
 
     job = tmp_path / "reinforce_sde" / "C1"
-    shutil.copytree(REPO / "docs" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", job)
+    shutil.copytree(REPO / "results" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", job)
     before = {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()}
     assert tuning.main(["run", "--out", str(tmp_path), "--methods", "reinforce_sde", "--candidates", "C1"]) == 0
     assert {p.name: p.read_bytes() for p in job.iterdir() if p.is_file()} == before

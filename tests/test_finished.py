@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -30,7 +31,7 @@ from sde_torchrl.utils.files import DamagedFileError
 
 BUDGET = ("+experiment=minimize", "logger=none", "runs=2", "updates=12", "episodes_per_update=4", "eval_period=5",
           "checkpoint_period=4")
-COMMITTED = REPO / "docs" / "ballcatch" / "runs" / "score_probe" / "sde"
+COMMITTED = REPO / "results" / "ballcatch" / "runs" / "score_probe" / "sde"
 
 
 def snapshot(directory: Path) -> dict[str, tuple[bytes, int]]:
@@ -225,11 +226,28 @@ def test_sweep_readers_find_jobs_by_their_record_and_refuse_one_not_finished(mad
 
 
 def test_every_committed_run_directory_reads_as_finished():
-    files = subprocess.run(["git", "ls-files", "docs"], cwd=REPO, capture_output=True, text=True, check=True).stdout
+    files = subprocess.run(["git", "ls-files", "results"], cwd=REPO, capture_output=True, text=True,
+                           check=True).stdout
     directories = sorted((REPO / name).parent for name in files.split() if name.endswith("/summary.json"))
     assert len(directories) >= 78
     for directory in directories:
         assert read_finished_run(directory).summary["updates_done"] > 0, directory
+
+
+#: What marks a file as a run record (a job's own files, a re-evaluation of its policies, a
+#: benchmark run's record) rather than a page, a figure or the table a script writes from records.
+RUN_RECORD = re.compile(r"(^|/)(\.hydra/|summary\.json$|metrics\.csv$|job_config\.json$|train\.log$|"
+                        r"final_policy\.json$|multirun\.yaml$|reevaluation_[a-z_]+\.json$|.*_seed\d+\.json$)")
+
+
+def test_no_run_record_is_under_docs():
+    """Run records live under ``results/``; ``docs/`` holds the pages, the figures and the tables
+    the scripts write from them."""
+    assert RUN_RECORD.search("results/ballcatch/runs/fig5_seed3/sde/0/.hydra/overrides.yaml")
+    assert RUN_RECORD.search("results/sac/runs/mountaincar_sde_seed0.json")
+    assert not RUN_RECORD.search("docs/ballcatch/reevaluation.json")
+    files = subprocess.run(["git", "ls-files", "docs"], cwd=REPO, capture_output=True, text=True, check=True).stdout
+    assert [name for name in files.split() if RUN_RECORD.search(name)] == []
 
 
 def test_a_logger_folder_cannot_take_the_name_of_a_file_the_job_writes():

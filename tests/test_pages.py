@@ -19,31 +19,32 @@ from analysis.paper import fig5, fig6, table1
 from analysis.selection import ballcatch_tuning, learner_search
 
 BALLCATCH = REPO / "docs" / "ballcatch"
+RECORDS = REPO / "results" / "ballcatch"  # the committed run records the pages are written from
 PAGES = {  # page → (script, its arguments before --out, the folder the page is in, the files it writes)
-    "fig5": (fig5, [str(BALLCATCH / "runs" / "fig5")], BALLCATCH, ("fig5.md", "fig5.json")),
-    "fig6": (fig6, [str(BALLCATCH / "runs" / "fig6")], BALLCATCH, ("fig6.md", "fig6.json")),
-    "methods": (fig5, [str(BALLCATCH / "runs" / "fig5"), str(BALLCATCH / "runs" / "methods"), "--estimator", "all"],
+    "fig5": (fig5, [str(RECORDS / "runs" / "fig5")], BALLCATCH, ("fig5.md", "fig5.json")),
+    "fig6": (fig6, [str(RECORDS / "runs" / "fig6")], BALLCATCH, ("fig6.md", "fig6.json")),
+    "methods": (fig5, [str(RECORDS / "runs" / "fig5"), str(RECORDS / "runs" / "methods"), "--estimator", "all"],
                 BALLCATCH, ("methods.md", "methods.json")),
-    "fig5_selected": (fig5, [str(BALLCATCH / "runs" / "fig5_selected" / explorer) for explorer in ("sde", "rex")],
+    "fig5_selected": (fig5, [str(RECORDS / "runs" / "fig5_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig5_selected", ("fig5.md", "fig5.json")),
-    "fig5_seed3": (fig5, [str(BALLCATCH / "runs" / "fig5_seed3" / explorer) for explorer in ("sde", "rex")],
+    "fig5_seed3": (fig5, [str(RECORDS / "runs" / "fig5_seed3" / explorer) for explorer in ("sde", "rex")],
                    BALLCATCH / "fig5_seed3", ("fig5.md", "fig5.json")),
-    "fig6_selected": (fig6, [str(BALLCATCH / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
+    "fig6_selected": (fig6, [str(RECORDS / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "fig6_selected", ("fig6.md", "fig6.json")),
-    "fig6_seed3": (fig6, [str(BALLCATCH / "runs" / "fig6_seed3" / "sde"),
-                          str(BALLCATCH / "runs" / "fig6_selected" / "rex")],
+    "fig6_seed3": (fig6, [str(RECORDS / "runs" / "fig6_seed3" / "sde"),
+                          str(RECORDS / "runs" / "fig6_selected" / "rex")],
                    BALLCATCH / "fig6_seed3", ("fig6.md", "fig6.json")),
-    "methods_selected": (fig5, [*(str(BALLCATCH / "runs" / folder) for folder in
+    "methods_selected": (fig5, [*(str(RECORDS / "runs" / folder) for folder in
                                     ("fig5_selected/sde", "fig5_selected/rex", "methods_selected/gpomdp",
                                      "methods_selected/pgpe")),
                                   "--estimator", "all"],
                          BALLCATCH / "methods_selected", ("methods.md", "methods.json")),
-    "score_probe": (fig5, [*(str(BALLCATCH / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
+    "score_probe": (fig5, [*(str(RECORDS / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
                              "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
-    "selected/fig5": (fig5, [str(BALLCATCH / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
+    "selected/fig5": (fig5, [str(RECORDS / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
-    "tuning": (ballcatch_tuning, ["report", str(BALLCATCH / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
-    "ppo": (bench_ppo, ["report", str(REPO / "docs" / "ppo" / "runs")], REPO / "docs" / "ppo",
+    "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
+    "ppo": (bench_ppo, ["report", str(REPO / "results" / "ppo" / "runs")], REPO / "docs" / "ppo",
             ("bench_ppo.md", "bench_ppo.json")),
     # every candidate is recorded: --resume runs none of them and rewrites the page from the record
     "learner_search": (learner_search, ["--resume", "--workers", "1"], REPO / "docs" / "table1",

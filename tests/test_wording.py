@@ -1,7 +1,7 @@
 """Pages, the README and the code's docstrings and comments are written for users: none of them
 names an entry of the project's tracker ("issue 22", "(#41)"); they say what the thing is instead.
 
-Run records (``docs/*/runs/``, the job folders under ``docs/ballcatch/tuning/``, logs and JSON) and
+Run records (``docs/*/runs/``, the job folders under ``results/ballcatch/tuning/``, logs and JSON) and
 ``CHANGELOG.md`` are left as they were committed and are not scanned.
 """
 
@@ -24,19 +24,10 @@ TRACKER_REFERENCE = re.compile(
 BEING_EDITED_ELSEWHERE: frozenset[str] = frozenset()
 
 
-def _is_run_record(relative: Path) -> bool:
-    parts = relative.parts
-    if "runs" in parts:
-        return True
-    # docs/ballcatch/tuning/<method>/<candidate>/...: a tuning job's folder, not a page
-    return parts[:3] == ("docs", "ballcatch", "tuning") and len(parts) > 4
-
-
 def scanned_files(root: Path = REPO) -> list[Path]:
-    """The pages (``docs/**/*.md`` but run records), ``README.md``, the Python of ``sde_torchrl/``,
+    """The pages (``docs/**/*.md``; run records live under ``results/``), ``README.md``, the Python of ``sde_torchrl/``,
     ``analysis/``, ``train.py`` and the YAML of ``conf/``."""
-    files = [path for path in sorted((root / "docs").rglob("*.md"))
-             if not _is_run_record(path.relative_to(root)) and "_build" not in path.parts]
+    files = [path for path in sorted((root / "docs").rglob("*.md")) if "_build" not in path.parts]
     files.append(root / "README.md")
     for package in ("sde_torchrl", "analysis"):
         files += [path for path in sorted((root / package).rglob("*.py")) if "runs" not in path.parts]

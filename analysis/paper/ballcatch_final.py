@@ -22,9 +22,9 @@ arm joints held level, a diagnostic) and with their behaviour per episode
 (rule: ``docs/ballcatch/reevaluation_rule.md``).
 
 Usage:
-    python -m analysis.paper.ballcatch_final --episodes 20 --seed 7 docs/ballcatch/runs/fig5_selected/sde
+    python -m analysis.paper.ballcatch_final --episodes 20 --seed 7 results/ballcatch/runs/fig5_selected/sde
     python -m analysis.paper.ballcatch_final --episodes 20 --seed 7 --model pybrain_held \
-        docs/ballcatch/runs/fig5_selected/sde
+        results/ballcatch/runs/fig5_selected/sde
 """
 
 from __future__ import annotations

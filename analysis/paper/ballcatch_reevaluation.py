@@ -9,7 +9,7 @@ return is a catch and a good catch, the behaviour of every episode (dropped, kep
 held), the mean hold distance, and the rule's verdict on the tilted-palm lead.
 
 Usage:
-    python -m analysis.paper.ballcatch_reevaluation --out docs/ballcatch docs/ballcatch/runs/fig5_selected
+    python -m analysis.paper.ballcatch_reevaluation --out docs/ballcatch results/ballcatch/runs/fig5_selected
 """
 
 from __future__ import annotations

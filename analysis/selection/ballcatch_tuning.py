@@ -10,8 +10,8 @@ writes ``tuning.md`` and ``tuning.json``: per method and candidate the final cat
 catches and mean final evaluation (the paper's mean reward per step), and the chosen candidate.
 
 Usage:
-    python -m analysis.selection.ballcatch_tuning run --out docs/ballcatch/tuning [--methods reinforce_sde ...]
-    python -m analysis.selection.ballcatch_tuning report --out docs/ballcatch docs/ballcatch/tuning
+    python -m analysis.selection.ballcatch_tuning run --out results/ballcatch/tuning [--methods reinforce_sde ...]
+    python -m analysis.selection.ballcatch_tuning report --out docs/ballcatch results/ballcatch/tuning
 """
 
 from __future__ import annotations
@@ -259,7 +259,7 @@ def markdown(numbers: dict) -> str:
     lines = [
         "# Ball catching: the learner selection",
         "",
-        f"Written by `analysis/selection/ballcatch_tuning.py report` from the jobs under `docs/ballcatch/tuning/` "
+        f"Written by `analysis/selection/ballcatch_tuning.py report` from the jobs under `results/ballcatch/tuning/` "
         f"(rule: `learner_selection.md`; seed {numbers['seed']}, {numbers['runs']} runs per job, 500 updates). "
         "A cell: runs whose final deterministic evaluation is a catch (R ≥ -1.1) / a good catch (R ≥ -1.0), "
         "and the mean final evaluation (mean reward per step); **bold**: the method's candidate chosen in "

@@ -23,8 +23,8 @@ share), GAE and the update's parts.
 
 Usage::
 
-    python -m analysis.benchmarks.bench_ppo run --method sde --seed 0 --steps 500000 --out docs/ppo/runs
-    python -m analysis.benchmarks.bench_ppo report docs/ppo/runs --out docs/ppo
+    python -m analysis.benchmarks.bench_ppo run --method sde --seed 0 --steps 500000 --out results/ppo/runs
+    python -m analysis.benchmarks.bench_ppo report results/ppo/runs --out docs/ppo
     python -m analysis.benchmarks.bench_ppo phases sb3 sde+compile sde --rollouts 4 --out docs/ppo/phases.md
 
 One module per job: :mod:`.build` (the settings, the env, the policies), :mod:`.timing` (the

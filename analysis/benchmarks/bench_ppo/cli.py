@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--method", choices=METHODS, required=True)
     run_p.add_argument("--seed", type=int, default=0)
     run_p.add_argument("--steps", type=int, default=500_000)
-    run_p.add_argument("--out", type=Path, default=Path("docs/ppo/runs"))
+    run_p.add_argument("--out", type=Path, default=Path("results/ppo/runs"))
     run_p.add_argument("--compile", action="store_true",
                        help="torch.compile the whole TorchRL update (loss, backward, clip, Adam)")
     run_p.add_argument("--unclipped-actions", action="store_true",

@@ -67,10 +67,11 @@ single gradient steps of the four methods and profiles ours.
 
 Usage::
 
-    python -m analysis.benchmarks.bench_sac run --env mountaincar --method sde --seed 0 --steps 8000 --out docs/sac/runs
+    python -m analysis.benchmarks.bench_sac run --env mountaincar --method sde --seed 0 --steps 8000 \
+        --out results/sac/runs
     python -m analysis.benchmarks.bench_sac run --env mountaincar --method sde --compile --compile-policy --seed 0 \
-        --out docs/sac/zoo_budget/runs
-    python -m analysis.benchmarks.bench_sac report docs/sac/runs --out docs/sac
+        --out results/sac/zoo_budget/runs
+    python -m analysis.benchmarks.bench_sac report results/sac/runs --out docs/sac
     python -m analysis.benchmarks.bench_sac update-speed --env mountaincar --profile \
         --out docs/sac/update_speed_mountaincar.md
 

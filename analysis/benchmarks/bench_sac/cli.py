@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     run_p.add_argument("--env", choices=ENVS, default="mountaincar")
     run_p.add_argument("--seed", type=int, default=0)
     run_p.add_argument("--steps", type=int, default=None, help="env steps (default: the zoo's n_timesteps)")
-    run_p.add_argument("--out", type=Path, default=Path("docs/sac/runs"))
+    run_p.add_argument("--out", type=Path, default=Path("results/sac/runs"))
     run_p.add_argument("--learning-starts", type=int, default=None,
                        help="replace the zoo's learning_starts on both sides (short budgets)")
     run_p.add_argument("--eval-episodes", type=int, default=EVAL_EPISODES, help="deterministic episodes at the end")

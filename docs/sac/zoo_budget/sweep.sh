@@ -1,14 +1,14 @@
 #!/bin/bash
-# The runs in docs/sac/zoo_budget/runs: MountainCarContinuous at the zoo's budget (50,000 env steps), ours against
+# The runs in results/sac/zoo_budget/runs: MountainCarContinuous at the zoo's budget (50,000 env steps), ours against
 # SB3, 5 seeds each (SEEDS=n for seeds 0..n-1). Two lanes, one per core (torch.set_num_threads(1) in each
 # run), each alternating the two sides so that both meet the same load.
 # NOISE=sde (default): ours with SDE, the compiled update and policy forward, against SB3 SAC + gSDE.
 # NOISE=gauss: the plain tanh Gaussians, ours with the compiled update, against SB3 SAC without gSDE.
 # ONLY=ours (or ONLY=sb3) runs one side alone, over both lanes.
 # Usage, from the repository root: [NOISE=sde|gauss] [ONLY=ours|sb3] [SEEDS=n] bash docs/sac/zoo_budget/sweep.sh [OUT]
-# (OUT: docs/sac/zoo_budget/runs)
+# (OUT: results/sac/zoo_budget/runs)
 set -euo pipefail
-OUT=${1:-docs/sac/zoo_budget/runs}
+OUT=${1:-results/sac/zoo_budget/runs}
 ONLY=${ONLY:-}
 NOISE=${NOISE:-sde}
 SEEDS=${SEEDS:-5}
