@@ -54,7 +54,7 @@ from omegaconf import DictConfig, OmegaConf
 from sde_torchrl.config.errors import describe_error
 from sde_torchrl.config.help import register_help_resolver
 from sde_torchrl.config.registration import register_resolvers
-from sde_torchrl.config.schemas.train import validate
+from sde_torchrl.config.schemas.train import TrainConf, validate
 from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.trainers.interrupt import TrainingInterrupted, stop_requested
 from sde_torchrl.trainers.progress import progress_wanted
@@ -159,20 +159,20 @@ def save_hydra_config(cfg: DictConfig, out_dir: str) -> None:
         write_atomically(target / name, lambda f, node=node: f.write(OmegaConf.to_yaml(node).encode()))
 
 
-def report_finished(cfg: DictConfig, out_dir: str) -> bool:
-    """Whether ``out_dir`` holds this config's finished job, checked as the reader checks it
-    (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.finished_job`, before anything is built); if
-    so, its line is recorded for the end and nothing is changed.
+def report_finished(conf: TrainConf, out_dir: str) -> bool:
+    """Whether ``out_dir`` holds this config's finished job, checked as the job checks it
+    (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`, here before anything is built);
+    if so, its line is recorded for the end and nothing is changed.
 
     Raises:
-        CheckpointMismatchError: it holds a finished job of another config.
-        DamagedFileError: it holds no checkpoint and its files disagree.
+        CheckpointMismatchError: it holds a job of another config.
+        DamagedFileError: it holds no checkpoint and its files disagree, or a damaged checkpoint.
     """
     from sde_torchrl.jobs.checkpoint import result_config  # torch: the run directory is ours
     from sde_torchrl.jobs.run_dir import RunDirectory
     from sde_torchrl.trainers.trainer import finished_line
 
-    done = RunDirectory(out_dir).finished_job(result_config(OmegaConf.to_container(cfg, resolve=True)))
+    done = RunDirectory(out_dir, result_config(conf.resolved())).check_job()
     if done is None:
         return False
     FINISHED.append(finished_line(done))
@@ -330,13 +330,13 @@ def job(cfg: DictConfig) -> None:
         elif not Path(out_dir, "checkpoint.pt").exists():  # a resumed job keeps its first session's
             save_hydra_config(cfg, out_dir)
         try:
-            conf = validate(cfg)  # a bad value fails here, before the seconds of importing torch
-            if finished and report_finished(cfg, out_dir):
+            conf = validate(cfg)  # the job's config, once: a bad value fails here, before importing torch
+            if finished and report_finished(conf, out_dir):
                 return
             from sde_torchrl.config.build import run_job  # torch: imported once the run directory is ours
 
-            summary = run_job(cfg, out_dir, dict(hydra_cfg.runtime.choices),
-                              progress=progress_wanted(cfg.get("progress"), multirun), conf=conf)
+            summary = run_job(conf, out_dir, dict(hydra_cfg.runtime.choices),
+                              progress=progress_wanted(conf.progress, multirun))
         except Exception as error:  # noqa: BLE001 - every failure is recorded, then reported
             message, code = one_line(error)
             if finished or _is_foreign_checkpoint(error):  # a finished job's, or another's: leave it as it is

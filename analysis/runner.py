@@ -187,6 +187,7 @@ def _run_in_process(job: TrainJob, keep_checkpoints: bool) -> str | None:
 
     from sde_torchrl.config.build import run_job
     from sde_torchrl.config.compose import compose
+    from sde_torchrl.config.schemas.train import validate
 
     torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
     try:
@@ -194,7 +195,7 @@ def _run_in_process(job: TrainJob, keep_checkpoints: bool) -> str | None:
         choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
         with open_dict(cfg):
             del cfg["hydra"]
-        run_job(cfg, str(job.run_dir), choices)
+        run_job(validate(cfg), str(job.run_dir), choices)
     except Exception as error:  # noqa: BLE001 - reported by name, the other jobs go on
         text = " ".join(str(error).split())
         return text if type(error).__name__ in text else f"{type(error).__name__}: {text}"

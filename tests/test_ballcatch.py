@@ -333,13 +333,14 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     from _helpers import compose_config
 
     from sde_torchrl.config import build
+    from sde_torchrl.config.schemas.train import validate
 
     built = []
     original = build.build_trainer
     monkeypatch.setattr(build, "build_trainer", lambda *a, **k: built.append(original(*a, **k)) or built[-1])
     cfg = compose_config("+experiment=ballcatch", "runs=2", "updates=1", "episode_queue=2",
                          "env.episode_length=5", "eval_episodes=1", "logger=none")
-    build.run_job(cfg, str(tmp_path), {})
+    build.run_job(validate(cfg), str(tmp_path), {})
     worlds = [w for env in (built[0].env, built[0].eval_env) for w in env.base_env.worlds]
     assert len(worlds) == 4 and not any(w.is_connected() for w in worlds)
 
@@ -351,11 +352,12 @@ def test_a_job_records_each_runs_level_in_its_summary(tmp_path):
     from _helpers import compose_config
 
     from sde_torchrl.config import build
+    from sde_torchrl.config.schemas.train import validate
     from sde_torchrl.envs.ballcatch.outcomes import catch_level
 
     cfg = compose_config("+experiment=ballcatch_paper", "runs=2", "updates=1", "episode_queue=2",
                          "env.episode_length=5", "eval_episodes=1", "logger=none")
-    build.run_job(cfg, str(tmp_path), {"env": "ballcatch"})
+    build.run_job(validate(cfg), str(tmp_path), {"env": "ballcatch"})
     summary = json.loads((tmp_path / "summary.json").read_text())
     per_step = [value / 5 for value in summary["final_eval_return"]]  # the paper's learner sums rewards
     assert summary["final_eval_mean_reward"] == pytest.approx(per_step)

@@ -89,12 +89,12 @@ def test_finished_job_is_not_trained_again(tmp_path):
 
 
 def test_checkpoint_of_another_config_is_refused(tmp_path):
-    build("updates=3").train(tmp_path, config={"lr": 0.005, "updates": 3})
+    build("updates=3").train(tmp_path, {"config": {"lr": 0.005, "updates": 3}})
     with pytest.raises(CheckpointMismatchError, match=r"lr: 0.005 -> 0.01"):
-        build("updates=3").train(tmp_path, config={"lr": 0.01, "updates": 3})
+        build("updates=3").train(tmp_path, {"config": {"lr": 0.01, "updates": 3}})
     # Keys that do not change the numbers may differ.
-    build("updates=3").train(tmp_path, config={"lr": 0.005, "updates": 3, "logger": {"x": 1},
-                                               "checkpoint_period": 9, "progress": True})
+    build("updates=3").train(tmp_path, {"config": {"lr": 0.005, "updates": 3, "logger": {"x": 1},
+                                                           "checkpoint_period": 9, "progress": True}})
 
 
 def test_config_differences_names_nested_keys():

@@ -17,6 +17,7 @@ import yaml
 from _helpers import REPO, compose_config, own_stderr_lines, run_cli
 
 from sde_torchrl.config.build import run_job
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.checkpoint import CheckpointMismatchError
 from sde_torchrl.jobs.lock import hold_run_directory
 from sde_torchrl.jobs.run_dir import (
@@ -42,7 +43,7 @@ def snapshot(directory: Path) -> dict[str, tuple[bytes, int]]:
 
 def train(run_dir: Path, *overrides: str) -> dict:
     """The job of :data:`BUDGET` (with ``overrides``), run as ``train.py`` runs it, in this process."""
-    return run_job(compose_config(*BUDGET, *overrides), str(run_dir), {"experiment": "minimize"})
+    return run_job(validate(compose_config(*BUDGET, *overrides)), str(run_dir), {"experiment": "minimize"})
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +112,7 @@ def test_a_job_never_removes_a_finished_run(finished):
     before = snapshot(finished)
     with pytest.raises(FinishedRunError, match="holds a finished job: a new job would remove its files; it was left "
                                                "unchanged: .* or remove that one to start over"):
-        RunDirectory(finished).start_new_job(None)
+        RunDirectory(finished).start_new_job()
     summary = json.loads((finished / "summary.json").read_text())
     assert train(finished) == summary  # nothing trained, nothing written
     assert snapshot(finished) == before

@@ -10,6 +10,7 @@ import torch
 from _helpers import build, compose_config, own_stderr_lines, read_rows, run_cli
 
 from sde_torchrl.config.build import run_job
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.trainers.guard import NonFiniteError
 from sde_torchrl.trainers.progress import Progress, progress_wanted
 
@@ -140,7 +141,7 @@ def test_failing_job_in_a_sweep_keeps_the_others(tmp_path):
 def test_tensorboard_logger_writes_event_files(tmp_path):
     pytest.importorskip("tensorboard")
     cfg = compose_config("+experiment=minimize", "logger=tensorboard", "updates=3")
-    run_job(cfg, str(tmp_path), {"env": "minimize"})
+    run_job(validate(cfg), str(tmp_path), {"env": "minimize"})
     events = list((tmp_path / "sde_torchrl").glob("events.out.tfevents.*"))
     assert events and events[0].stat().st_size > 0
 
@@ -151,7 +152,7 @@ def test_wandb_logger_runs_offline(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_DIR", str(tmp_path))
     cfg = compose_config("+experiment=minimize", "logger=wandb", "updates=2")
     assert cfg.logger.offline is True
-    run_job(cfg, str(tmp_path), {"env": "minimize"})
+    run_job(validate(cfg), str(tmp_path), {"env": "minimize"})
     runs = list(tmp_path.glob("**/offline-run-*/run-*.wandb"))
     assert runs and runs[0].stat().st_size > 0
 

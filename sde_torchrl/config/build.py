@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tensordict.nn import TensorDictSequential
 
 from sde_torchrl.config.schemas.algorithms import SACConf
@@ -153,34 +153,28 @@ def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
                     episodes, unknowns, unknowns)
 
 
-def run_job(
-    cfg: DictConfig, out_dir: str, choices: dict[str, str | None], progress: bool = False,
-    conf: TrainConf | None = None,
-) -> dict[str, Any]:
+def run_job(conf: TrainConf, out_dir: str, choices: dict[str, str | None], progress: bool = False) -> dict[str, Any]:
     """Builds and trains (or resumes) one job; its summary is labelled with the chosen config
-    options, the seed and the whole resolved config, so that a run directory describes itself.
+    options, the seed and the whole resolved config (:meth:`TrainConf.resolved`), so that a run
+    directory describes itself. The trainer gets the config once, in those labels: the run
+    directory records it and checks that it holds this job
+    (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`).
 
     Args:
-        cfg: the composed config.
+        conf: the job's config, validated at the edge (:func:`~sde_torchrl.config.schemas.train.validate`;
+            ``train.py`` checks it before importing torch).
         out_dir: the run directory; a checkpoint there from the same config is resumed.
         choices: group → chosen option (Hydra's ``runtime.choices``).
         progress: show a progress bar.
-        conf: ``validate(cfg)`` if the caller has it already (``train.py`` checks the config
-            before importing torch); ``None``: checked here.
 
     Returns:
         The summary written to ``summary.json``.
-
-    Raises:
-        ArgumentError: for a config value that is not allowed (before anything is built).
     """
-    conf = validate(cfg) if conf is None else conf
     if keeps_step_scores(conf):  # its per-update tensors would fragment the heap: RSS +15 MB per update
         fix_mmap_threshold()
     torch.set_num_threads(conf.threads)
-    config = OmegaConf.to_container(cfg, resolve=True)
     labels = {group: choices.get(group) for group in LABELLED_GROUPS}
-    labels.update(seed=conf.seed, config=config)
+    labels.update(seed=conf.seed, config=conf.resolved())
     if isinstance(conf.algorithm, SACConf):  # SAC: the off-policy loop, the same run directory
         from sde_torchrl.config.build_sac import build_sac_trainer
 
@@ -194,7 +188,6 @@ def run_job(
     else:
         trainer = build_trainer(conf, out_dir)
     try:
-        return trainer.train(out_dir, labels, config=config, checkpoint_period=conf.checkpoint_period,
-                             progress=progress)
+        return trainer.train(out_dir, labels, checkpoint_period=conf.checkpoint_period, progress=progress)
     finally:
         trainer.close()  # a launcher's worker process may run further jobs

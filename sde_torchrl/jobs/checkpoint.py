@@ -260,7 +260,8 @@ def save_job(
 
     Args:
         path: the checkpoint file.
-        config: the job's result config (see :func:`result_config`), checked on resume.
+        config: the job's result config (see :func:`result_config`), what the run directory
+            checks a resumed job against.
         loop: the training loop's bookkeeping (its ``state_dict``), with ``update`` in it.
         policy: the policy whose state dict is saved.
         optimizer: the optimiser whose state dict is saved.
@@ -348,35 +349,48 @@ def check_content(saved: dict[str, Any], policy: torch.nn.Module, updates: int |
     return None
 
 
+def read_checkpoint(path: Path) -> dict[str, Any]:
+    """:func:`load_checkpoint` of a job's ``checkpoint.pt``, a damaged one's remedy pointing to
+    :data:`PREVIOUS` when that one is intact.
+
+    Raises:
+        DamagedFileError: the file is damaged.
+        CheckpointMismatchError: it has another checkpoint format.
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / CHECKPOINT
+        >>> save_checkpoint(path, {"format": FORMAT, "updates": 3})
+        >>> read_checkpoint(path)["updates"]
+        3
+    """
+    try:
+        return load_checkpoint(path)
+    except DamagedFileError as error:
+        raise _pointing_to_previous(error, path.with_name(PREVIOUS)) from error
+
+
 def restore_job(
-    path: Path, *, config: dict[str, Any] | None, policy: torch.nn.Module,
-    optimizer: torch.optim.Optimizer, streams: dict[str, RunStreams | None], updates: int | None = None,
+    path: Path, *, policy: torch.nn.Module, optimizer: torch.optim.Optimizer,
+    streams: dict[str, RunStreams | None], updates: int | None = None,
 ) -> dict[str, Any]:
     """Restores a job saved by :func:`save_job` and returns the loop's bookkeeping.
 
-    Policy, optimiser, the per-run streams and the global generators are restored in place.
+    Policy, optimiser, the per-run streams and the global generators are restored in place. The
+    checkpoint checks itself only (its checksum, format and fit to the job): whether it is this
+    job's, of this config, the run directory decides before
+    (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`).
 
     Args:
         updates: the job's number of updates (the checkpoint's counter must not exceed it).
 
     Raises:
-        CheckpointMismatchError: the checkpoint was written under another config, or holds
-            streams this job does not have.
+        CheckpointMismatchError: the checkpoint has another format, or holds streams this job
+            does not have.
         DamagedFileError: the file is damaged, or its content does not fit the job
             (:func:`check_content`).
     """
-    try:
-        saved = load_checkpoint(path)
-    except DamagedFileError as error:
-        raise _pointing_to_previous(error, path.with_name(PREVIOUS)) from error
-    if config is not None and saved.get("config") is not None:
-        diff = config_differences(saved["config"], config)
-        if diff:
-            raise CheckpointMismatchError(
-                f"{path} was written by another config ({'; '.join(diff[:5])}); it was left unchanged: "
-                "resume with the same overrides, or give this job another directory (hydra.run.dir, "
-                "or hydra.sweep.dir for a sweep), or delete the checkpoint"
-            )
+    saved = read_checkpoint(path)
     problem = check_content(saved, policy, updates)
     if problem is not None:
         error = DamagedFileError(path, problem, f"nothing was resumed from it; delete {path.name} to train the job "

@@ -6,7 +6,8 @@
   (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
 - ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
 - ``job_config.json``: the config the rows were written under, so that a rerun with another
-  config is refused before the first checkpoint as after it;
+  config is refused before the first checkpoint as after it (:meth:`RunDirectory.check_job`, the
+  one check that a directory holds this job);
 - ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.jobs.checkpoint`;
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
@@ -50,6 +51,7 @@ from sde_torchrl.jobs.checkpoint import (
     CheckpointMismatchError,
     config_differences,
     load_checkpoint,
+    read_checkpoint,
     result_config,
 )
 from sde_torchrl.jobs.lock import LOCK, held_by, hold_run_directory, make_run_directory
@@ -130,20 +132,24 @@ def read_metrics_text(text: str) -> list[MetricRow]:
 
 
 class RunDirectory:
-    """The files of one job.
+    """The files of one job, and the one check that they are this job's (:meth:`check_job`).
 
     Args:
         path: the directory (created if missing).
+        config: the job's result config (:func:`~sde_torchrl.jobs.checkpoint.result_config`):
+            what :meth:`start_new_job` records in ``job_config.json`` and a checkpoint stores,
+            and what :meth:`check_job` holds the recorded one against; ``None``: no record, no check.
 
     Examples:
         >>> import tempfile
-        >>> run_dir = RunDirectory(tempfile.mkdtemp())
-        >>> run_dir.checkpoint.name, run_dir.has_checkpoint()
-        ('checkpoint.pt', False)
+        >>> run_dir = RunDirectory(tempfile.mkdtemp(), {"seed": 1})
+        >>> run_dir.checkpoint.name, run_dir.has_checkpoint(), run_dir.check_job()
+        ('checkpoint.pt', False, None)
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, config: dict[str, Any] | None = None) -> None:
         self.path = make_run_directory(path)
+        self.config = config
         self.metrics = self.path / "metrics.csv"
         self.summary = self.path / "summary.json"
         self.error = self.path / "error.txt"
@@ -161,34 +167,87 @@ class RunDirectory:
         """
         return hold_run_directory(self.path)
 
-    def start_new_job(self, config: dict[str, Any] | None = None) -> None:
-        """Removes an earlier, unfinished job's metrics, error file and TorchRL CSV logger files
-        (no checkpoint: nothing resumes; the logger would otherwise append to the old rows), and
-        records ``config`` in ``job_config.json``.
+    def check_job(self) -> FinishedRun | None:
+        """Whether the directory may hold this job (:attr:`config`): the one "same job?" check,
+        made before anything is built or changed. What the directory holds decides which record
+        counts and how a refusal reads:
 
-        A finished job's files are never removed, and rows of an earlier job whose recorded
-        config differs are not either: such a directory is refused as one with another config's
-        checkpoint is.
+        - a finished job whose files agree (:func:`check_finished`): the config its checkpoint,
+          its ``job_config.json`` or its summary records;
+        - else a ``checkpoint.pt`` (the job resumes from it): the config it stores;
+        - else rows in ``metrics.csv``: the config ``job_config.json`` records.
+
+        Returns:
+            The finished job, which is final (nothing is to be done); ``None``: the job starts, or
+            resumes from its checkpoint.
 
         Raises:
-            FinishedRunError: the directory holds a finished job (its ``summary.json``).
-            CheckpointMismatchError: ``metrics.csv`` holds rows of a job with another config.
+            CheckpointMismatchError: the directory holds a job of another config (nothing is
+                changed), or a checkpoint of another format.
+            UnfinishedRunError: it holds a summary and no checkpoint, and its files disagree.
+            DamagedFileError: ``summary.json`` is not valid JSON (and there is no checkpoint), or
+                ``checkpoint.pt`` is damaged.
+
+        Examples:
+            >>> import tempfile
+            >>> path = tempfile.mkdtemp()
+            >>> RunDirectory(path, {"lr": 0.1}).start_new_job()
+            >>> with open(Path(path) / "metrics.csv", "w") as f:
+            ...     _ = f.write("run,update\\n0,0\\n")
+            >>> RunDirectory(path, {"lr": 0.2}).check_job()  # doctest: +ELLIPSIS
+            Traceback (most recent call last):
+            ...
+            sde_torchrl.jobs.checkpoint.CheckpointMismatchError: ... of a job with another config (lr: 0.1 -> 0.2); ...
+        """
+        done = self._finished_job()
+        if done is not None:
+            recorded, refusal = self.recorded_config(done), self._finished_refusal
+        elif self.has_checkpoint():
+            recorded, refusal = read_checkpoint(self.checkpoint).get("config"), self._checkpoint_refusal
+        elif self.job_config.exists() and self.metrics.exists() and len(self.metrics.read_bytes().splitlines()) > 1:
+            recorded, refusal = json.loads(self.job_config.read_text()), self._rows_refusal
+        else:
+            recorded, refusal = None, self._rows_refusal
+        if self.config is not None and recorded is not None:
+            diff = config_differences(recorded, self.config)
+            if diff:
+                raise CheckpointMismatchError(refusal(diff))
+        return done
+
+    def _finished_refusal(self, diff: list[str]) -> str:
+        more = ("; a finished job is not trained further in its directory: to train for other updates, "
+                "give the job another directory" if {d.split(":")[0] for d in diff} == {"updates"} else "")
+        return (f"{self.path} holds a finished job of another config ({'; '.join(diff[:5])}); it was left "
+                f"unchanged: rerun with the same overrides, or give this job another directory (hydra.run.dir, "
+                f"or hydra.sweep.dir for a sweep){more}")
+
+    def _checkpoint_refusal(self, diff: list[str]) -> str:
+        return (f"{self.checkpoint} was written by another config ({'; '.join(diff[:5])}); it was left unchanged: "
+                "resume with the same overrides, or give this job another directory (hydra.run.dir, "
+                "or hydra.sweep.dir for a sweep), or delete the checkpoint")
+
+    def _rows_refusal(self, diff: list[str]) -> str:
+        return (f"{self.path} holds the rows of a job with another config ({'; '.join(diff[:5])}); they were left "
+                "unchanged: rerun with the same overrides, or give this job another directory (hydra.run.dir, "
+                "or hydra.sweep.dir for a sweep), or delete its metrics.csv")
+
+    def start_new_job(self) -> None:
+        """Removes an earlier, unfinished job's metrics, error file and TorchRL CSV logger files
+        (no checkpoint: nothing resumes; the logger would otherwise append to the old rows), and
+        records :attr:`config` in ``job_config.json``. Rows of an earlier job of another config
+        are refused before (:meth:`check_job`).
+
+        Raises:
+            FinishedRunError: the directory holds a finished job (its ``summary.json``): a finished
+                job's files are never removed.
         """
         if self.summary.exists():
             raise FinishedRunError(self.path, "a new job would remove its files")
-        if config is not None and self.job_config.exists() and self.metrics.exists() \
-                and len(self.metrics.read_bytes().splitlines()) > 1:
-            diff = config_differences(json.loads(self.job_config.read_text()), config)
-            if diff:
-                raise CheckpointMismatchError(
-                    f"{self.path} holds the rows of a job with another config ({'; '.join(diff[:5])}); they were left "
-                    "unchanged: rerun with the same overrides, or give this job another directory (hydra.run.dir, "
-                    "or hydra.sweep.dir for a sweep), or delete its metrics.csv")
         previous = self.path / PREVIOUS  # another job's: never a remedy for this one
         for stale in (self.metrics, self.summary, self.error, previous, *self._logger_csv_files()):
             stale.unlink(missing_ok=True)
-        if config is not None:
-            write_json_atomic(self.job_config, config)
+        if self.config is not None:
+            write_json_atomic(self.job_config, self.config)
 
     def clear_error(self) -> None:
         """Removes the error file of a failed session (the job is resumed)."""
@@ -214,42 +273,26 @@ class RunDirectory:
         write_json_atomic(self.summary, summary)
         return summary
 
-    def finished_job(self, config: dict[str, Any] | None) -> FinishedRun | None:
-        """The finished job this directory holds, checked (:func:`check_finished`), if any.
-
-        Args:
-            config: the result config of the job asking (:func:`~sde_torchrl.jobs.checkpoint.result_config`);
-                ``None`` skips the comparison.
+    def _finished_job(self) -> FinishedRun | None:
+        """The finished job this directory holds, its files checked (:func:`check_finished`), if any.
 
         Returns:
-            The finished job, when its files agree and its config is ``config``; ``None`` when
-            there is no ``summary.json``, or when a ``checkpoint.pt`` decides (an unfinished one
-            is resumed, a finished one rewrites a summary that disagrees with it).
+            The finished job, when its files agree; ``None`` when there is no ``summary.json``,
+            or when a ``checkpoint.pt`` decides (an unfinished one is resumed, a finished one
+            rewrites a summary that disagrees with it).
 
         Raises:
-            CheckpointMismatchError: it holds a finished job of another config (nothing is changed).
             UnfinishedRunError: there is no checkpoint and its files disagree (nothing can rebuild them).
             DamagedFileError: there is no checkpoint and ``summary.json`` is not valid JSON.
         """
         if not self.summary.exists():
             return None
         try:
-            job = check_finished(self.path, live=False)
+            return check_finished(self.path, live=False)
         except (DamagedFileError, CheckpointMismatchError, FileNotFoundError):
             if self.has_checkpoint():
                 return None
             raise
-        recorded = self.recorded_config(job)
-        if config is not None and recorded is not None:
-            diff = config_differences(recorded, config)
-            if diff:
-                more = ("; a finished job is not trained further in its directory: to train for other updates, "
-                        "give the job another directory" if {d.split(":")[0] for d in diff} == {"updates"} else "")
-                raise CheckpointMismatchError(
-                    f"{self.path} holds a finished job of another config ({'; '.join(diff[:5])}); it was left "
-                    f"unchanged: rerun with the same overrides, or give this job another directory (hydra.run.dir, "
-                    f"or hydra.sweep.dir for a sweep){more}")
-        return job
 
     def recorded_config(self, job: FinishedRun) -> dict[str, Any] | None:
         """The result config the directory's job ran with: its checkpoint's, else its
@@ -397,7 +440,7 @@ def summary_digest(summary: Mapping[str, Any]) -> str:
 
 def check_finished(path: str | os.PathLike, *, live: bool = True) -> FinishedRun:
     """Checks that a run directory holds a finished job whose files agree, and reads it: the one
-    check, run by the job on a directory that holds a summary (:meth:`RunDirectory.finished_job`)
+    check, run by the job on a directory that holds a summary (:meth:`RunDirectory.check_job`)
     and by the reader (:func:`read_finished_run`).
 
     - no live process holds it (``live``);

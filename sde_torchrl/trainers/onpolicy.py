@@ -217,7 +217,7 @@ class OnPolicyTrainer:
     # ------------------------------------------------------------------- the job
     def train(
         self, out_dir: str | os.PathLike, labels: dict[str, Any] | None = None, *,
-        config: dict[str, Any] | None = None, checkpoint_period: int = 0, progress: bool = False,
+        checkpoint_period: int = 0, progress: bool = False,
     ) -> dict[str, Any]:
         """Runs the job (or resumes it) and writes ``metrics.csv``, ``checkpoint.pt``,
         ``summary.json``, with the guarantees of :meth:`sde_torchrl.trainers.trainer.Trainer.train`.
@@ -225,10 +225,9 @@ class OnPolicyTrainer:
         Returns:
             The summary (also written to ``summary.json``).
         """
-        return train_in_directory(self, out_dir, labels, config, checkpoint_period, progress)
+        return train_in_directory(self, out_dir, labels, checkpoint_period, progress)
 
-    def _loop(self, run_dir: RunDirectory, state: LoopState, config: dict | None, period: int,
-              progress: bool) -> None:
+    def _loop(self, run_dir: RunDirectory, state: LoopState, period: int, progress: bool) -> None:
         s = self.settings
         session_start, session_wall = time.perf_counter(), state.wall_s
         reporter = Reporter(self.logger, s.updates, state.update, s.steps_per_update, progress)
@@ -252,13 +251,13 @@ class OnPolicyTrainer:
                         break
                     if interrupt.requested or (period and state.update % period == 0):
                         metrics.sync()
-                        self._save(run_dir, state, config)
+                        self._save(run_dir, state)
                     if interrupt.requested:
                         interrupt.stop(state.update, run_dir.path)
             finally:
                 reporter.close()
             metrics.sync()
-        self._save(run_dir, state, config)
+        self._save(run_dir, state)
 
     def _rows(self, state: LoopState) -> list[MetricRow]:
         """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
@@ -267,10 +266,10 @@ class OnPolicyTrainer:
     def _streams(self) -> dict[str, Any]:
         return job_streams(self.modules, self.env, self.eval_env)
 
-    def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
+    def _save(self, run_dir: RunDirectory, state: LoopState) -> None:
         loop = {**state.state_dict(), "episodes": torch.tensor(self.episodes, dtype=torch.int64),
                 "rollout": self._rollout_state()}
-        save_job(run_dir.checkpoint, config=config, loop=loop, policy=self.modules, optimizer=self.optimizer,
+        save_job(run_dir.checkpoint, config=run_dir.config, loop=loop, policy=self.modules, optimizer=self.optimizer,
                  streams=self._streams())
 
     def _rollout_state(self) -> dict[str, Any]:
@@ -285,11 +284,11 @@ class OnPolicyTrainer:
         self.collector.load_state_dict(rollout["collector"])
         self.returns.load_state_dict(rollout["returns"])
 
-    def _resume(self, run_dir: RunDirectory, config: dict | None) -> LoopState:
+    def _resume(self, run_dir: RunDirectory) -> LoopState:
         if not run_dir.has_checkpoint():
-            run_dir.start_new_job(config)
+            run_dir.start_new_job()
             return LoopState(update=0, reached=torch.zeros(1, dtype=torch.bool))
-        loop = restore_job(run_dir.checkpoint, config=config, policy=self.modules, optimizer=self.optimizer,
+        loop = restore_job(run_dir.checkpoint, policy=self.modules, optimizer=self.optimizer,
                            streams=self._streams(), updates=self.settings.updates)
         rollout, self.episodes = loop.pop("rollout"), loop.pop("episodes").tolist()
         state = LoopState.from_state_dict(loop)

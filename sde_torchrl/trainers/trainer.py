@@ -138,7 +138,7 @@ class Trainer:
 
     def train(
         self, out_dir: str | os.PathLike, labels: dict[str, Any] | None = None, *,
-        config: dict[str, Any] | None = None, checkpoint_period: int = 0, progress: bool = False,
+        checkpoint_period: int = 0, progress: bool = False,
     ) -> dict[str, Any]:
         """Runs the job (or resumes it) and writes ``metrics.csv``, ``checkpoint.pt``,
         ``summary.json``.
@@ -147,16 +147,17 @@ class Trainer:
         holds a checkpoint, the job resumes from it: ``metrics.csv`` is checked against it, cut
         back to the checkpointed update and continued, and every random stream continues where
         it was, so the outputs equal those of an uninterrupted job. A finished job is final
-        (:meth:`RunDirectory.finished_job`): with or without its checkpoint, if its files agree
+        (:meth:`RunDirectory.check_job`): with or without its checkpoint, if its files agree
         nothing is changed and its summary is returned; a finished checkpoint whose summary is
         missing or disagrees with it only rewrites the summary, once ``metrics.csv`` is checked.
 
         Args:
             out_dir: the run directory (Hydra's output directory in ``train.py``).
-            labels: entries that head ``summary.json`` (config choices, seed, the config).
-            config: the job's resolved config, stored in the checkpoint; a checkpoint written
-                under a config that differs (outside :data:`~sde_torchrl.jobs.checkpoint.NON_RESULT_KEYS`)
-                is refused. ``None`` skips the check.
+            labels: entries that head ``summary.json`` (config choices, seed, the config); its
+                ``config``, the job's resolved config, is the job's identity: the run directory
+                records it and refuses a job of another config
+                (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`; the keys outside
+                :data:`~sde_torchrl.jobs.checkpoint.NON_RESULT_KEYS` count). Without it nothing is checked.
             checkpoint_period: also checkpoint every this many updates (0: only at the end and
                 on Ctrl-C).
             progress: show a progress bar (:mod:`sde_torchrl.trainers.progress`).
@@ -175,15 +176,14 @@ class Trainer:
                 or the files of a finished job without a checkpoint disagree
                 (:class:`~sde_torchrl.jobs.run_dir.UnfinishedRunError`; nothing is changed).
         """
-        return train_in_directory(self, out_dir, labels, config, checkpoint_period, progress)
+        return train_in_directory(self, out_dir, labels, checkpoint_period, progress)
 
     def _summary(self, state: LoopState) -> dict[str, Any]:
         """The job's summary (:func:`~sde_torchrl.trainers.summary.summarize`) and its return definition."""
         return {**summarize(state, self.settings, self.policy, self.episodes_after),
                 "episode_return": self.estimator.episode_return}
 
-    def _loop(self, run_dir: RunDirectory, state: LoopState, config: dict | None, period: int,
-              progress: bool) -> None:
+    def _loop(self, run_dir: RunDirectory, state: LoopState, period: int, progress: bool) -> None:
         """Updates from ``state.update`` to the end: collect, estimate and step, evaluate, record."""
         s = self.settings
         session_start, session_wall = time.perf_counter(), state.wall_s
@@ -215,14 +215,14 @@ class Trainer:
                         break
                     if interrupt.requested or (period and state.update % period == 0):
                         metrics.sync()
-                        self._save(run_dir, state, config)
+                        self._save(run_dir, state)
                     if interrupt.requested:
                         interrupt.stop(state.update, run_dir.path)
             finally:
                 notice.cancel()
                 reporter.close()
             metrics.sync()
-        self._save(run_dir, state, config)
+        self._save(run_dir, state)
 
     def _first_update_notice(self, update: int) -> str:
         """What the session's first update does, for a job that has been silent for a while."""
@@ -237,18 +237,18 @@ class Trainer:
         """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
         return recorded_rows(state.record(), self.settings.first_run, self.episodes_after)
 
-    def _save(self, run_dir: RunDirectory, state: LoopState, config: dict | None) -> None:
+    def _save(self, run_dir: RunDirectory, state: LoopState) -> None:
         if self.queue is not None:
             state.queue = self.queue.state_dict()
-        save_job(run_dir.checkpoint, config=config, loop=state.state_dict(), policy=self.policy,
+        save_job(run_dir.checkpoint, config=run_dir.config, loop=state.state_dict(), policy=self.policy,
                  optimizer=self.optimizer, streams=job_streams(self.policy, self.env, self.eval_env))
 
-    def _resume(self, run_dir: RunDirectory, config: dict | None) -> LoopState:
+    def _resume(self, run_dir: RunDirectory) -> LoopState:
         """A fresh :class:`LoopState`, or the checkpointed one with everything restored."""
         if not run_dir.has_checkpoint():
-            run_dir.start_new_job(config)
+            run_dir.start_new_job()
             return LoopState(update=0, reached=torch.zeros(self.runs, dtype=torch.bool))
-        loop = restore_job(run_dir.checkpoint, config=config, policy=self.policy, optimizer=self.optimizer,
+        loop = restore_job(run_dir.checkpoint, policy=self.policy, optimizer=self.optimizer,
                            streams=job_streams(self.policy, self.env, self.eval_env), updates=self.settings.updates)
         state = LoopState.from_state_dict(loop)
         run_dir.check_metrics(self._recorded_rows(state), state.finished)
@@ -268,32 +268,33 @@ class Trainer:
 
 
 def train_in_directory(
-    trainer: Any, out_dir: str | os.PathLike, labels: dict[str, Any] | None, config: dict[str, Any] | None,
-    checkpoint_period: int, progress: bool,
+    trainer: Any, out_dir: str | os.PathLike, labels: dict[str, Any] | None, checkpoint_period: int,
+    progress: bool,
 ) -> dict[str, Any]:
     """A trainer's job in its run directory, the one way every trainer runs (:meth:`Trainer.train`
-    says what it guarantees): the directory held, a finished job left as it is, a checkpoint
-    resumed, the loop run, the logger closed, the summary written.
+    says what it guarantees): the directory held and checked to hold this job (the one check,
+    :meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`), a finished job left as it is, a
+    checkpoint resumed, the loop run, the logger closed, the summary written.
 
     Args:
-        trainer: has ``_resume(run_dir, config)``, ``_loop(run_dir, state, config, period,
-            progress)``, ``_summary(state)`` and ``logger``.
-        out_dir, labels, config, checkpoint_period, progress: as :meth:`Trainer.train` takes them.
+        trainer: has ``_resume(run_dir)``, ``_loop(run_dir, state, period, progress)``,
+            ``_summary(state)`` and ``logger``; what it records of the job's config it reads off
+            the run directory (``run_dir.config``).
+        out_dir, labels, checkpoint_period, progress: as :meth:`Trainer.train` takes them.
 
     Returns:
         The summary (also written to ``summary.json``).
     """
-    run_dir = RunDirectory(out_dir)
-    config = result_config(config)
+    run_dir = RunDirectory(out_dir, result_config((labels or {}).get("config")))
     with run_dir.lock():
-        done = run_dir.finished_job(config)
+        done = run_dir.check_job()
         if done is not None:
             log.info("%s", finished_line(done))
             return done.summary
-        state = trainer._resume(run_dir, config)
+        state = trainer._resume(run_dir)
         try:
             if not state.finished:
-                trainer._loop(run_dir, state, config, checkpoint_period, progress)
+                trainer._loop(run_dir, state, checkpoint_period, progress)
         finally:
             close_logger(trainer.logger)
         summary = {**(labels or {}), **trainer._summary(state)}

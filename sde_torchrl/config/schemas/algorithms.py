@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, List, Optional
 
+from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import (
     ArgumentError,
     finite,
@@ -27,7 +28,7 @@ from sde_torchrl.utils.checks import (
 
 
 @dataclass
-class OnPolicyConf:
+class OnPolicyConf(Frozen):
     """What ``algorithm=ppo`` and ``algorithm=a2c`` share: actor-critic training on ``env=gym``
     (:mod:`sde_torchrl.trainers.onpolicy`), exploring with an SDE explorer (``sde``, ``gsde``,
     ...; features from the actor's last hidden layer) or ``explorer=gaussian``. ``lr`` and
@@ -133,7 +134,7 @@ class A2CConf(OnPolicyConf):
 
 
 @dataclass
-class SACConf:
+class SACConf(Frozen):
     """``algorithm=sac``: Soft Actor-Critic with TorchRL's ``SACLoss`` and ``ReplayBuffer`` on one
     gymnasium env (:mod:`sde_torchrl.trainers.offpolicy`, :mod:`sde_torchrl.trainers.sac`); the
     defaults are Stable-Baselines3's ``SAC`` defaults. ``lr`` and ``optimizer`` (Adam) are the top

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError, finite, is_finite_number, is_int, one_of, positive_int
 from sde_torchrl.utils.options import NORMALIZATIONS, REWARD_STATES
 
@@ -23,7 +24,7 @@ ARM_MODELS = ("pybrain", "cup", "pybrain_held")
 
 
 @dataclass
-class MinimizeEnvConf:
+class MinimizeEnvConf(Frozen):
     """``env=minimize``: the function-minimisation task (paper section 4.1) as the authors' PyBrain
     code runs it: ``x_{t+1} = x_t + s u_t + N(0, σ_noise²)``, ``r_t = -‖x_t + s u_t‖²``.
 
@@ -62,7 +63,7 @@ class MinimizeEnvConf:
 
 
 @dataclass
-class BallCatchEnvConf:
+class BallCatchEnvConf(Frozen):
     """``env=ballcatch``: an arm with a hand catches a ball released above the palm (pybullet,
     paper section 4.2).
 
@@ -96,7 +97,7 @@ class BallCatchEnvConf:
 
 
 @dataclass
-class GymEnvConf:
+class GymEnvConf(Frozen):
     """``env=gym``: any gymnasium continuous-control env, through TorchRL's ``GymEnv``
     (``env=gym env.id=Pendulum-v1``; README, "Any gymnasium env").
 

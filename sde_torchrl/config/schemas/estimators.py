@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Optional
 
+from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError, is_finite_number, one_of
 from sde_torchrl.utils.options import EPISODE_RETURNS
 
@@ -27,7 +28,7 @@ from sde_torchrl.utils.options import EPISODE_RETURNS
 
 
 @dataclass
-class EstimatorConf:
+class EstimatorConf(Frozen):
     """The options every estimator takes; each estimator's schema below adds its ``_target_``
     and ``option`` (this one is no group option).
 

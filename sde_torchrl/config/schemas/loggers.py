@@ -11,11 +11,12 @@ from __future__ import annotations
 import importlib.util
 from dataclasses import dataclass
 
+from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError
 
 
 @dataclass
-class LoggerConf:
+class LoggerConf(Frozen):
     """What every ``logger`` option has: TorchRL's logger class and the folder it writes into,
     ``<run dir>/<exp_name>``, which must stay inside the run directory.
 

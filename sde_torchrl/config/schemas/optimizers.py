@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, List
 
+from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError, finite, fraction, one_of
 from sde_torchrl.utils.options import LR_SCHEDULES
 
@@ -19,7 +20,7 @@ from sde_torchrl.utils.options import LR_SCHEDULES
 
 
 @dataclass
-class SGDOptimizerConf:
+class SGDOptimizerConf(Frozen):
     """``optimizer=sgd|momentum``: ``torch.optim.SGD`` on the policy gradient, with ``α = lr``.
     Without momentum it is the paper's plain ascent ``θ ← θ + α g`` (eq. 1); with momentum ``β``
     torch's heavy ball ``v ← β v + g``, ``θ ← θ + α v`` (steps ``1 / (1 - β)`` times longer once
@@ -51,7 +52,7 @@ class SGDOptimizerConf:
 
 
 @dataclass
-class AdamOptimizerConf:
+class AdamOptimizerConf(Frozen):
     """``optimizer=adam``: ``torch.optim.Adam`` on the policy gradient, with ``α = lr``: a step
     of about ``α`` per parameter whatever the gradient's scale (sums or means of rewards alike).
 
@@ -82,7 +83,7 @@ class AdamOptimizerConf:
 
 
 @dataclass
-class RMSpropOptimizerConf:
+class RMSpropOptimizerConf(Frozen):
     """``optimizer=rmsprop``: ``torch.optim.RMSprop`` with ``α = lr`` (torch's defaults; SB3's
     A2C takes it with ``eps=1e-5``).
 

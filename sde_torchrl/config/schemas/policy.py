@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, List, Optional
 
+from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError, float32_number, is_finite_number, is_int, noise_schedule, one_of
 from sde_torchrl.utils.options import ACTIVATIONS, SHARINGS, SIGMA_TRANSFORMS
 
@@ -19,7 +20,7 @@ from sde_torchrl.utils.options import ACTIVATIONS, SHARINGS, SIGMA_TRANSFORMS
 
 
 @dataclass
-class LinearActorConf:
+class LinearActorConf(Frozen):
     """``actor=linear``: ``u = Θ x (+ b)``; the paper's controllers have no bias.
 
     Attributes:
@@ -40,7 +41,7 @@ class LinearActorConf:
 
 
 @dataclass
-class MLPActorConf:
+class MLPActorConf(Frozen):
     """``actor=mlp``: a small multi-layer perceptron; by default the paper's (section 4.1,
     "Parameter dimensionality"): 3 sigmoid hidden units, bias units, ``θ_i ~ U[-1, 0)``.
 
@@ -78,7 +79,7 @@ def _check_init(init: Any) -> None:
 
 
 @dataclass
-class ExplorerConf:
+class ExplorerConf(Frozen):
     """``explorer=sde|rex|every_n|sde_gauss``: the state-dependent explorer (paper section 3).
 
     Attributes:
@@ -123,7 +124,7 @@ class ExplorerConf:
 
 
 @dataclass
-class PGPEExplorerConf:
+class PGPEExplorerConf(Frozen):
     """``explorer=pgpe``: PGPE's parameter sampling, ``θ ~ N(μ, diag(σ²))`` once per episode
     (Sehnke et al. 2010; :class:`~sde_torchrl.modules.pgpe.ParameterExplorer`), with ``estimator=pgpe``.
 
@@ -151,7 +152,7 @@ class PGPEExplorerConf:
 
 
 @dataclass
-class GaussianExplorerConf:
+class GaussianExplorerConf(Frozen):
     """``explorer=gaussian``: the plain-Gaussian baseline of ``algorithm=ppo|a2c``: i.i.d. noise with
     a learned state-independent standard deviation per action, ``σ = exp(init_param)`` at the
     start (SB3's PPO and A2C without ``use_sde``; :mod:`sde_torchrl.modules.gaussian`).

@@ -10,7 +10,7 @@ Examples:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import asdict, dataclass, fields, is_dataclass
 from typing import Any, Optional
 
 from omegaconf import DictConfig, OmegaConf
@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from sde_torchrl.config.schemas.algorithms import A2CConf, SACConf
 from sde_torchrl.config.schemas.envs import GymEnvConf
 from sde_torchrl.config.schemas.estimators import GPOMDPEstimatorConf, PGPEEstimatorConf, ReinforceEstimatorConf
+from sde_torchrl.config.schemas.frozen import Frozen, freeze
 from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf, MLPActorConf, PGPEExplorerConf
 from sde_torchrl.jobs.resources import check_memory
 from sde_torchrl.trainers.settings import TrainingSettings
@@ -30,8 +31,14 @@ from sde_torchrl.utils.options import ROLLOUT_SCHEDULES
 
 
 @dataclass
-class TrainConf:
+class TrainConf(Frozen):
     """The top-level config (``conf/config.yaml``); the groups are typed by their own schemas.
+
+    The one form a job's config takes once composed: :func:`validate` builds it, checked and
+    frozen (assigning to a field raises), at the edge (``train.py``, before torch is imported),
+    and everything else is derived from it: the builders read its fields, :meth:`resolved` is
+    the plain data that ``summary.json`` labels and the run directory records and checks
+    (``job_config.json``, :meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`).
 
     Attributes:
         env: the ``env`` group's schema.
@@ -77,6 +84,8 @@ class TrainConf:
         10
         >>> TrainConf().device
         'cpu'
+        >>> TrainConf(runs=4).resolved()["runs"]
+        4
     """
 
     env: Any = None
@@ -129,6 +138,18 @@ class TrainConf:
         _check_pgpe(self)
         if self.env is not None and self.estimator is not None:
             check_memory(self)
+
+    def resolved(self) -> dict[str, Any]:
+        """The config as plain data (nested dicts and lists), each group an entry: what Hydra's
+        ``OmegaConf.to_container(cfg, resolve=True)`` gives of the composed config this was
+        validated from, key for key and in the same order.
+
+        Examples:
+            >>> from sde_torchrl.config.compose import compose
+            >>> validate(compose(["estimator=enac"])).resolved()["estimator"]["_target_"]
+            'sde_torchrl.objectives.estimators.ENACEstimator'
+        """
+        return asdict(self)
 
 
 def loop_settings(conf: TrainConf) -> TrainingSettings:
@@ -239,13 +260,15 @@ BASELINE_ESTIMATORS = (ReinforceEstimatorConf, GPOMDPEstimatorConf)
 
 
 def validate(cfg: DictConfig) -> TrainConf:
-    """The composed config as schema objects, every value checked (once, before anything is built).
+    """The composed config as schema objects, every value checked and then frozen (once, at the
+    edge, before anything is built): the one form of the job's config from here on.
 
     Args:
         cfg: the composed config.
 
     Returns:
-        The :class:`TrainConf`, its groups as their schemas' dataclasses, interpolations resolved.
+        The :class:`TrainConf`, its groups as their schemas' dataclasses, interpolations
+        resolved; it and its groups are frozen (:func:`~sde_torchrl.config.schemas.frozen.freeze`).
 
     Raises:
         ArgumentError: for the first value that is not allowed, or a key that its schema does
@@ -261,7 +284,7 @@ def validate(cfg: DictConfig) -> TrainConf:
         sde_torchrl.utils.checks.ArgumentError: estimator.symmetric=true: unknown key (estimator=enac's options: ...)
     """
     _refuse_unknown_keys(cfg)
-    return OmegaConf.to_object(cfg)
+    return freeze(OmegaConf.to_object(cfg))
 
 
 def _refuse_unknown_keys(node: DictConfig, prefix: str = "") -> None:
