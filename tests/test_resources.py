@@ -171,3 +171,28 @@ def test_a_job_says_what_it_does_within_seconds(monkeypatch, caplog):
     counts = [line for line in lines if line.startswith("making ")]
     assert counts[0].startswith("making 4 Pendulum-v1 envs (2 runs × 2 training episodes): 1 made after ")
     assert counts[-1].startswith("making 2 Pendulum-v1 envs (2 runs × 1 evaluation episodes): 1 made after ")
+
+
+#: The estimate (bytes) and the policy's sizes of each experiment, as the estimators' and explorers'
+#: names decided them before their schemas declared what they keep in memory.
+ESTIMATES = {"ballcatch": (520082112, (28, 0)), "ballcatch_enac": (520086592, (28, 0)),
+             "ballcatch_gpomdp": (526802112, (28, 0)), "ballcatch_pgpe": (523392096, (24, 0)),
+             "minimize2d_mlp": (406650160, (23, 3))}
+
+
+@pytest.mark.parametrize("experiment", sorted(ESTIMATES))
+def test_the_estimate_reads_the_schemas_traits(experiment):
+    """Each estimator's and explorer's schema says what it keeps (GPOMDP its per-step scores, PGPE
+    its draws, ENAC its float64 regression, PGPE's explorer the actor's parameters): the estimate
+    reads those traits, and gives what it gave when it read the ``_target_`` names."""
+    from sde_torchrl.jobs.resources import keeps_step_scores, policy_sizes
+
+    conf = validate(compose_config(f"+experiment={experiment}", "max_memory_gb=1000"))
+    target = conf.estimator._target_.rsplit(".", 1)[-1]
+    assert (conf.estimator.keeps_step_scores, conf.estimator.carries_parameter_draws,
+            conf.estimator.solves_in_float64) == (target == "GPOMDPEstimator", target == "PGPEEstimator",
+                                                  target == "ENACEstimator")
+    assert keeps_step_scores(conf) == (target == "GPOMDPEstimator")
+    draws = conf.explorer._target_.endswith("ParameterExplorer")
+    assert getattr(conf.explorer, "draws_actor_parameters", False) == draws
+    assert (estimate_memory(conf).total, policy_sizes(conf)) == ESTIMATES[experiment]

@@ -29,7 +29,12 @@ The time a job needs (:func:`estimate_minutes`) counts the env steps it takes at
 2,400 steps/s for 2 jobs on 2 cores with tests beside them). :func:`launcher_request` turns both
 into a launcher's request with :data:`MARGIN` on top; ``conf/hydra/launcher/*.yaml`` ask for it
 through the ``sde_memory_gb`` and ``sde_time_min`` resolvers. This module imports neither torch
-nor pybullet: ``train.py`` runs it with the config checks.
+nor pybullet: ``train.py`` runs it with the config checks. Nor does it import the config's
+schemas, which stand above it: what an estimator or explorer keeps in memory it reads off the
+traits their schemas declare as class attributes (``keeps_step_scores``,
+``carries_parameter_draws``, ``solves_in_float64`` of :class:`~sde_torchrl.config.schemas.estimators.EstimatorConf`;
+``draws_actor_parameters`` of :class:`~sde_torchrl.config.schemas.policy.PGPEExplorerConf`), ``False`` where
+a schema does not declare one.
 """
 
 from __future__ import annotations
@@ -59,7 +64,7 @@ PARAMETER_BYTES = 6 * 4
 ACTIVATION_BYTES = 4 * 4
 #: Bytes per score (one per kept episode and parameter): the scores, their flattened copy and the
 #: estimator's products of them (REINFORCE: 23 measured); ENAC solves its regression in float64.
-SCORE_BYTES = {"ENACEstimator": 8 * 4, "other": 6 * 4}
+SCORE_BYTES, FLOAT64_SCORE_BYTES = 6 * 4, 8 * 4
 #: Bytes per update for its records (four small tensors of ``runs`` numbers, and their objects).
 UPDATE_BYTES = 1000
 #: Bytes per step and parameter: GPOMDP's per-step scores of the kept episodes (21 measured), PGPE's
@@ -166,13 +171,9 @@ def policy_sizes(conf: Any) -> tuple[int, int]:
     layers = [observation, *hidden, action]
     weights = sum(fan_in * fan_out + (fan_out if bias else 0) for fan_in, fan_out in zip(layers[:-1], layers[1:],
                                                                                           strict=True))
-    pgpe = "PGPE" in type(explorer).__name__ or str(getattr(explorer, "_target_", "")).endswith("ParameterExplorer")
+    pgpe = bool(getattr(explorer, "draws_actor_parameters", False))
     features = observation + int(bool(getattr(conf.env, "constant_feature", False)))
     return weights + (weights if pgpe else action * features + action), sum(hidden)
-
-
-def _estimator_name(conf: Any) -> str:
-    return str(getattr(getattr(conf, "estimator", None), "_target_", "") or "").rsplit(".", 1)[-1]
 
 
 def keeps_step_scores(conf: Any) -> bool:
@@ -184,10 +185,10 @@ def keeps_step_scores(conf: Any) -> bool:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> keeps_step_scores(Conf(estimator=Conf(_target_="sde_torchrl.objectives.estimators.GPOMDPEstimator")))
-        True
+        >>> keeps_step_scores(Conf(estimator=Conf(keeps_step_scores=True))), keeps_step_scores(Conf(estimator=None))
+        (True, False)
     """
-    return str(getattr(conf.estimator, "_target_", "")).endswith("GPOMDPEstimator")
+    return bool(getattr(conf.estimator, "keeps_step_scores", False))
 
 
 def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
@@ -218,9 +219,9 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
     kept = max(conf.episodes_per_update, conf.episode_queue)  # episodes per run in one update
     length = conf.env.episode_length
     steps = conf.runs * (kept + conf.eval_episodes) * length
-    name = _estimator_name(conf)
+    estimator = conf.estimator
     episodes = steps * step_floats(observation, action) * WORK_FACTOR
-    if name == "PGPEEstimator":  # each step carries the episode's drawn parameters and their noise
+    if getattr(estimator, "carries_parameter_draws", False):  # each step: the episode's drawn parameters and noise
         episodes += steps * parameters * DRAW_BYTES
     if keeps_step_scores(conf):  # one score per step and parameter, training episodes only
         episodes += conf.runs * kept * length * parameters * STEP_SCORE_BYTES
@@ -232,7 +233,8 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
     return MemoryEstimate(
         base=BASE_BYTES, worlds=envs * per_env, episodes=episodes,
         actor=conf.runs * (parameters * PARAMETER_BYTES + kept * length * hidden * ACTIVATION_BYTES),
-        scores=conf.runs * kept * parameters * SCORE_BYTES.get(name, SCORE_BYTES["other"]),
+        scores=conf.runs * kept * parameters * (FLOAT64_SCORE_BYTES if getattr(estimator, "solves_in_float64", False)
+                                                else SCORE_BYTES),
         updates=getattr(conf, "updates", 0) * (UPDATE_BYTES + 2 * 6 * 4 * conf.runs))
 
 

@@ -34,6 +34,12 @@ class EstimatorConf(Frozen):
 
     Attributes:
         option: the ``estimator`` group option whose schema this is (a class attribute, not a key).
+        keeps_step_scores: the estimator keeps one score per step and parameter (GPOMDP); a
+            class attribute that the memory estimate (:mod:`sde_torchrl.jobs.resources`) reads,
+            as the two below.
+        carries_parameter_draws: each step carries its episode's drawn parameters and their
+            noise (PGPE).
+        solves_in_float64: the estimator solves a regression on the scores in float64 (ENAC).
         max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
         max_grad_entry: the authors' rescale: a run's gradient whose largest (signed) entry
             exceeds this is scaled so that the entry equals it (1000 in their code); ``null``: off.
@@ -52,6 +58,9 @@ class EstimatorConf(Frozen):
     """
 
     option: ClassVar[str]
+    keeps_step_scores: ClassVar[bool] = False
+    carries_parameter_draws: ClassVar[bool] = False
+    solves_in_float64: ClassVar[bool] = False
     _target_: str
     max_grad_norm: Optional[float] = None
     max_grad_entry: Optional[float] = None
@@ -93,6 +102,7 @@ class ENACEstimatorConf(EstimatorConf):
     """
 
     option: ClassVar[str] = "enac"
+    solves_in_float64: ClassVar[bool] = True
     _target_: str = "sde_torchrl.objectives.estimators.ENACEstimator"
 
 
@@ -109,6 +119,7 @@ class GPOMDPEstimatorConf(EstimatorConf):
     """
 
     option: ClassVar[str] = "gpomdp"
+    keeps_step_scores: ClassVar[bool] = True
     _target_: str = "sde_torchrl.objectives.estimators.GPOMDPEstimator"
 
 
@@ -125,4 +136,5 @@ class PGPEEstimatorConf(EstimatorConf):
     """
 
     option: ClassVar[str] = "pgpe"
+    carries_parameter_draws: ClassVar[bool] = True
     _target_: str = "sde_torchrl.objectives.pgpe.PGPEEstimator"

@@ -9,7 +9,7 @@ Examples:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, List, Optional
+from typing import Any, ClassVar, List, Optional
 
 from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError, float32_number, is_finite_number, is_int, noise_schedule, one_of
@@ -135,12 +135,16 @@ class PGPEExplorerConf(Frozen):
             same value (``-2``: ≈ 0.135).
         learn_sigma: learn ``σ`` (else it stays at its start value).
         squash: tanh on the action.
+        draws_actor_parameters: the explorer draws the actor's own parameters (one ``σ`` per
+            actor parameter); a class attribute that the memory estimate
+            (:func:`~sde_torchrl.jobs.resources.policy_sizes`) reads, ``False`` for any other explorer.
 
     Examples:
-        >>> PGPEExplorerConf().symmetric
-        True
+        >>> PGPEExplorerConf().symmetric, PGPEExplorerConf.draws_actor_parameters
+        (True, True)
     """
 
+    draws_actor_parameters: ClassVar[bool] = True
     _target_: str = "sde_torchrl.modules.pgpe.ParameterExplorer"
     symmetric: bool = True
     init_param: float = -2.0
