@@ -28,7 +28,9 @@ def test_absurd_sizes_are_refused_at_once_in_one_line(tmp_path, override, key):
     lines = own_stderr_lines(result.stderr)
     assert len(lines) == 1 and lines[0].startswith(f"error: {override}: the job would hold about "), lines
     assert f"GB this machine has available; lower {key} (the largest part, " in lines[0]
-    assert elapsed < 4, f"{elapsed:.1f} s"  # the check itself is arithmetic; the rest is Python starting up
+    # refused before anything is allocated: building a job of this size would take minutes and
+    # far more memory; the bound is loose so that a loaded machine's start-up cannot fail it
+    assert elapsed < 30, f"{elapsed:.1f} s"
     assert not (tmp_path / "run" / "metrics.csv").exists()
 
 
