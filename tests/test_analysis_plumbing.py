@@ -70,6 +70,7 @@ def test_finished_runs_of_several_directories_follow_their_order():
 TINY = ("+experiment=minimize", "runs=2", "updates=3", "episodes_per_update=2", "logger=none")
 
 
+@pytest.mark.e2e  # training jobs in the runner's worker process, checked by what they leave behind
 def test_the_runner_skips_finished_jobs_runs_the_others_and_reports_failures_by_name(tmp_path):
     finished = tmp_path / "finished"
     shutil.copytree(REPO / "results" / "ballcatch" / "tuning" / "reinforce_sde" / "C1", finished)
@@ -88,6 +89,7 @@ def test_the_runner_skips_finished_jobs_runs_the_others_and_reports_failures_by_
     assert (tmp_path / "fresh" / "checkpoint.pt").exists()  # not run again: left as it was
 
 
+@pytest.mark.e2e  # a training job in the runner's worker process, interrupted and resumed
 def test_the_runner_resumes_an_unfinished_job(tmp_path):
     job = runner.TrainJob("job", TINY, tmp_path / "job")
     assert runner.run_train_jobs([job], workers=1) == []

@@ -124,6 +124,7 @@ def _parameters_after_two_updates(minibatch, compile_update):
     return TensorDict.from_module(loss).detach()
 
 
+@pytest.mark.e2e  # compiles the PPO update with inductor
 def test_the_compiled_update_equals_the_eager_one():
     """``run --compile`` changes how the step runs, not what it computes."""
     from tensordict import TensorDict
@@ -188,6 +189,7 @@ def test_phases_split_an_iteration_into_parts_that_fit_inside_it(monkeypatch, va
     assert whole == pytest.approx(phases["iteration"], rel=0.2)
 
 
+@pytest.mark.e2e  # torch.compile of the SDE policy (inductor)
 def test_the_compiled_collection_policy_acts_as_the_eager_one():
     """``+policy`` (``Collector(compile_policy=True)``) changes how the SDE policy's forward runs,
     not the action it takes with the carried noise, nor any random stream (it draws nothing)."""

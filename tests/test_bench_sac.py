@@ -57,6 +57,7 @@ def test_the_sac_losses_draw_fresh_noise_not_the_stored_one():
     assert any(torch.isnan(v).any() for v in _parameters(loss)["actor_network_params"].values(True, True))
 
 
+@pytest.mark.e2e  # compiles the SAC update with inductor (the slowest test of the fast loop it was in)
 def test_the_compiled_update_equals_the_eager_one():
     """``run --compile`` changes how the gradient step runs, not what it computes (stored ξ: no RNG inside).
 

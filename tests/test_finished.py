@@ -226,6 +226,7 @@ def test_sweep_readers_find_jobs_by_their_record_and_refuse_one_not_finished(mad
     assert "a job is running in it" in left_out[1]
 
 
+@pytest.mark.e2e  # every committed run directory (about 80) through the strict reader
 def test_every_committed_run_directory_reads_as_finished():
     files = subprocess.run(["git", "ls-files", "results"], cwd=REPO, capture_output=True, text=True,
                            check=True).stdout
