@@ -13,6 +13,9 @@ from _helpers import REPO
 from sde_torchrl.config.help import GROUPS, option_names, setting_lines
 from sde_torchrl.config.schemas.train import TrainConf
 
+# every test reads one `train.py --help` process's output (the module fixture): on one xdist worker, it runs once
+pytestmark = pytest.mark.xdist_group("help_output")
+
 
 @pytest.fixture(scope="module")
 def help_output() -> str:
