@@ -129,23 +129,25 @@ def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, roun
     assert resolved(f"+experiment={experiment}") == resolved(*job)
 
 
-@pytest.mark.parametrize("method, experiment", [("reinforce_sde", "ballcatch_sigma3_sweep"),
-                                                ("reinforce_rex", "ballcatch_rex_scaled_sweep"),
-                                                ("enac_sde", "ballcatch_enac_sigma3_sweep")])
-def test_the_rerun_sweep_is_round_three_s_choice_on_the_rules_seed(method, experiment):
+@pytest.mark.parametrize("method, experiment, shard", [("reinforce_sde", "ballcatch_sigma3_sweep", 50),
+                                                       ("reinforce_rex", "ballcatch_rex_scaled_sweep", 50),
+                                                       ("enac_sde", "ballcatch_enac_sigma3_sweep", 50),
+                                                       ("gpomdp_sde", "ballcatch_gpomdp_sigma3_sweep", 25)])
+def test_the_rerun_sweep_is_round_three_s_choice_on_the_rules_seed(method, experiment, shard):
     """The reported rerun at a method's round-3 choice: that candidate's job but on seed 3, in
-    2 shards of 50 runs (learner_selection.md, round 3, "What follows")."""
+    2 shards (learner_selection.md, round 3, "What follows"; GPOMDP's sweeps are of 50 runs)."""
     from _helpers import REPO
     from omegaconf import OmegaConf
 
     chosen = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())["round3"]["methods"][method]
     tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger")
     job = [o for o in tuning.job_overrides(method, chosen["chosen"], round_=3) if o.split("=")[0] not in tuning_only]
-    sweep = OmegaConf.to_container(compose_config(f"+experiment={experiment}", "first_run=50"), resolve=True)
+    sweep = OmegaConf.to_container(compose_config(f"+experiment={experiment}", f"first_run={shard}"),
+                                   resolve=True)
     candidate = OmegaConf.to_container(compose_config(*job), resolve=True)
     assert {k: v for k, v in sweep.items() if k not in tuning_only} == \
         {k: v for k, v in candidate.items() if k not in tuning_only}
-    assert (sweep["seed"], sweep["runs"], sweep["eval_period"]) == (3, 50, 20)
+    assert (sweep["seed"], sweep["runs"], sweep["eval_period"]) == (3, shard, 20)
 
 
 def test_a_method_is_chosen_for_only_once_its_whole_grid_has_run(tmp_path):
