@@ -157,7 +157,7 @@ def summary() -> str:
                 (methods["sde+gpomdp"], methods["sde"]), reaching, "best"),
     ]
     for measure, which in ((ending, "final"), (on_20, "final_policy"), (reaching, "best")):
-        rows.append(catches("Other methods at their selected learners", methods_page, "PGPE vs GPOMDP + SDE",
+        rows.append(catches("Other methods at their earlier selected learners", methods_page, "PGPE vs GPOMDP + SDE",
                             (pgpe_selected, gpomdp_selected), measure, which))
     ppo_seeds = _mean_of(ppo["sde"]["final"], ppo["sb3"]["final"])
     zoo_name = f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps"

@@ -106,14 +106,14 @@ def test_selection_counts_catches_then_mean_then_order():
 
 @pytest.mark.parametrize("method, experiment, round_", [
     ("reinforce_sde", "ballcatch", 3), ("reinforce_rex", "ballcatch_rex", 3),
-    ("enac_sde", "ballcatch_enac", 3), ("enac_rex", "ballcatch_enac_rex", 3), ("gpomdp_sde", "ballcatch_gpomdp", 2),
+    ("enac_sde", "ballcatch_enac", 3), ("enac_rex", "ballcatch_enac_rex", 3), ("gpomdp_sde", "ballcatch_gpomdp", 3),
     ("pgpe", "ballcatch_pgpe", 2),
 ])
 def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, round_):
     """+experiment=ballcatch (ballcatch_rex, ...) is the candidate docs/ballcatch/tuning.json chose
-    in the round whose rerun sweep is committed (REINFORCE and ENAC, each with SDE and REX: round
-    3's; the others: round 2's, their reruns not committed yet), but for the tuning job's own seed,
-    runs and bookkeeping."""
+    in the round whose rerun sweep is committed (REINFORCE and ENAC, each with SDE and REX, and
+    GPOMDP + SDE: round 3's; PGPE: round 2's, its round 3 not run yet), but for the tuning job's own
+    seed, runs and bookkeeping."""
     from _helpers import REPO
     from omegaconf import OmegaConf
 
