@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parent
+RESULTS = DOCS.parent / "results"  # the committed run records
 README = DOCS.parent / "README.md"
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
@@ -86,7 +87,8 @@ def summary() -> str:
     held = {explorer: arms["pybrain_held"] for explorer, arms in reevaluation.items()}
     methods_selected = _load("ballcatch/methods_selected/methods.json")["explorers"]
     gpomdp_selected, pgpe_selected = methods_selected["sde+gpomdp"], methods_selected["pgpe"]
-    quick_start = _load("../results/ballcatch/runs/selected/seed0/summary.json")["final_eval_return"][0]
+    quick_start_run = RESULTS / "ballcatch" / "runs" / "selected" / "seed0" / "summary.json"
+    quick_start = json.loads(quick_start_run.read_text())["final_eval_return"][0]
     ppo = _load("ppo/bench_ppo.json")
     sac = _load("sac/bench_sac.json")["mountaincar"]
     zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]
