@@ -43,6 +43,7 @@ def test_the_halfcheetah_experiment_composes_with_the_zoo_settings():
     assert (conf.lr, conf.optimizer.eps, conf.actor.hidden, conf.actor.activation, conf.actor.init) == (
         3e-5, 1e-5, [256, 256], "relu", None)
     assert conf.updates * alg.n_envs * alg.n_steps >= 2_000_000 > (conf.updates - 1) * alg.n_envs * alg.n_steps
+    assert alg.compile and not PPOConf().compile  # the zoo's experiments compile; the group's default is eager
     sde = conf.explorer  # SB3's sde_sample_freq=4, counted over the rollout; log_std_init=-2, use_expln=False
     assert isinstance(sde, ExplorerConf)
     assert (sde.schedule, sde.every_n, sde.sigma_transform, sde.init_param, sde.sharing) == (
@@ -128,7 +129,8 @@ def test_a_short_job_writes_its_run_directory(tmp_path):
 
 
 @pytest.mark.parametrize(("job", "explorer", "updates"), [
-    (TINY, "gsde_freq4", 40), (TINY, "gaussian", 40), (TINY_A2C, "gsde", 150)])
+    (TINY, "gsde_freq4", 40), (TINY, "gaussian", 40), (TINY_A2C, "gsde", 150),
+    ((*TINY, "algorithm.compile=true"), "gsde_freq4", 40)])
 @pytest.mark.e2e
 def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, job, explorer, updates):
     """The envs are mid-episode at the checkpoint: the resumed job replays their episodes."""

@@ -120,14 +120,15 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
         loss = make_ppo_loss(policy, critic, clip_range=alg.clip_range, ent_coef=alg.ent_coef, vf_coef=alg.vf_coef,
                              normalize_advantage=alg.normalize_advantage)
     advantage = GAE(gamma=alg.gamma, lmbda=alg.gae_lambda, value_network=critic, average_gae=False)
-    optimizer, lr_schedule = make_optimizer(loss.parameters(), conf.lr, asdict(conf.optimizer), conf.updates)
+    optimizer, lr_schedule = make_optimizer(loss.parameters(), conf.lr, asdict(conf.optimizer), conf.updates,
+                                            fused=alg.compile)
     if a2c:
         update: Any = A2CUpdate(loss, optimizer, max_grad_norm=alg.max_grad_norm,
-                                normalize_advantage=alg.normalize_advantage)
+                                normalize_advantage=alg.normalize_advantage, compile=alg.compile)
     else:
         update = PPOUpdate(loss, optimizer, n_epochs=alg.n_epochs, batch_size=alg.batch_size,
                            max_grad_norm=alg.max_grad_norm, clip_range_schedule=alg.clip_range_schedule,
-                           updates=conf.updates)
+                           updates=conf.updates, compile=alg.compile)
     settings = OnPolicySettings("a2c" if a2c else "ppo", updates=conf.updates, n_envs=alg.n_envs, n_steps=alg.n_steps,
                                 eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
                                 episode_length=base.episode_length, first_run=conf.first_run)

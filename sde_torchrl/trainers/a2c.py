@@ -17,13 +17,16 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.objectives import A2CLoss
 
+from sde_torchrl.trainers.objective import loss_objective
+
 #: What ``A2CLoss`` reads of the rollout (not the SDE noise ``ξ``: the likelihood does not read it).
 ROLLOUT_KEYS = ("observation", "action", "action_sample", "advantage", "value_target")
 
 
 def make_a2c_loss(policy: nn.Module, critic: nn.Module, *, ent_coef: float, vf_coef: float) -> A2CLoss:
     """TorchRL's ``A2CLoss`` with SB3's A2C terms: squared-error critic loss weighted by
-    ``vf_coef``, entropy bonus weighted by ``ent_coef`` (none at 0).
+    ``vf_coef``, entropy bonus weighted by ``ent_coef`` (none at 0). The loss calls ``policy``
+    and ``critic`` themselves (``functional=False``), as :func:`~sde_torchrl.trainers.ppo.make_ppo_loss`.
 
     Examples:
         >>> from torchrl.modules import MLP, ValueOperator
@@ -35,7 +38,7 @@ def make_a2c_loss(policy: nn.Module, critic: nn.Module, *, ent_coef: float, vf_c
         'A2CLoss'
     """
     return A2CLoss(policy, critic, entropy_bonus=ent_coef > 0, entropy_coeff=ent_coef, critic_coeff=vf_coef,
-                   loss_critic_type="l2")
+                   loss_critic_type="l2", functional=False)
 
 
 class A2CUpdate:
@@ -46,6 +49,7 @@ class A2CUpdate:
         optimizer: over ``loss.parameters()``.
         max_grad_norm: bound on the gradient's norm (``None``: not clipped).
         normalize_advantage: standardise the advantages over the rollout first.
+        compile: compile the loss's forward and backward (:func:`~sde_torchrl.trainers.objective.loss_objective`).
 
     Returns (when called with the rollout and the update's index):
         The gradient norm before clipping.
@@ -55,8 +59,9 @@ class A2CUpdate:
     """
 
     def __init__(self, loss: A2CLoss, optimizer: torch.optim.Optimizer, *, max_grad_norm: float | None,
-                 normalize_advantage: bool = False) -> None:
+                 normalize_advantage: bool = False, compile: bool = False) -> None:
         self.loss, self.optimizer, self.normalize_advantage = loss, optimizer, normalize_advantage
+        self.objective = loss_objective(loss, compile=compile)
         self.max_grad_norm = math.inf if max_grad_norm is None else max_grad_norm
         self.parameters = [p for group in optimizer.param_groups for p in group["params"]]
 
@@ -65,8 +70,7 @@ class A2CUpdate:
         if self.normalize_advantage:
             advantage = flat.get("advantage")
             flat.set("advantage", (advantage - advantage.mean()) / (advantage.std() + 1e-8))
-        out = self.loss(flat)
-        objective = sum(value for key, value in out.items() if key.startswith("loss_"))
+        objective = self.objective(flat)
         self.optimizer.zero_grad()
         objective.backward()
         norm = torch.nn.utils.clip_grad_norm_(self.parameters, self.max_grad_norm)

@@ -30,6 +30,8 @@ if TYPE_CHECKING:  # torch is imported when an optimiser is made: the config sch
 SCHEDULE_KEYS = ("lr_schedule", "final_lr_fraction")
 #: ``_target_`` values the ``optimizer`` group may name.
 OPTIMIZER_TARGETS = ("torch.optim.SGD", "torch.optim.Adam", "torch.optim.RMSprop")
+#: The optimisers with a fused CPU kernel (``fused=True``): the same update rule in one pass.
+FUSED_TARGETS = ("torch.optim.SGD", "torch.optim.Adam")
 
 
 def lr_factor(schedule: str, update: int, updates: int, final_fraction: float) -> float:
@@ -103,7 +105,7 @@ class LearningRateSchedule:
 
 
 def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options: Mapping[str, Any],
-                   updates: int) -> tuple[torch.optim.Optimizer, LearningRateSchedule | None]:
+                   updates: int, *, fused: bool = False) -> tuple[torch.optim.Optimizer, LearningRateSchedule | None]:
     """The optimiser and learning-rate schedule that an ``optimizer`` config group describes.
 
     Args:
@@ -112,6 +114,9 @@ def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options:
         options: the group's entries: ``_target_`` (one of :data:`OPTIMIZER_TARGETS`), the
             optimiser's own keyword arguments, and :data:`SCHEDULE_KEYS`.
         updates: the job's number of updates (the schedule's length).
+        fused: step with torch's fused kernel where the optimiser has one (:data:`FUSED_TARGETS`;
+            others step as they are): the same rule in one pass over the parameters, with results
+            that may differ from the default kernel's in the last bits.
 
     Returns:
         The optimiser, and the schedule (``None`` for a constant rate).
@@ -126,6 +131,8 @@ def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options:
         ...     "betas": [0.9, 0.999], "lr_schedule": "cosine", "final_lr_fraction": 0.1}, updates=100)
         >>> type(optimizer).__name__, schedule.schedule
         ('Adam', 'cosine')
+        >>> make_optimizer([theta], 0.01, {"_target_": "torch.optim.Adam"}, 100, fused=True)[0].defaults["fused"]
+        True
     """
     options = dict(options)
     target = options.pop("_target_", "torch.optim.SGD")
@@ -134,6 +141,8 @@ def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options:
     final_fraction = options.pop("final_lr_fraction", 0.0)
     if "betas" in options:
         options["betas"] = tuple(options["betas"])
+    if fused and target in FUSED_TARGETS:
+        options["fused"] = True
     optimizer = getattr(importlib.import_module(module), name)(parameters, lr=lr, **options)
     if one_of("optimizer.lr_schedule", schedule, LR_SCHEDULES) == "constant":
         return optimizer, None

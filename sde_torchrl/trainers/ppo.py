@@ -19,6 +19,7 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.objectives import ClipPPOLoss
 
+from sde_torchrl.trainers.objective import loss_objective
 from sde_torchrl.trainers.optim import lr_factor
 from sde_torchrl.utils.checks import positive_int
 
@@ -32,7 +33,9 @@ def make_ppo_loss(policy: nn.Module, critic: nn.Module, *, clip_range: float, en
                   normalize_advantage: bool = True) -> ClipPPOLoss:
     """TorchRL's ``ClipPPOLoss`` with SB3's PPO terms: clipped surrogate, squared-error critic
     loss weighted by ``vf_coef``, entropy bonus weighted by ``ent_coef`` (none at 0), advantages
-    standardised per minibatch.
+    standardised per minibatch. The loss calls ``policy`` and ``critic`` themselves
+    (``functional=False``): the same numbers as TorchRL's default functional copies, without
+    swapping their parameters in on every call.
 
     Examples:
         >>> from torchrl.modules import MLP, ValueOperator
@@ -44,7 +47,8 @@ def make_ppo_loss(policy: nn.Module, critic: nn.Module, *, clip_range: float, en
         'ClipPPOLoss'
     """
     return ClipPPOLoss(policy, critic, clip_epsilon=clip_range, entropy_bonus=ent_coef > 0, entropy_coeff=ent_coef,
-                       critic_coeff=vf_coef, loss_critic_type="l2", normalize_advantage=normalize_advantage)
+                       critic_coeff=vf_coef, loss_critic_type="l2", normalize_advantage=normalize_advantage,
+                       functional=False)
 
 
 class PPOUpdate:
@@ -58,6 +62,7 @@ class PPOUpdate:
         max_grad_norm: bound on the gradient's norm (``None``: not clipped).
         clip_range_schedule: ``"constant"`` or ``"linear"`` (to 0 over ``updates``).
         updates: the job's number of updates (for a ``linear`` schedule).
+        compile: compile the loss's forward and backward (:func:`~sde_torchrl.trainers.objective.loss_objective`).
 
     Returns (when called with the rollout and the update's index):
         The mean gradient norm before clipping over the update's optimiser steps.
@@ -67,8 +72,10 @@ class PPOUpdate:
     """
 
     def __init__(self, loss: ClipPPOLoss, optimizer: torch.optim.Optimizer, *, n_epochs: int, batch_size: int,
-                 max_grad_norm: float | None, clip_range_schedule: str = "constant", updates: int = 1) -> None:
+                 max_grad_norm: float | None, clip_range_schedule: str = "constant", updates: int = 1,
+                 compile: bool = False) -> None:
         self.loss, self.optimizer = loss, optimizer
+        self.objective = loss_objective(loss, compile=compile)
         self.clip_range, self.clip_range_schedule, self.updates = float(loss.clip_epsilon), clip_range_schedule, updates
         self.n_epochs, self.batch_size = positive_int("n_epochs", n_epochs), positive_int("batch_size", batch_size)
         self.max_grad_norm = math.inf if max_grad_norm is None else max_grad_norm
@@ -82,8 +89,7 @@ class PPOUpdate:
         norms = []
         for _ in range(self.n_epochs):
             for idx in torch.randperm(flat.numel()).split(self.batch_size):
-                out = self.loss(flat[idx])
-                objective = sum(value for key, value in out.items() if key.startswith("loss_"))
+                objective = self.objective(flat[idx])
                 self.optimizer.zero_grad()
                 objective.backward()
                 norms.append(torch.nn.utils.clip_grad_norm_(self.parameters, self.max_grad_norm))

@@ -33,6 +33,8 @@ def main(argv: list[str] | None = None) -> int:
     speed_p = sub.add_parser("speed", help="env steps per second of single iterations, one variant after another")
     speed_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
     speed_p.add_argument("--rollouts", type=int, default=4, help="iterations per variant (the first is not timed)")
+    speed_p.add_argument("--repeats", type=int, default=1,
+                         help="times the whole list of variants runs, one fresh process each (intervals from 2)")
     speed_p.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
     phases_p = sub.add_parser("phases", help="where one iteration's time goes, per variant")
     phases_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
@@ -54,7 +56,10 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command in ("speed", "phases"):
         if args.rollouts < 2:
             parser.error(f"--rollouts must be at least 2 (the first is not timed), got {args.rollouts}")
-        table = (speed if args.command == "speed" else phases)(args.variants, args.rollouts)
+        if args.command == "speed" and args.repeats < 1:
+            parser.error(f"--repeats must be at least 1, got {args.repeats}")
+        table = (speed(args.variants, args.rollouts, args.repeats) if args.command == "speed"
+                 else phases(args.variants, args.rollouts))
         sys.stdout.write(table)
         if args.out is not None:
             arguments = argv if argv is not None else sys.argv[1:]

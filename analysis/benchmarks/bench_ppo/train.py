@@ -85,7 +85,8 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
     collector = Collector(env, policy, frames_per_batch=frames, total_frames=steps,
                           auto_register_policy_transforms=True, compile_policy=compile_policy)
     step = make_update(loss, optim, compile_update)
-    curve, iteration_ends, done_frames, start = [], [], 0, time.perf_counter()
+    curve, iteration_ends, cpu_ends, done_frames = [], [], [], 0
+    start, cpu_start = time.perf_counter(), time.process_time()
     batches = iter(collector)
     while True:
         with TIMER.timed("collect"):
@@ -105,11 +106,13 @@ def train_torchrl(method: str, seed: int, steps: int, compile_update: bool = Fal
                         minibatch = flat[idx]
                     step(minibatch)
         iteration_ends.append(time.perf_counter() - start)
+        cpu_ends.append(time.process_time() - cpu_start)
         if len(iteration_ends) == 1:
             TIMER.restart()  # the first iteration (warm-up, compilation) is not timed
     wall = time.perf_counter() - start
     collector.shutdown()
     return {"wall_s": wall, "env_steps": done_frames, "curve": curve, "iteration_ends_s": iteration_ends,
+            "iteration_cpu_ends_s": cpu_ends,
             "eval_returns": evaluate_torchrl(policy, normalizer, 10_000 + seed, clip_actions) if evaluate else []}
 
 
@@ -128,6 +131,25 @@ def evaluate_torchrl(policy, normalizer, seed: int, clip_actions: bool = True) -
 
 
 
+def train_job(rollouts: int, overrides: tuple[str, ...] = ()) -> dict:
+    """``rollouts`` updates of ``python train.py +experiment=ppo_halfcheetah_bullet`` (the job's
+    own trainer: its collector, checks and update, no evaluation or files), each update's end
+    in wall and CPU seconds."""
+    from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
+    from sde_torchrl.config.compose import compose
+    from sde_torchrl.config.schemas.train import validate
+
+    conf = validate(compose(["+experiment=ppo_halfcheetah_bullet", "logger=none", *overrides]))
+    trainer = build_onpolicy_trainer(conf)
+    ends, cpu_ends, start, cpu_start = [], [], time.perf_counter(), time.process_time()
+    for k in range(rollouts):
+        trainer.update(k)
+        ends.append(time.perf_counter() - start)
+        cpu_ends.append(time.process_time() - cpu_start)
+    trainer.close()
+    return {"iteration_ends_s": ends, "iteration_cpu_ends_s": cpu_ends}
+
+
 def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True) -> dict:
     """One Stable-Baselines3 PPO training with the zoo's settings, gSDE (``use_sde``) or its Gaussian."""
     try:
@@ -141,11 +163,13 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
 
     curve: list[list[float]] = []
     iteration_ends: list[float] = []
+    cpu_ends: list[float] = []
 
     class EpisodeReturns(BaseCallback):
         def _on_rollout_start(self) -> None:  # the previous iteration's update has ended
             if self.num_timesteps:
                 iteration_ends.append(time.perf_counter() - start)
+                cpu_ends.append(time.process_time() - cpu_start)
                 TIMER.mark("update")
                 if len(iteration_ends) == 1:
                     TIMER.restart()  # the first iteration is not timed
@@ -167,14 +191,16 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
         policy_kwargs={"log_std_init": ZOO["log_std_init"], "ortho_init": False, "activation_fn": torch.nn.ReLU,
                        "net_arch": {"pi": ZOO["net_arch"], "vf": ZOO["net_arch"]}},
     )
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     with sb3_update_timed(model) if TIMER.active else nullcontext():
         model.learn(total_timesteps=steps, callback=EpisodeReturns())
     TIMER.mark("update")  # the last iteration's update
     wall = time.perf_counter() - start
     iteration_ends.append(wall)
+    cpu_ends.append(time.process_time() - cpu_start)
     if not evaluate:
-        return {"wall_s": wall, "env_steps": int(model.num_timesteps), "iteration_ends_s": iteration_ends}
+        return {"wall_s": wall, "env_steps": int(model.num_timesteps), "iteration_ends_s": iteration_ends,
+                "iteration_cpu_ends_s": cpu_ends}
     eval_env = VecNormalize(make_vec_env(gym_make, n_envs=1, seed=10_000 + seed), training=False, norm_reward=False)
     eval_env.obs_rms = env.obs_rms
     returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=EVAL_EPISODES, deterministic=True,

@@ -49,6 +49,9 @@ class OnPolicyConf(Frozen):
         time_feature: append ``1 - t / episode_length`` to the observation (sb3-contrib's
             ``TimeFeatureWrapper``, which rl-zoo puts around the Bullet envs for A2C).
         critic_hidden: the critic's hidden layers; ``null``: the actor's (``actor.hidden``).
+        compile: compile the loss's forward and backward with ``torch.compile`` and step Adam or
+            SGD with torch's fused kernel (:mod:`sde_torchrl.trainers.objective`): faster updates,
+            a first update tens of seconds longer, results equal to the eager ones to rounding.
 
     Examples:
         >>> OnPolicyConf().n_envs
@@ -66,6 +69,7 @@ class OnPolicyConf(Frozen):
     normalize: bool = False
     time_feature: bool = False
     critic_hidden: Optional[List[int]] = None
+    compile: bool = False
 
     def __post_init__(self) -> None:
         for name in ("n_envs", "n_steps"):
