@@ -17,7 +17,6 @@ from analysis.benchmarks.bench_ppo import build as ppo_build
 from analysis.benchmarks.bench_ppo import speed as ppo_speed
 from analysis.benchmarks.bench_ppo import timing as ppo_timing
 from analysis.benchmarks.bench_sac import build as sac_build
-from analysis.benchmarks.bench_sac import compiler as sac_compiler
 from analysis.benchmarks.bench_sac import report as sac_report
 from analysis.paper import ballcatch_scores, fig5
 from analysis.selection import ballcatch_tuning
@@ -132,7 +131,7 @@ def test_figure_helpers():
 
 @pytest.mark.parametrize("module", [
     runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_build, ppo_speed, ppo_timing, sac_build,
-    sac_compiler, sac_report,
+    sac_report,
 ], ids=lambda module: module.__name__)
 def test_docstring_examples_of_the_analysis_modules_run(module):
     import doctest

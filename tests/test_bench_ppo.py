@@ -90,6 +90,7 @@ def test_a_short_sde_run_writes_its_result(tmp_path):
     (["run", "--method", "sb3", "--compile"], "apply to the TorchRL methods"),
     (["run", "--method", "sb3_gauss", "--unclipped-actions"], "apply to the TorchRL methods"),
     (["speed", "sde+fast"], "invalid choice"),
+    (["speed", "sb3", "job", "--repeats", "0"], "--repeats must be at least 1"),
 ])
 def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
@@ -187,6 +188,19 @@ def test_phases_split_an_iteration_into_parts_that_fit_inside_it(monkeypatch, va
     assert 0 < sum(phases[p] for p in parts) < phases["update"]
     whole = phases["collect"] + phases.get("GAE", 0.0) + phases["update"]
     assert whole == pytest.approx(phases["iteration"], rel=0.2)
+
+
+def test_the_job_variant_times_train_pys_own_trainer_by_iteration_and_collection():
+    """``bench_ppo speed job``: the shipped experiment's trainer (tiny sizes here), each update's
+    end in wall and CPU time, each rollout's collection inside its update."""
+    pytest.importorskip("pybullet_envs_gymnasium")
+    tiny = ("algorithm.n_envs=2", "algorithm.n_steps=16", "algorithm.batch_size=16", "algorithm.n_epochs=1",
+            "actor.hidden=[8]", "algorithm.compile=false")
+    result = train.train_job(3, tiny)
+    ends, cpu_ends, collect = result["iteration_ends_s"], result["iteration_cpu_ends_s"], result["collect_s"]
+    assert len(ends) == len(cpu_ends) == len(collect) == 3
+    assert all(np.diff(ends) > 0) and all(c > 0 for c in cpu_ends)
+    assert all(0 < c < d for c, d in zip(collect[1:], np.diff(ends), strict=True))
 
 
 @pytest.mark.e2e  # torch.compile of the SDE policy (inductor)

@@ -10,8 +10,9 @@ import torch
 from _helpers import REPO
 from tensordict import TensorDict
 
-from analysis.benchmarks.bench_sac import build, cli, compiler, report, train
+from analysis.benchmarks.bench_sac import build, cli, report, train
 from sde_torchrl.modules.sac_actor import CLIP_MEAN
+from sde_torchrl.trainers import compiler
 from sde_torchrl.trainers.sac import fresh_loss_noise
 
 
@@ -149,6 +150,8 @@ def test_a_tiny_run_writes_its_result(tmp_path, method):
     (["run", "--method", "sde", "--env", "pendulum"], "invalid choice"),
     (["run", "--method", "sde", "--steps", "100", "--learning-starts", "100"], "--learning-starts must be in"),
     (["update-speed", "--updates", "0"], "--updates and --rounds must be positive"),
+    (["speed", "job", "sb3", "--rounds", "4"], "--rounds must be at least 5"),
+    (["speed", "job", "--repeats", "0"], "--repeats at least 1"),
     (["run", "--method", "sb3", "--compile"], "--compile applies to the TorchRL methods"),
     (["run", "--method", "sde", "--compile", "--loss-noise", "stored"], "--compile runs the fresh loss noise only"),
     (["run", "--method", "sde", "--compile-policy"], "--compile-policy goes with --compile"),
@@ -157,6 +160,15 @@ def test_bad_command_lines_are_refused_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         cli.main(argv)
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_speed_job_variant_times_the_sac_jobs_own_rounds():
+    """``bench_sac speed job``: ``+experiment=sac_mountaincar``'s trainer, one round (32 env steps,
+    32 gradient steps) an update, each round's end in wall and CPU seconds."""
+    from analysis.benchmarks.bench_sac.speed import job_rounds
+
+    ends = np.asarray(job_rounds(4, ("algorithm.compile=false", "algorithm.batch_size=64")))
+    assert ends.shape == (4, 2) and (np.diff(ends[:, 0]) > 0).all() and (ends[:, 1] > 0).all()
 
 
 def _fake_run(folder, env, method, seed, final, speed, loss_noise=None, compiled=False, compiled_policy=False):

@@ -280,7 +280,8 @@ def test_a_tiny_cell_on_both_sides_then_the_report(tmp_path):
     again = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and "0 of 2 runs to train (2 finished already)" in again.stderr
 
-    shown = subprocess.run([sys.executable, "-m", "analysis.benchmarks.gsde_table", "report", str(out)],
+    shown = subprocess.run([sys.executable, "-m", "analysis.benchmarks.gsde_table", "report", str(out),
+                            "--out", str(out)],
                            cwd=REPO, capture_output=True, text=True, timeout=300)
     assert shown.returncode == 0, shown.stderr[-3000:]
     data = json.loads((out / "gsde_table.json").read_text())

@@ -49,6 +49,45 @@ def test_every_sac_experiment_composes_with_the_zoo_settings(experiment, explore
             "rollout", "exp", -3.0)
 
 
+def test_the_mountaincar_experiment_composes_with_the_zoo_settings():
+    """hyperparams/sac.yml's MountainCarContinuous-v0 entry, 50,016 env steps as SB3 runs them."""
+    conf = validate(compose_config("+experiment=sac_mountaincar"))
+    alg = conf.algorithm
+    assert (alg.buffer_size, alg.batch_size, alg.learning_starts, alg.train_freq, alg.gradient_steps, alg.gamma,
+            alg.tau, alg.ent_coef, alg.compile) == (50_000, 512, 0, 32, 32, 0.9999, 0.01, 0.1, True)
+    assert conf.updates * alg.rounds_per_update * alg.train_freq == 50_016
+    assert (conf.lr, conf.actor.hidden, conf.explorer.init_param, conf.env.id) == (
+        3e-4, [64, 64], -3.67, "MountainCarContinuous-v0")
+
+
+@pytest.mark.parametrize("ent_coef", [0.1, "auto"])
+def test_the_compiled_gradient_step_gives_the_eager_ones_numbers_to_rounding(ent_coef):
+    """Two trainers in the same state, one eager and one compiled (``algorithm.compile``): a few
+    gradient steps on the same minibatches move every parameter alike; the fresh loss noise is
+    drawn outside the compiled graphs, so both draw the same."""
+    trainers = [_trainer("explorer=gsde_freq4", f"algorithm.ent_coef={ent_coef}", f"algorithm.compile={c}")
+                for c in ("false", "true")]
+    compiled = trainers[1].update_step
+    assert hasattr(compiled.critic_objective, "_torchdynamo_orig_callable")
+    assert not hasattr(trainers[0].update_step.critic_objective, "_torchdynamo_orig_callable")
+    assert all(opt.defaults["fused"] for opt in compiled.optimizers.values())
+    for trainer in trainers:
+        trainer.update(0)  # the random warm-up fills the buffer; both are in the same state
+    before = {k: v.clone() for k, v in trainers[0].update_step.loss.state_dict().items()}
+    batches = [trainers[0].buffer.sample() for _ in range(3)]
+    states = []
+    for trainer in trainers:
+        torch.manual_seed(1)
+        for batch in batches:
+            assert torch.isfinite(trainer.update_step(batch.clone()))
+        states.append(trainer.update_step.loss.state_dict())
+    assert any(not torch.equal(states[0][key], value) for key, value in before.items())  # the steps moved them
+    for key, eager in states[0].items():
+        torch.testing.assert_close(states[1][key], eager, rtol=1e-4, atol=1e-5, msg=key)
+    for trainer in trainers:
+        trainer.close()
+
+
 def _trainer(*overrides: str):
     from sde_torchrl.config.build_sac import build_sac_trainer
 
@@ -109,12 +148,13 @@ def test_a_short_job_writes_its_run_directory(tmp_path):
     assert job.summary["final_eval_return"] == [float(rows[-1]["eval_return"])]
 
 
-@pytest.mark.parametrize("explorer", ["gsde_freq4", "gaussian"])
+@pytest.mark.parametrize("explorer", ["gsde_freq4", "gaussian", "gsde_freq4 algorithm.compile=true"])
 @pytest.mark.e2e
 def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, explorer):
     """The checkpoint holds the replay buffer, the optimisers and the env mid-episode."""
     updates = 20
-    cli = (*TINY, f"updates={updates}", "checkpoint_period=0", f"explorer={explorer}")
+    explorer, *more = explorer.split()
+    cli = (*TINY, f"updates={updates}", "checkpoint_period=0", f"explorer={explorer}", *more)
     with ThreadPoolExecutor(max_workers=1) as pool:
         reference = pool.submit(run_cli, *cli, run_dir=tmp_path / "ref")
         run_dir = tmp_path / "terminated"

@@ -65,3 +65,49 @@ def curve_band(runs: list[dict], bin_steps: int, total: int) -> tuple[np.ndarray
     with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
         warnings.simplefilter("ignore", RuntimeWarning)
         return x, np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
+
+
+def speed_table(seconds: dict[str, list[tuple[float, float, float]]], steps: int, timed: int, unit: str) -> str:
+    """A speed table from each variant's ``(wall, CPU, collection)`` seconds per ``unit`` (an
+    iteration, a round), one triple per process (collection ``nan`` where not recorded): the
+    medians, the update's share (wall minus collection), env steps per second and per CPU second
+    and, with ``sb3`` among the variants, the ratio of SB3's seconds per unit to the variant's
+    (ratio of the means over processes, 95 % bootstrap interval when both have several).
+
+    Args:
+        seconds: per variant, one ``(wall, CPU, collection)`` triple per process.
+        steps: env steps per ``unit``.
+        timed: units timed per process.
+        unit: what one triple times.
+
+    Examples:
+        >>> table = speed_table({"sb3": [(4.0, 4.0, float("nan"))], "job": [(2.0, 2.0, 1.0)]}, 32, 9, "round")
+        >>> print(table.splitlines()[3])
+        | job | 1 | 2.00 | 1.00 | 1.00 | 16 | 16 | 2.00 | 2.00 | 9 |
+    """
+    from sde_torchrl.utils.intervals import bootstrap_interval
+
+    sb3 = np.asarray(seconds.get("sb3", []), dtype=float).reshape(-1, 3)
+    lines = [f"| variant | processes | median s / {unit} | collection s | update s | env steps / s "
+             "| env steps / CPU s | × SB3's env steps / s | × SB3's env steps / CPU s "
+             f"| {unit}s timed per process |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for variant, triples in seconds.items():
+        own = np.asarray(triples, dtype=float)
+        wall, cpu, collect = np.median(own[:, 0]), np.median(own[:, 1]), np.median(own[:, 2])
+        phases = "- | -" if np.isnan(collect) else f"{collect:.2f} | {wall - collect:.2f}"
+        ratios = []
+        for column in (0, 1):
+            if not len(sb3):
+                ratios.append("-")
+                continue
+            ratio = sb3[:, column].mean() / own[:, column].mean()
+            if len(sb3) > 1 and len(own) > 1:
+                _, low, high = bootstrap_interval((sb3[:, column], own[:, column]),
+                                                  statistic=lambda a, b: a.mean(-1) / b.mean(-1))
+                ratios.append(f"{ratio:.2f} [{low:.2f}, {high:.2f}]")
+            else:
+                ratios.append(f"{ratio:.2f}")
+        lines.append(f"| {variant} | {len(own)} | {wall:.2f} | {phases} | {steps / wall:.0f} | {steps / cpu:.0f} "
+                     f"| {ratios[0]} | {ratios[1]} | {timed} |")
+    return "\n".join(lines) + "\n"

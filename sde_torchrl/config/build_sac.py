@@ -79,7 +79,7 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
     schedule = OffPolicySchedule(alg.train_freq, alg.gradient_steps, alg.learning_starts, alg.rounds_per_update,
                                  alg.batch_size, alg.buffer_size)
     update = SACUpdate(loss, sde, lr=conf.lr, tau=alg.tau, optimizer=asdict(conf.optimizer),
-                       rounds=conf.updates * alg.rounds_per_update)
+                       rounds=conf.updates * alg.rounds_per_update, compile=alg.compile)
     settings = OnPolicySettings("sac", updates=conf.updates, n_envs=1, n_steps=alg.train_freq * alg.rounds_per_update,
                                 eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
                                 episode_length=base.episode_length, first_run=conf.first_run)

@@ -14,6 +14,12 @@ and learned entropy coefficient with target entropy ``-dim(A)``), each gradient 
    used the coefficient from before it);
 5. the Polyak update of the target critics with ``tau``.
 
+With ``compile=True`` (``algorithm.compile``) the critic's and the actor's losses, forward and
+backward, go through ``torch.compile`` with
+:func:`~sde_torchrl.trainers.compiler.inductor_recomputing_boolean_masks`, and the Adam steps use
+torch's fused kernel; the noise is drawn outside the compiled graphs, so every random stream is
+the eager step's, and the values agree with it to rounding.
+
 **Why fresh noise.** A replay buffer could hold the ``ξ`` each transition was collected with, but
 the reparameterised SAC gradient needs ``a = μ(s) + (σ̂ ⊙ ξ) x(s)`` with ``ξ ~ N(0, I)``
 independent of ``s``; the stored ``ξ`` steered the episode into ``s``, so it is not, and would
@@ -31,6 +37,7 @@ from torch import nn
 from torchrl.objectives import SACLoss, SoftUpdate
 
 from sde_torchrl.modules.sde import SDEParams
+from sde_torchrl.trainers.compiler import inductor_recomputing_boolean_masks
 from sde_torchrl.trainers.optim import LearningRateSchedule, make_optimizer
 
 #: What the SAC losses read of a stored transition (no SDE noise: see the module docstring).
@@ -92,6 +99,7 @@ class SACUpdate:
             Adam's options and the rate's schedule); ``None``: SB3's plain Adam.
         rounds: how many times :meth:`set_round` is called over the job (the schedule's length).
         loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the batch's ``ξ``).
+        compile: compile the two losses and fuse the Adam steps (the module docstring).
 
     Returns (when called with a minibatch):
         The norm of the actor's gradient (a 0-d tensor: no synchronisation per step).
@@ -110,17 +118,29 @@ class SACUpdate:
     """
 
     def __init__(self, loss: SACLoss, sde: SDEParams | None, *, lr: float, tau: float,
-                 optimizer: Mapping[str, Any] | None = None, rounds: int = 1, loss_noise: str = "fresh") -> None:
+                 optimizer: Mapping[str, Any] | None = None, rounds: int = 1, loss_noise: str = "fresh",
+                 compile: bool = False) -> None:
         self.loss, self.sde, self.loss_noise = loss, sde, loss_noise
         options = {"_target_": "torch.optim.Adam"} if optimizer is None else optimizer
         groups = {"critic": list(loss.qvalue_network_params.flatten_keys().values()),
                   "actor": list(loss.actor_network_params.flatten_keys().values())}
         if not loss.fixed_alpha:
             groups["alpha"] = [loss.log_alpha]
-        made = {name: make_optimizer(params, lr, options, rounds) for name, params in groups.items()}
+        made = {name: make_optimizer(params, lr, options, rounds, fused=compile) for name, params in groups.items()}
         self.optimizers = {name: optim for name, (optim, _) in made.items()}
         self.schedules: list[LearningRateSchedule] = [s for _, s in made.values() if s is not None]
         self.target = SoftUpdate(loss, tau=tau)
+        self.critic_objective, self.actor_objective = self._critic_objective, self._actor_objective
+        if compile:
+            self.critic_objective = torch.compile(self._critic_objective, backend=inductor_recomputing_boolean_masks)
+            self.actor_objective = torch.compile(self._actor_objective, backend=inductor_recomputing_boolean_masks)
+
+    def _critic_objective(self, batch: TensorDictBase) -> torch.Tensor:
+        return 0.5 * self.loss.qvalue_v2_loss(batch)[0]  # SB3: 0.5 * Σ_k MSE(Q_k, y); TorchRL: Σ_k (Q_k - y)²
+
+    def _actor_objective(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        actor_loss, meta = self.loss.actor_loss(batch)
+        return actor_loss, meta["log_prob"]
 
     def set_round(self, done: int) -> None:
         """Sets the learning rate of the round of gradient steps after ``done`` rounds of
@@ -132,11 +152,11 @@ class SACUpdate:
         if self.sde is not None and self.loss_noise == "fresh":
             fresh_loss_noise(batch, self.sde)
         critic, actor, alpha = (self.optimizers.get(name) for name in ("critic", "actor", "alpha"))
-        critic_loss, _ = self.loss.qvalue_v2_loss(batch)
+        critic_loss = self.critic_objective(batch)
         critic.zero_grad()
-        (0.5 * critic_loss).backward()  # SB3: 0.5 * Σ_k MSE(Q_k, y); TorchRL: Σ_k (Q_k - y)²
+        critic_loss.backward()
         critic.step()
-        actor_loss, meta = self.loss.actor_loss(batch)
+        actor_loss, log_prob = self.actor_objective(batch)
         actor.zero_grad()
         actor_loss.backward()
         norm = torch.linalg.vector_norm(torch.stack([
@@ -145,7 +165,7 @@ class SACUpdate:
         actor.step()
         if alpha is not None:
             alpha.zero_grad()
-            self.loss.alpha_loss(meta["log_prob"]).mean().backward()
+            self.loss.alpha_loss(log_prob).mean().backward()
             alpha.step()
         self.target.step()
         return norm.detach()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from analysis.benchmarks import common
 from analysis.benchmarks.bench_ppo.build import ZOO
 from analysis.benchmarks.bench_ppo.timing import TIMER
 from analysis.benchmarks.bench_ppo.train import train_job, train_sb3, train_torchrl
@@ -18,9 +19,9 @@ SPEED_VARIANTS = ("job", "job+eager", "plain", "plain+compile", "plain+compile+p
                   "sde+compile+policy", "sb3", "sb3_gauss")
 
 
-def iteration_seconds(variant: str, rollouts: int) -> tuple[float, float]:
-    """Median wall and CPU time of one training iteration of ``variant``, the first iteration
-    left out."""
+def iteration_seconds(variant: str, rollouts: int) -> tuple[float, float, float]:
+    """Median wall and CPU time of one training iteration of ``variant`` and the median wall time
+    of its collection (``nan`` where not recorded), the first iteration left out."""
     torch.set_num_threads(1)
     frames = ZOO["n_envs"] * ZOO["n_steps"]
     method, *options = variant.split("+")
@@ -31,8 +32,10 @@ def iteration_seconds(variant: str, rollouts: int) -> tuple[float, float]:
     else:
         result = train_torchrl(method, 0, rollouts * frames, compile_update="compile" in options, evaluate=False,
                                compile_policy="policy" in options)
+    collect = result.get("collect_s", [])[1:]
     return (float(np.median(np.diff(result["iteration_ends_s"]))),
-            float(np.median(np.diff(result["iteration_cpu_ends_s"]))))
+            float(np.median(np.diff(result["iteration_cpu_ends_s"]))),
+            float(np.median(collect)) if collect else float("nan"))
 
 
 def speed(variants: list[str], rollouts: int, repeats: int = 1) -> str:
@@ -49,7 +52,7 @@ def speed(variants: list[str], rollouts: int, repeats: int = 1) -> str:
     """
     import multiprocessing
 
-    seconds: dict[str, list[tuple[float, float]]] = {variant: [] for variant in variants}
+    seconds: dict[str, list[tuple[float, float, float]]] = {variant: [] for variant in variants}
     for _ in range(repeats):
         for variant in variants:
             with multiprocessing.get_context("spawn").Pool(1) as pool:
@@ -57,48 +60,22 @@ def speed(variants: list[str], rollouts: int, repeats: int = 1) -> str:
     return speed_table(seconds, rollouts - 1)
 
 
-def speed_table(seconds: dict[str, list[tuple[float, float]]], timed: int) -> str:
-    """The ``speed`` table from each variant's ``(wall, CPU)`` seconds per iteration, one pair per
-    process: the medians, env steps per second and per CPU second and, with ``sb3`` among the
-    variants, the ratio of SB3's seconds per iteration to the variant's (ratio of the means over
-    processes, bootstrap interval when both have several).
+def speed_table(seconds: dict[str, list[tuple[float, float, float]]], timed: int) -> str:
+    """The ``speed`` table (:func:`analysis.benchmarks.common.speed_table`) of PPO iterations.
 
     Examples:
-        >>> table = speed_table({"sb3": [(4.0, 4.0), (6.0, 5.0)], "sde": [(5.0, 5.0), (5.0, 4.5)]}, 5)
+        >>> table = speed_table({"sb3": [(4.0, 4.0, 2.0), (6.0, 5.0, 3.0)],
+        ...                      "sde": [(5.0, 5.0, 2.0), (5.0, 4.5, 2.0)]}, 5)
         >>> print(table.splitlines()[3])
-        | sde | 2 | 5.00 | 1638 | 1725 | 1.00 [0.80, 1.20] | 0.95 [0.80, 1.11] | 5 |
+        | sde | 2 | 5.00 | 2.00 | 3.00 | 1638 | 1725 | 1.00 [0.80, 1.20] | 0.95 [0.80, 1.11] | 5 |
     """
-    from sde_torchrl.utils.intervals import bootstrap_interval
-
-    frames = ZOO["n_envs"] * ZOO["n_steps"]
-    sb3 = np.asarray(seconds.get("sb3", []), dtype=float).reshape(-1, 2)
-    lines = ["| variant | processes | median s / iteration | env steps / s | env steps / CPU s "
-             "| × SB3 gSDE's env steps / s | × SB3 gSDE's env steps / CPU s | iterations timed per process |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for variant, pairs in seconds.items():
-        own = np.asarray(pairs, dtype=float)
-        wall, cpu = np.median(own[:, 0]), np.median(own[:, 1])
-        ratios = []
-        for column in (0, 1):
-            if not len(sb3):
-                ratios.append("-")
-                continue
-            ratio = sb3[:, column].mean() / own[:, column].mean()
-            if len(sb3) > 1 and len(own) > 1:
-                _, low, high = bootstrap_interval((sb3[:, column], own[:, column]),
-                                                  statistic=lambda a, b: a.mean(-1) / b.mean(-1))
-                ratios.append(f"{ratio:.2f} [{low:.2f}, {high:.2f}]")
-            else:
-                ratios.append(f"{ratio:.2f}")
-        lines.append(f"| {variant} | {len(own)} | {wall:.2f} | {frames / wall:.0f} | {frames / cpu:.0f} "
-                     f"| {ratios[0]} | {ratios[1]} | {timed} |")
-    return "\n".join(lines) + "\n"
+    return common.speed_table(seconds, ZOO["n_envs"] * ZOO["n_steps"], timed, "iteration")
 
 
 def iteration_phases(variant: str, rollouts: int) -> dict[str, float]:
     """Seconds per iteration of each phase of ``variant``'s training, the first iteration left out."""
     with TIMER.on() as timed:
-        seconds, _ = iteration_seconds(variant, rollouts)
+        seconds, _, _ = iteration_seconds(variant, rollouts)
     return {"iteration": seconds, **{phase: total / (rollouts - 1) for phase, total in timed.items()}}
 
 

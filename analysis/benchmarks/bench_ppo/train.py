@@ -134,20 +134,30 @@ def evaluate_torchrl(policy, normalizer, seed: int, clip_actions: bool = True) -
 def train_job(rollouts: int, overrides: tuple[str, ...] = ()) -> dict:
     """``rollouts`` updates of ``python train.py +experiment=ppo_halfcheetah_bullet`` (the job's
     own trainer: its collector, checks and update, no evaluation or files), each update's end
-    in wall and CPU seconds."""
+    in wall and CPU seconds and each rollout's collection time."""
     from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
     from sde_torchrl.config.compose import compose
     from sde_torchrl.config.schemas.train import validate
 
     conf = validate(compose(["+experiment=ppo_halfcheetah_bullet", "logger=none", *overrides]))
     trainer = build_onpolicy_trainer(conf)
+    collect_s: list[float] = []
+    rollout = trainer.collector.rollout
+
+    def timed_rollout():
+        begin = time.perf_counter()
+        batch = rollout()
+        collect_s.append(time.perf_counter() - begin)
+        return batch
+
+    trainer.collector.rollout = timed_rollout
     ends, cpu_ends, start, cpu_start = [], [], time.perf_counter(), time.process_time()
     for k in range(rollouts):
         trainer.update(k)
         ends.append(time.perf_counter() - start)
         cpu_ends.append(time.process_time() - cpu_start)
     trainer.close()
-    return {"iteration_ends_s": ends, "iteration_cpu_ends_s": cpu_ends}
+    return {"iteration_ends_s": ends, "iteration_cpu_ends_s": cpu_ends, "collect_s": collect_s}
 
 
 def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True) -> dict:
@@ -164,9 +174,11 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
     curve: list[list[float]] = []
     iteration_ends: list[float] = []
     cpu_ends: list[float] = []
+    collect_s: list[float] = []
 
     class EpisodeReturns(BaseCallback):
         def _on_rollout_start(self) -> None:  # the previous iteration's update has ended
+            self.collect_start = time.perf_counter()
             if self.num_timesteps:
                 iteration_ends.append(time.perf_counter() - start)
                 cpu_ends.append(time.process_time() - cpu_start)
@@ -176,6 +188,7 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
             TIMER.mark(None)
 
         def _on_rollout_end(self) -> None:
+            collect_s.append(time.perf_counter() - self.collect_start)
             TIMER.mark("collect")
 
         def _on_step(self) -> bool:
@@ -200,7 +213,7 @@ def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True
     cpu_ends.append(time.process_time() - cpu_start)
     if not evaluate:
         return {"wall_s": wall, "env_steps": int(model.num_timesteps), "iteration_ends_s": iteration_ends,
-                "iteration_cpu_ends_s": cpu_ends}
+                "iteration_cpu_ends_s": cpu_ends, "collect_s": collect_s}
     eval_env = VecNormalize(make_vec_env(gym_make, n_envs=1, seed=10_000 + seed), training=False, norm_reward=False)
     eval_env.obs_rms = env.obs_rms
     returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=EVAL_EPISODES, deterministic=True,

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import time
 from pathlib import Path
 
 from analysis.benchmarks import bench_sac
 from analysis.benchmarks.bench_sac.build import ENVS, LOSS_NOISE, METHODS, ZOO
 from analysis.benchmarks.bench_sac.report import report
+from analysis.benchmarks.bench_sac.speed import SPEED_VARIANTS, WARM_UP, speed
 from analysis.benchmarks.bench_sac.train import run
 from analysis.benchmarks.bench_sac.update_speed import update_speed
 from analysis.benchmarks.common import EVAL_EPISODES
@@ -42,6 +45,11 @@ def main(argv: list[str] | None = None) -> int:
     speed_p.add_argument("--profile", action="store_true", help="split the TorchRL SDE step by function")
     speed_p.add_argument("--compile", action="store_true", help="also time the compiled TorchRL SDE step")
     speed_p.add_argument("--out", type=Path, default=None, help="also write the tables to this markdown file")
+    round_p = sub.add_parser("speed", help="env steps per second of train.py's SAC job and SB3's, fresh processes")
+    round_p.add_argument("variants", nargs="+", choices=SPEED_VARIANTS)
+    round_p.add_argument("--rounds", type=int, default=30, help=f"rounds per process (the first {WARM_UP} not timed)")
+    round_p.add_argument("--repeats", type=int, default=1, help="times the whole list of variants runs")
+    round_p.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
     rep_p = sub.add_parser("report", help="tables and plot from a folder of runs")
     rep_p.add_argument("folder", type=Path)
     rep_p.add_argument("--out", type=Path, default=Path("docs/sac"))
@@ -85,6 +93,18 @@ def main(argv: list[str] | None = None) -> int:
                                 f"{' --compile' if args.compile else ''}`.\n\n"
                                 + page)
         sys.stdout.write(page)
+    elif args.command == "speed":
+        if args.rounds < WARM_UP + 2 or args.repeats < 1:
+            parser.error(f"--rounds must be at least {WARM_UP + 2} and --repeats at least 1, "
+                         f"got {args.rounds} and {args.repeats}")
+        table = speed(args.variants, args.rounds, args.repeats)
+        if args.out is not None:
+            arguments = argv if argv is not None else sys.argv[1:]
+            command = " ".join(["python -m analysis.benchmarks.bench_sac", *arguments])
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(f"Written by `{command}` on {time.strftime('%Y-%m-%d')} ({os.cpu_count()} cores).\n\n"
+                                + table)
+        sys.stdout.write(table)
     else:
         sys.stdout.write(report(args.folder, args.out))
     return 0

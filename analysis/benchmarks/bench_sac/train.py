@@ -20,8 +20,8 @@ from analysis.benchmarks.bench_sac.build import (
     make_torchrl_env,
     make_torchrl_policy,
 )
-from analysis.benchmarks.bench_sac.compiler import inductor_recomputing_boolean_masks
 from analysis.benchmarks.common import EVAL_EPISODES, first_episode_returns, gym_make, versions, write_run
+from sde_torchrl.trainers.compiler import inductor_recomputing_boolean_masks
 from sde_torchrl.trainers.sac import SACUpdate
 
 
@@ -126,8 +126,12 @@ def train_sb3(env_key: str, seed: int, steps: int, use_sde: bool = True, eval_ep
 
     zoo = {**ZOO[env_key], **(overrides or {})}
     curve: list[list[float]] = []
+    round_starts: list[tuple[float, float]] = []
 
     class EpisodeReturns(BaseCallback):
+        def _on_rollout_start(self) -> None:  # the previous round's gradient steps have ended
+            round_starts.append((time.perf_counter(), time.process_time()))
+
         def _on_step(self) -> bool:
             curve.extend([self.num_timesteps, float(i["episode"]["r"])] for i in self.locals["infos"] if "episode" in i)
             return True
@@ -147,7 +151,8 @@ def train_sb3(env_key: str, seed: int, steps: int, use_sde: bool = True, eval_ep
     model.learn(total_timesteps=steps, callback=EpisodeReturns())
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     result = {"wall_s": wall, "cpu_s": cpu, "env_steps": int(model.num_timesteps),
-              "gradient_steps": int(model._n_updates), "curve": curve, "eval_returns": []}
+              "gradient_steps": int(model._n_updates), "curve": curve, "eval_returns": [],
+              "round_starts": round_starts}
     if eval_episodes:
         eval_env = make_vec_env(make, n_envs=1, seed=10_000 + seed)
         returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, deterministic=True,

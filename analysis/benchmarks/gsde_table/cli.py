@@ -11,7 +11,9 @@ from analysis.benchmarks import gsde_table
 from analysis.benchmarks.gsde_table.cells import ALGORITHMS, ENVS, NOISES, RESERVED, cells
 
 #: Where ``run`` writes and ``report`` reads by default.
-DEFAULT_OUT = Path("docs/gsde_table/runs")
+DEFAULT_OUT = Path("results/gsde_table/runs")
+#: Where ``report`` writes the page, its JSON and plots.
+DEFAULT_PAGE = Path("docs/gsde_table")
 
 log = logging.getLogger("gsde_table")
 
@@ -73,7 +75,7 @@ def parser() -> argparse.ArgumentParser:
     run_p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"the folder of runs (default: {DEFAULT_OUT})")
     rep_p = sub.add_parser("report", help="the table, its page, JSON and plots from a folder of runs")
     rep_p.add_argument("folder", type=Path, nargs="?", default=DEFAULT_OUT)
-    rep_p.add_argument("--out", type=Path, default=None, help="where the page goes (default: the folder)")
+    rep_p.add_argument("--out", type=Path, default=DEFAULT_PAGE, help=f"where the page goes (default: {DEFAULT_PAGE})")
     return top
 
 
@@ -86,8 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         from analysis.benchmarks.gsde_table.report import report
 
         report(args.folder, args.out)
-        out = args.folder if args.out is None else args.out
-        log.info("wrote %s (gsde_table.md, gsde_table.json, gsde_table_<env>.png)", out)
+        log.info("wrote %s (gsde_table.md, gsde_table.json, gsde_table_<env>.png)", args.out)
         return 0
     if args.workers < 1:
         top.error(f"--workers must be at least 1, got {args.workers}")

@@ -159,6 +159,9 @@ class SACConf(Frozen):
         rounds_per_update: rounds per update (a row of ``metrics.csv``, a checkpoint boundary).
         time_feature: append ``1 - t / episode_length`` to the observation (sb3-contrib's
             ``TimeFeatureWrapper``).
+        compile: compile the critic's and the actor's losses with ``torch.compile`` and step
+            Adam with torch's fused kernel (:mod:`sde_torchrl.trainers.sac`): faster gradient
+            steps, a first one tens of seconds longer, results equal to the eager ones to rounding.
 
     Examples:
         >>> SACConf().train_freq, SACConf().ent_coef
@@ -175,6 +178,7 @@ class SACConf(Frozen):
     ent_coef: Any = "auto"
     rounds_per_update: int = 1
     time_feature: bool = False
+    compile: bool = False
 
     def __post_init__(self) -> None:
         for name in ("buffer_size", "batch_size", "train_freq", "gradient_steps", "rounds_per_update"):

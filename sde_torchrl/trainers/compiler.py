@@ -1,6 +1,7 @@
-"""The compiled SAC update's compiler pass: inductor, its min-cut partitioner told (through
-AOTAutograd's private settings, ``torch._functorch.config``) to recompute boolean masks in the
-backward rather than save them."""
+"""A ``torch.compile`` backend for small networks' losses on the CPU: inductor, its min-cut
+partitioner told (through AOTAutograd's private settings, ``torch._functorch.config``) to
+recompute boolean masks in the backward rather than save them. The compiled SAC update
+(``algorithm.compile``, :class:`~sde_torchrl.trainers.sac.SACUpdate`) compiles its losses with it."""
 
 from __future__ import annotations
 
