@@ -130,3 +130,21 @@ def test_actors_doctests():
 
     result = doctest.testmod(sde_torchrl.modules.actors, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_the_latent_actors_clipped_mean_is_a_hardtanh_module_after_it():
+    """``clip_loc`` inside the actor gives what a ``Hardtanh`` module after it gives, values and
+    gradients (SAC's clipped mean, one module instead of two)."""
+    from tensordict.nn import TensorDictModule, TensorDictSequential
+
+    torch.manual_seed(0)
+    clipped = LatentMLPActor(3, 2, hidden=[8], clip_loc=0.3, learn_features=True)
+    plain = LatentMLPActor(3, 2, hidden=[8], learn_features=True)
+    plain.load_state_dict(clipped.state_dict())
+    chain = TensorDictSequential(plain, TensorDictModule(torch.nn.Hardtanh(-0.3, 0.3), ["loc"], ["loc"]))
+    obs = torch.randn(64, 3) * 3
+    ours, theirs = clipped(TensorDict({"observation": obs}, [64])), chain(TensorDict({"observation": obs}, [64]))
+    assert (ours["loc"].abs() == 0.3).any() and (ours["loc"].abs() < 0.3).any()  # both sides of the clip
+    assert torch.equal(ours["loc"], theirs["loc"])
+    grads = [torch.autograd.grad(td["loc"].sum(), list(m.parameters())) for td, m in ((ours, clipped), (theirs, plain))]
+    assert all(torch.equal(a, b) for a, b in zip(*grads, strict=True))

@@ -210,6 +210,8 @@ class LatentMLPActor(TensorDictModuleBase):
         in_key: observation key.
         loc_key: where the mean is written.
         feature_key: where ``h`` is written.
+        clip_loc: clip the mean to ``[-clip_loc, clip_loc]`` (``hardtanh``, SB3's SAC with gSDE
+            clips it at 2); ``None``: not clipped.
 
     Examples:
         >>> from tensordict import TensorDict
@@ -217,22 +219,27 @@ class LatentMLPActor(TensorDictModuleBase):
         >>> td = actor(TensorDict({"observation": torch.randn(5, 3)}, [5]))
         >>> td["loc"].shape, td["sde_features"].shape, td["sde_features"].requires_grad
         (torch.Size([5, 2]), torch.Size([5, 4]), False)
+        >>> clipped = LatentMLPActor(3, 2, hidden=[8], clip_loc=0.125)
+        >>> float(clipped(TensorDict({"observation": torch.randn(5, 3)}, [5]))["loc"].abs().max()) == 0.125
+        True
     """
 
     def __init__(
         self, in_features: int, out_features: int, hidden: Sequence[int] = (64, 64), *,
         activation: str = "tanh", learn_features: bool = False, runs: int | None = None,
         init: Init = None, in_key: NestedKey = "observation", loc_key: NestedKey = "loc",
-        feature_key: NestedKey = "sde_features",
+        feature_key: NestedKey = "sde_features", clip_loc: float | None = None,
     ) -> None:
         super().__init__()
         self.net = MLP(in_features, out_features, list(hidden), activation=activation, runs=runs, init=init)
-        self.learn_features = learn_features
+        self.learn_features, self.clip_loc = learn_features, clip_loc
         self.feature_dim = hidden[-1] if len(hidden) else in_features
         self.in_keys, self.out_keys = [in_key], [loc_key, feature_key]
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         features, loc = self.net.hidden_and_output(tensordict.get(self.in_keys[0]))
+        if self.clip_loc is not None:
+            loc = torch.nn.functional.hardtanh(loc, -self.clip_loc, self.clip_loc)
         loc_key, feature_key = self.out_keys
         tensordict.set(loc_key, loc)
         tensordict.set(feature_key, features if self.learn_features else features.detach())

@@ -108,10 +108,9 @@ def make_sac_networks(
                                     distribution_kwargs={"low": low, "high": high}, return_log_prob=True)
         return policy, critic, None
     latent = LatentMLPActor(obs_dim, action_dim, hidden, activation=activation, learn_features=True,
-                            feature_key=FEATURE_KEY)
-    clip = TensorDictModule(nn.Hardtanh(-CLIP_MEAN, CLIP_MEAN), in_keys=["loc"], out_keys=["loc"])
+                            feature_key=FEATURE_KEY, clip_loc=CLIP_MEAN)
     sde = SDEParams(action_dim, latent.feature_dim, feature_key=FEATURE_KEY, **sde_options)
-    return make_sde_actor(TensorDictSequential(latent, clip), sde, squash=True, action_spec=action_spec), critic, sde
+    return make_sde_actor(TensorDictSequential(latent), sde, squash=True, action_spec=action_spec), critic, sde
 
 
 __all__ = ["CLIP_MEAN", "FEATURE_KEY", "GaussianHeads", "LOG_STD_MAX", "LOG_STD_MIN", "make_sac_networks"]
