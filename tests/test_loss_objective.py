@@ -65,6 +65,7 @@ def test_a2c_calling_the_modules_gives_the_functional_losses_numbers(rollout):
     assert all(torch.equal(a, b) for a, b in zip(ours, torchrl_default, strict=True))
 
 
+@pytest.mark.e2e  # torch.compile (inductor)
 def test_the_compiled_objective_gives_the_eager_value_and_gradients_to_rounding(rollout):
     trainer, batch = rollout
     loss = make_ppo_loss(trainer.policy, trainer.critic, clip_range=0.2, ent_coef=0.01, vf_coef=0.5)

@@ -60,6 +60,7 @@ def test_the_mountaincar_experiment_composes_with_the_zoo_settings():
         3e-4, [64, 64], -3.67, "MountainCarContinuous-v0")
 
 
+@pytest.mark.e2e  # torch.compile (inductor)
 @pytest.mark.parametrize("ent_coef", [0.1, "auto"])
 def test_the_compiled_gradient_step_gives_the_eager_ones_numbers_to_rounding(ent_coef):
     """Two trainers in the same state, one eager and one compiled (``algorithm.compile``): a few
