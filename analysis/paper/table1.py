@@ -51,10 +51,12 @@ import argparse
 import itertools
 import json
 import logging
+import math
 import os
 import statistics
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from analysis.figures import bounds, ratio_of_means, saved_figure, style
@@ -212,11 +214,27 @@ def table_rows(runs: list[dict]) -> list[dict]:
 
 def _mean_curve(curves: list[list[float]], smooth: int = 1) -> tuple[list[float], list[float]]:
     """Mean and std over runs per update (each run's curve smoothed over ``smooth`` updates)."""
-    def smoothed(curve):
-        return [statistics.mean(curve[max(0, i - smooth + 1): i + 1]) for i in range(len(curve))]
+    columns = list(zip(*[_window_means(c, smooth) for c in curves], strict=False))
+    return [_window_means(c, len(c))[-1] for c in columns], [statistics.pstdev(c) for c in columns]
 
-    columns = list(zip(*[smoothed(c) for c in curves], strict=False))
-    return [statistics.mean(c) for c in columns], [statistics.pstdev(c) for c in columns]
+
+def _window_means(values: Sequence[float], window: int) -> list[float]:
+    """The mean of each value and the ``window - 1`` before it (fewer at the start), each as
+    :func:`statistics.mean` gives it: the exact mean, rounded once. Finite floats are summed
+    exactly as integers (each a multiple of the smallest power of two among them), so that
+    every mean costs one division; with a non-finite value, :func:`statistics.mean` itself.
+
+    Examples:
+        >>> _window_means([0.1, 0.2, 0.3, 0.4], 2) == [statistics.mean(w) for w in ([0.1], [0.1, 0.2], [0.2, 0.3],
+        ...                                                                          [0.3, 0.4])]
+        True
+    """
+    if not all(map(math.isfinite, values)):
+        return [statistics.mean(values[max(0, i - window + 1): i + 1]) for i in range(len(values))]
+    ratios = [float(v).as_integer_ratio() for v in values]
+    unit = max((d for _, d in ratios), default=1)  # every denominator is a power of two: all divide it
+    sums = list(itertools.accumulate((n * (unit // d) for n, d in ratios), initial=0))
+    return [(sums[i + 1] - sums[max(0, i - window + 1)]) / (unit * min(i + 1, window)) for i in range(len(values))]
 
 
 def mlp_summary(runs: list[dict]) -> dict | None:
