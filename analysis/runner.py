@@ -23,6 +23,8 @@ Examples:
 
 from __future__ import annotations
 
+import functools
+import gc
 import logging
 import subprocess
 import sys
@@ -190,6 +192,7 @@ def _run_in_process(job: TrainJob, keep_checkpoints: bool) -> str | None:
     from sde_torchrl.config.schemas.train import validate
 
     torch.set_num_threads(1)  # one core per worker: the pool is the parallelism
+    _freeze_imports()
     try:
         cfg = compose(list(job.overrides), return_hydra_config=True)
         choices = dict(cfg.hydra.runtime.choices)  # the labels train.py gives its summaries
@@ -201,6 +204,14 @@ def _run_in_process(job: TrainJob, keep_checkpoints: bool) -> str | None:
         return text if type(error).__name__ in text else f"{type(error).__name__}: {text}"
     _finish(job, keep_checkpoints)
     return None
+
+
+@functools.cache
+def _freeze_imports() -> None:
+    """Once per worker process: the objects alive so far (the modules of torch, TorchRL and Hydra
+    just imported) are left out of every later garbage collection (:func:`gc.freeze`), which
+    then walks only what the jobs make; a job's updates trigger many."""
+    gc.freeze()
 
 
 def _run_command(job: TrainJob, keep_checkpoints: bool) -> str | None:
