@@ -176,11 +176,13 @@ def test_sigterm_then_the_same_command_equals_an_uninterrupted_job(tmp_path, exp
 
 
 def test_one_update_of_a_bullet_experiment_with_tiny_sizes():
-    """The experiment as it builds: the PyBullet env through its module id, SB3's Adam rate."""
+    """The experiment as it builds: the PyBullet env through its module id, SB3's Adam rate (its
+    compiled losses: the end-to-end tests)."""
     pytest.importorskip("pybullet_envs_gymnasium")
     from sde_torchrl.config.build_sac import build_sac_trainer
 
-    conf = validate(compose_config("+experiment=sac_halfcheetah_bullet", "algorithm.learning_starts=16",
+    conf = validate(compose_config("+experiment=sac_halfcheetah_bullet", "algorithm.compile=false",
+                                   "algorithm.learning_starts=16",
                                    "algorithm.batch_size=8", "algorithm.rounds_per_update=3", "actor.hidden=[8]",
                                    "updates=2", "eval_episodes=1", "env.episode_length=20", "logger=none"))
     trainer = build_sac_trainer(conf)
