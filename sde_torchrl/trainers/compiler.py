@@ -5,7 +5,29 @@ recompute boolean masks in the backward rather than save them. The compiled SAC 
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
+from typing import Any
+
 import torch
+
+#: tensordict 0.14 reads ``torch._dynamo.config.inline_inbuilt_nn_modules`` whenever a compiled
+#: graph swaps parameters into a module (``to_module``, as TorchRL's functional losses do), and
+#: torch 2.13 answers each read with this deprecation warning, which nobody using either can act on.
+TENSORDICT_DYNAMO_WARNING = r"torch\._dynamo\.config\.inline_inbuilt_nn_modules is deprecated"
+
+
+def compiled(function: Callable[..., Any], **options: Any) -> Callable[..., Any]:
+    """``torch.compile(function, **options)``, with tensordict's deprecation warning about
+    :data:`TENSORDICT_DYNAMO_WARNING` ignored from now on (that warning alone, in this process).
+
+    Examples:
+        >>> double = compiled(lambda x: 2 * x)
+        >>> callable(double), hasattr(double, "_torchdynamo_orig_callable")
+        (True, True)
+    """
+    warnings.filterwarnings("ignore", message=TENSORDICT_DYNAMO_WARNING, category=FutureWarning)
+    return torch.compile(function, **options)
 
 
 def inductor_recomputing_boolean_masks(graph, example_inputs):

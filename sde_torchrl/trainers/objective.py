@@ -18,6 +18,8 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.objectives import LossModule
 
+from sde_torchrl.trainers.compiler import compiled
+
 
 def loss_objective(loss: LossModule, *, compile: bool = False) -> Callable[[TensorDictBase], torch.Tensor]:
     """``batch -> Σ_k loss_k(batch)`` over the ``loss_*`` entries ``loss`` writes.
@@ -48,7 +50,7 @@ def loss_objective(loss: LossModule, *, compile: bool = False) -> Callable[[Tens
         out = loss(batch)
         return sum(value for key, value in out.items() if key.startswith("loss_"))
 
-    return torch.compile(objective) if compile else objective
+    return compiled(objective) if compile else objective
 
 
 __all__ = ["loss_objective"]

@@ -37,7 +37,7 @@ from torch import nn
 from torchrl.objectives import SACLoss, SoftUpdate
 
 from sde_torchrl.modules.sde import SDEParams
-from sde_torchrl.trainers.compiler import inductor_recomputing_boolean_masks
+from sde_torchrl.trainers.compiler import compiled, inductor_recomputing_boolean_masks
 from sde_torchrl.trainers.optim import LearningRateSchedule, make_optimizer
 
 #: What the SAC losses read of a stored transition (no SDE noise: see the module docstring).
@@ -132,8 +132,8 @@ class SACUpdate:
         self.target = SoftUpdate(loss, tau=tau)
         self.critic_objective, self.actor_objective = self._critic_objective, self._actor_objective
         if compile:
-            self.critic_objective = torch.compile(self._critic_objective, backend=inductor_recomputing_boolean_masks)
-            self.actor_objective = torch.compile(self._actor_objective, backend=inductor_recomputing_boolean_masks)
+            self.critic_objective = compiled(self._critic_objective, backend=inductor_recomputing_boolean_masks)
+            self.actor_objective = compiled(self._actor_objective, backend=inductor_recomputing_boolean_masks)
 
     def _critic_objective(self, batch: TensorDictBase) -> torch.Tensor:
         return 0.5 * self.loss.qvalue_v2_loss(batch)[0]  # SB3: 0.5 * Σ_k MSE(Q_k, y); TorchRL: Σ_k (Q_k - y)²
