@@ -8,8 +8,8 @@ saying what each column is. This script writes that block from
 (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
 ``methods_selected/methods.json``, ``selected/fig5.json``), the quick start's run
 (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
-``docs/sac/bench_sac.json`` and ``docs/sac/zoo_budget/bench_sac.json``, so that no figure in the
-README is typed by hand::
+``docs/sac/bench_sac.json``, ``docs/sac/zoo_budget/bench_sac.json`` and
+``docs/gsde_table/gsde_table.json``, so that no figure in the README is typed by hand::
 
     python docs/readme_results.py           # rewrite the README's table
     python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
@@ -178,9 +178,40 @@ def summary() -> str:
         (f"SAC, MountainCarContinuous, {sac['sde']['steps']:,} steps", sac_page, "SDE vs SB3 gSDE",
          "late training return, first ÷ second", *_ratio(sac["sde_over_sb3"]["late"]), NONE, NONE, NONE, NONE),
     ]
+    rows += _gsde_rows(_load("gsde_table/gsde_table.json"), "docs/reproduce/gsde_table.md")
     lines = ["| " + " | ".join(HEADER) + " |", "| " + " | ".join("---" for _ in HEADER) + " |"]
     lines += [f"| [{result}]({page}) | " + " | ".join(cells) + " |" for result, page, *cells in rows]
     return "\n".join(lines) + "\n\n" + LEGEND + "\n"
+
+
+def _gsde_rows(table: dict, page: str) -> list[tuple[str, ...]]:
+    """The gSDE table's rows: in how many cells (algorithm, env, noise) ours and SB3's final
+    returns do not differ significantly (the interval of ours ÷ SB3, or ours − SB3, holds parity),
+    and ours ÷ SB3's env steps per second over the cells.
+
+    Examples:
+        >>> cell = {"ours_vs_sb3": {"kind": "ratio", "low": 0.8, "high": 1.2}, "speed_ratio": {"estimate": 0.9}}
+        >>> other = {"ours_vs_sb3": {"kind": "difference", "low": 5.0, "high": 9.0}, "speed_ratio": {"estimate": 1.1}}
+        >>> rows = _gsde_rows({"fraction": 0.02, "cells": {"ppo/hopper/sde": cell, "a2c/ant/sde": other}}, "p.md")
+        >>> rows[0][3:5]
+        ('final return: cells where ours and SB3 do not differ significantly', '1 of 2')
+        >>> rows[1][3:5]
+        ('env steps per second, first ÷ second: median of the 2 cells (lowest 0.90×, highest 1.10×)', '1.00×')
+    """
+    compared = {key: cell for key, cell in table["cells"].items() if "ours_vs_sb3" in cell}
+    parity = {"ratio": 1.0, "difference": 0.0}
+    alike = sum(cell["ours_vs_sb3"]["low"] <= parity[cell["ours_vs_sb3"]["kind"]] <= cell["ours_vs_sb3"]["high"]
+                for cell in compared.values())
+    speeds = sorted(cell["speed_ratio"]["estimate"] for cell in compared.values())
+    algorithms = sorted({key.split("/")[0].upper() for key in compared})
+    name = f"gSDE paper's PyBullet table ({', '.join(algorithms)}), {table['fraction']:g} of its budget"
+    return [
+        (name, page, "ours vs SB3", "final return: cells where ours and SB3 do not differ significantly",
+         f"{alike} of {len(compared)}", NONE, NONE, NONE, NONE, NONE),
+        (name, page, "ours vs SB3", f"env steps per second, first ÷ second: median of the {len(speeds)} cells "
+         f"(lowest {speeds[0]:.2f}×, highest {speeds[-1]:.2f}×)", f"{statistics.median(speeds):.2f}×", NONE, NONE,
+         NONE, NONE, NONE),
+    ]
 
 
 def replaced(text: str) -> str:

@@ -15,6 +15,7 @@ import pytest
 from _helpers import REPO
 
 from analysis.benchmarks.bench_ppo import cli as bench_ppo
+from analysis.benchmarks.gsde_table import cli as gsde_table
 from analysis.paper import fig5, fig6, table1
 from analysis.selection import ballcatch_tuning, learner_search
 
@@ -49,6 +50,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
     "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
     "ppo": (bench_ppo, ["report", str(REPO / "results" / "ppo" / "runs")], REPO / "docs" / "ppo",
             ("bench_ppo.md", "bench_ppo.json")),
+    "gsde_table": (gsde_table, ["report", str(REPO / "results" / "gsde_table" / "f002")], REPO / "docs" / "gsde_table",
+                   ("gsde_table.md", "gsde_table.json")),
     # every candidate is recorded: --resume runs none of them and rewrites the page from the record
     "learner_search": (learner_search, ["--resume", "--workers", "1"], REPO / "docs" / "table1",
                        ("learner_search.md", "learner_search.json")),
