@@ -15,6 +15,7 @@ import json
 import os
 import platform
 import warnings
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,26 @@ def curve_band(runs: list[dict], bin_steps: int, total: int) -> tuple[np.ndarray
     with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
         warnings.simplefilter("ignore", RuntimeWarning)
         return x, np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
+
+
+def in_fresh_processes(timing: Callable[[str, int], tuple[float, float, float]], variants: Sequence[str],
+                       length: int, repeats: int) -> dict[str, list[tuple[float, float, float]]]:
+    """``timing(variant, length)`` of each variant, each call in a fresh spawned process of its
+    own (in one process, whatever runs later runs slower), one variant after the other in the
+    order given, the whole list ``repeats`` times over: per variant, one result per process.
+
+    Examples:
+        >>> in_fresh_processes(max, [], 3, 2)
+        {}
+    """
+    import multiprocessing
+
+    seconds: dict[str, list[tuple[float, float, float]]] = {variant: [] for variant in variants}
+    for _ in range(repeats):
+        for variant in variants:
+            with multiprocessing.get_context("spawn").Pool(1) as pool:
+                seconds[variant].append(pool.apply(timing, (variant, length)))
+    return seconds
 
 
 def speed_table(seconds: dict[str, list[tuple[float, float, float]]], steps: int, timed: int, unit: str) -> str:

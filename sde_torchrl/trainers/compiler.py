@@ -1,7 +1,8 @@
-"""A ``torch.compile`` backend for small networks' losses on the CPU: inductor, its min-cut
-partitioner told (through AOTAutograd's private settings, ``torch._functorch.config``) to
-recompute boolean masks in the backward rather than save them. The compiled SAC update
-(``algorithm.compile``, :class:`~sde_torchrl.trainers.sac.SACUpdate`) compiles its losses with it."""
+"""Compiling the updates' losses (``algorithm.compile``): :func:`compiled`, ``torch.compile``
+without tensordict's deprecation noise, and a backend for small networks' losses on the CPU,
+inductor with its min-cut partitioner told (through AOTAutograd's private settings,
+``torch._functorch.config``) to recompute boolean masks in the backward rather than save them;
+the compiled SAC update (:class:`~sde_torchrl.trainers.sac.SACUpdate`) uses it."""
 
 from __future__ import annotations
 
@@ -84,4 +85,3 @@ def recompute_boolean_masks(joint_graph, joint_inputs):
         if node.op == "call_function" and isinstance(value, torch.Tensor) and value.dtype == torch.bool:
             node.meta["recompute"] = CheckpointPolicy.MUST_RECOMPUTE
     return joint_graph
-

@@ -50,13 +50,7 @@ def speed(variants: list[str], rollouts: int, repeats: int = 1) -> str:
     figure. With ``sb3`` among them, each variant's speed is also given as a ratio to SB3 gSDE's,
     with a 95 % bootstrap interval over the processes when there are several.
     """
-    import multiprocessing
-
-    seconds: dict[str, list[tuple[float, float, float]]] = {variant: [] for variant in variants}
-    for _ in range(repeats):
-        for variant in variants:
-            with multiprocessing.get_context("spawn").Pool(1) as pool:
-                seconds[variant].append(pool.apply(iteration_seconds, (variant, rollouts)))
+    seconds = common.in_fresh_processes(iteration_seconds, variants, rollouts, repeats)
     return speed_table(seconds, rollouts - 1)
 
 

@@ -61,11 +61,5 @@ def speed(variants: list[str], rounds: int, repeats: int = 1) -> str:
     after the other in the order given, the whole list ``repeats`` times over; the median round
     after :data:`WARM_UP` is the process's figure (:func:`analysis.benchmarks.common.speed_table`).
     """
-    import multiprocessing
-
-    seconds: dict[str, list[tuple[float, float, float]]] = {variant: [] for variant in variants}
-    for _ in range(repeats):
-        for variant in variants:
-            with multiprocessing.get_context("spawn").Pool(1) as pool:
-                seconds[variant].append(pool.apply(round_seconds, (variant, rounds)))
+    seconds = common.in_fresh_processes(round_seconds, variants, rounds, repeats)
     return common.speed_table(seconds, ZOO["mountaincar"]["train_freq"], rounds - WARM_UP - 1, "round")
