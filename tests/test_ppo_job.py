@@ -110,6 +110,32 @@ def test_one_update_of_a_bullet_experiment_with_tiny_sizes():
         trainer.close()
 
 
+@pytest.mark.parametrize("algorithm", ["ppo", "a2c"])
+def test_rollouts_keep_what_the_update_reads_and_update_alike(algorithm):
+    """The collector keeps no SDE matrix per step (ξ, σ̂), and the update from that lean rollout
+    equals the update from one keeping every key, bit for bit."""
+    from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
+
+    results = []
+    for keep_all in (False, True):  # one after the other: both draw from torch's global generator
+        trainer = build_onpolicy_trainer(validate(compose_config(*(TINY if algorithm == "ppo" else TINY_A2C),
+                                                                 "logger=none")))
+        if keep_all:
+            trainer.collector.keep = None
+        try:
+            row = trainer.update(0)
+            keys = set(trainer.collector.rollout().keys(True, True))
+            results.append((row["grad_norm"], trainer.modules.state_dict(), keys))
+        finally:
+            trainer.close()
+    (lean_norm, lean_state, lean_keys), (full_norm, full_state, full_keys) = results
+    assert not {"sde_noise", "sde_sigma_hat", ("next", "sde_noise")} & lean_keys
+    assert {"sde_noise", "sde_sigma_hat", ("next", "sde_noise")} <= full_keys
+    assert torch.equal(lean_norm, full_norm)
+    for name, value in lean_state.items():
+        assert torch.equal(value, full_state[name]), name
+
+
 @pytest.mark.e2e
 def test_a_short_job_writes_its_run_directory(tmp_path):
     result = run_cli(*TINY, "updates=5", "explorer=gsde", run_dir=tmp_path)

@@ -99,6 +99,7 @@ def _trainer(*overrides: str):
 def test_the_noise_is_redrawn_as_sb3s_sde_sample_freq_counts(explorer, redraws):
     """-1: once per round of train_freq steps, through episode ends; 4: every 4 steps of the round."""
     trainer = _trainer(f"explorer={explorer}", "env.episode_length=5")
+    trainer.collector.keep = None  # the job's rollouts keep no noise; this test looks at the one each action used
     previous = None
     try:
         for _ in range(3):

@@ -17,10 +17,12 @@ at the start of ``collect_rollouts``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -39,6 +41,11 @@ class StepCollector:
         steps: steps per env and rollout.
         primer: the env's SDE noise primer, if any: with an SB3-style schedule and no
             ``rollout_steps`` its noise is redrawn at the start of each rollout.
+        keep: the keys each collected step keeps (``None``: all). What the trainer, the advantage
+            and the loss read is a few vectors per step; the SDE policy's input and output also
+            hold ``A × S`` matrices per step (the noise ``ξ``, ``σ̂`` expanded to the batch) that
+            none of them reads, and stacking those is most of a rollout's memory. The carried
+            state the next rollout starts from keeps everything.
 
     Examples:
         >>> from torchrl.envs import GymEnv
@@ -47,10 +54,16 @@ class StepCollector:
         torch.Size([3])
         >>> sorted(collector.state_dict())
         ['carried']
+        >>> lean = StepCollector(GymEnv("Pendulum-v1"), lambda td: td.set("action", torch.zeros(1)), 3,
+        ...                      keep=["action", ("next", "reward")])
+        >>> sorted(lean.rollout().keys(True, True), key=str)
+        [('next', 'reward'), 'action']
     """
 
-    def __init__(self, env: EnvBase, policy: Any, steps: int, primer: SDENoisePrimer | None = None) -> None:
+    def __init__(self, env: EnvBase, policy: Any, steps: int, primer: SDENoisePrimer | None = None,
+                 keep: Sequence[NestedKey] | None = None) -> None:
         self.env, self.policy, self.steps = env, policy, positive_int("steps", steps)
+        self.keep = None if keep is None else list(dict.fromkeys(keep))
         self.resample = (primer if primer is not None and primer.schedule in ROLLOUT_SCHEDULES
                          and primer.rollout_steps is None else None)
         self.primer = primer
@@ -68,7 +81,7 @@ class StepCollector:
         with set_exploration_type(ExplorationType.RANDOM):
             for _ in range(self.steps):
                 step, self.carried = self.env.step_and_maybe_reset(self.policy(self.carried))
-                rows.append(step)
+                rows.append(step if self.keep is None else step.select(*self.keep, strict=False))
         return torch.stack(rows, dim=-1)
 
     def state_dict(self) -> dict[str, Any]:

@@ -12,7 +12,8 @@ The pieces, as ``analysis/benchmarks/bench_ppo/`` measured them against Stable-B
   :func:`~sde_torchrl.modules.gaussian.make_gaussian_actor` over an
   :class:`~sde_torchrl.modules.actors.MLPActor`; the critic an MLP of the same shape;
 - TorchRL's ``GAE`` and ``ClipPPOLoss`` (:mod:`sde_torchrl.trainers.ppo`) or ``A2CLoss``
-  (:mod:`sde_torchrl.trainers.a2c`), one optimiser over policy and critic.
+  (:mod:`sde_torchrl.trainers.a2c`), one optimiser over policy and critic;
+- the collector keeping of each step what the loop, ``GAE`` and the loss read.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from sde_torchrl.modules.gaussian import make_gaussian_actor
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.trainers.a2c import A2CUpdate, make_a2c_loss
-from sde_torchrl.trainers.onpolicy import OnPolicySettings, OnPolicyTrainer
+from sde_torchrl.trainers.onpolicy import RECORDED_KEYS, OnPolicySettings, OnPolicyTrainer
 from sde_torchrl.trainers.optim import make_optimizer
 from sde_torchrl.trainers.ppo import PPOUpdate, make_ppo_loss
 
@@ -135,7 +136,8 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
     logger: Any = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
-    return OnPolicyTrainer(StepCollector(env, policy, alg.n_steps, primer), eval_env, policy, critic, advantage,
+    keep = [*RECORDED_KEYS, *advantage.in_keys, *update.in_keys]
+    return OnPolicyTrainer(StepCollector(env, policy, alg.n_steps, primer, keep), eval_env, policy, critic, advantage,
                            update, optimizer, settings, normalizer=normalizer, eval_normalizer=eval_normalizer,
                            logger=logger, lr_schedule=lr_schedule)
 

@@ -29,8 +29,8 @@ from sde_torchrl.config.schemas.train import TrainConf
 from sde_torchrl.modules.sac_actor import make_sac_networks
 from sde_torchrl.modules.sde_actor import action_bounds
 from sde_torchrl.trainers.offpolicy import OffPolicySchedule, SACTrainer, UniformActions
-from sde_torchrl.trainers.onpolicy import OnPolicySettings
-from sde_torchrl.trainers.sac import SACUpdate, make_sac_loss
+from sde_torchrl.trainers.onpolicy import RECORDED_KEYS, OnPolicySettings
+from sde_torchrl.trainers.sac import TRANSITION_KEYS, SACUpdate, make_sac_loss
 
 
 def sde_options(explorer: Any) -> dict[str, Any] | None:
@@ -86,7 +86,8 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
     logger: Any = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
-    return SACTrainer(StepCollector(env, policy, alg.train_freq, primer), eval_env, policy, loss, update, settings,
+    collector = StepCollector(env, policy, alg.train_freq, primer, keep=[*RECORDED_KEYS, *TRANSITION_KEYS])
+    return SACTrainer(collector, eval_env, policy, loss, update, settings,
                       schedule, UniformActions(*action_bounds(action_spec)), logger=logger)
 
 

@@ -92,18 +92,23 @@ class RunningNormalize(Transform):
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         obs, reward = next_tensordict.get("observation"), next_tensordict.get("reward")
         if self.update_stats:
-            self.obs_mean, self.obs_var, self.obs_count = running_update(self.obs_mean, self.obs_var,
-                                                                         self.obs_count, obs)
+            self._update(self.obs_mean, self.obs_var, self.obs_count, obs)
         next_tensordict.set("observation", self._norm(obs))
         if self.normalize_reward:
-            self.returns = self.returns * self.gamma + reward.double()
+            self.returns.mul_(self.gamma).add_(reward.double())
             if self.update_stats:
-                self.ret_mean, self.ret_var, self.ret_count = running_update(self.ret_mean, self.ret_var,
-                                                                             self.ret_count, self.returns)
+                self._update(self.ret_mean, self.ret_var, self.ret_count, self.returns)
             scaled = (reward.double() / (self.ret_var + EPS).sqrt()).clamp(-CLIP, CLIP)
             next_tensordict.set("reward", scaled.to(reward.dtype))
-            self.returns = torch.where(next_tensordict.get("done"), 0.0, self.returns)
+            self.returns.masked_fill_(next_tensordict.get("done"), 0.0)
         return next_tensordict
+
+    @staticmethod
+    def _update(mean: torch.Tensor, var: torch.Tensor, count: torch.Tensor, batch: torch.Tensor) -> None:
+        """:func:`running_update` of the statistics' buffers in place (an assignment would go
+        through ``nn.Module.__setattr__`` on every step)."""
+        for buffer, value in zip((mean, var, count), running_update(mean, var, count, batch), strict=True):
+            buffer.copy_(value)
 
 
 __all__ = ["RunningNormalize", "running_update"]

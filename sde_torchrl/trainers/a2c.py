@@ -58,6 +58,9 @@ class A2CUpdate:
         See :func:`sde_torchrl.config.build_onpolicy.build_onpolicy_trainer`.
     """
 
+    #: What the update reads of a rollout.
+    in_keys = ROLLOUT_KEYS
+
     def __init__(self, loss: A2CLoss, optimizer: torch.optim.Optimizer, *, max_grad_norm: float | None,
                  normalize_advantage: bool = False, compile: bool = False) -> None:
         self.loss, self.optimizer, self.normalize_advantage = loss, optimizer, normalize_advantage

@@ -58,6 +58,8 @@ log = logging.getLogger(__name__)
 
 #: Training episodes ``return_mean`` averages over (SB3's ``stats_window_size``).
 RETURN_WINDOW = 100
+#: What the loop itself reads of a rollout: which episodes ended, and their raw returns.
+RECORDED_KEYS = (("next", "done"), ("next", "episode_reward"))
 
 
 @dataclass(frozen=True)
@@ -315,4 +317,4 @@ class OnPolicyTrainer:
         }
 
 
-__all__ = ["EpisodeReturns", "OnPolicySettings", "OnPolicyTrainer", "RETURN_WINDOW"]
+__all__ = ["RECORDED_KEYS", "EpisodeReturns", "OnPolicySettings", "OnPolicyTrainer", "RETURN_WINDOW"]

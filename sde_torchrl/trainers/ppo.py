@@ -71,6 +71,9 @@ class PPOUpdate:
         See :func:`sde_torchrl.config.build_onpolicy.build_onpolicy_trainer`.
     """
 
+    #: What the update reads of a rollout.
+    in_keys = MINIBATCH_KEYS
+
     def __init__(self, loss: ClipPPOLoss, optimizer: torch.optim.Optimizer, *, n_epochs: int, batch_size: int,
                  max_grad_norm: float | None, clip_range_schedule: str = "constant", updates: int = 1,
                  compile: bool = False) -> None:
