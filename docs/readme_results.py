@@ -8,8 +8,9 @@ saying what each column is. This script writes that block from
 (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
 ``methods_selected/methods.json``, ``selected/fig5.json``), the quick start's run
 (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
-``docs/sac/bench_sac.json``, ``docs/sac/zoo_budget/bench_sac.json`` and
-``docs/gsde_table/gsde_table.json``, so that no figure in the README is typed by hand::
+``docs/sac/bench_sac.json``, ``docs/sac/zoo_budget/bench_sac.json``,
+``docs/gsde_table/gsde_table.json`` and the speed tables the benchmarks' ``speed`` command writes
+(``docs/ppo/speed.md``, ``docs/sac/speed_job.md``), so that no figure in the README is typed by hand::
 
     python docs/readme_results.py           # rewrite the README's table
     python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
@@ -37,8 +38,8 @@ HEADER = ("result", "methods", "measure", "first", "95 % interval", "second", "9
 LEGEND = (
     "*methods*: the two compared, first vs second; *first*, *second*: our value for each (a ratio or count "
     "comparing the two is under *first*), its 95 % interval beside it (Wilson for a share of runs, bootstrap "
-    "over seeds for a ratio); *paper*: the paper's value for the same measure; a catch: a mean reward per step "
-    "of at least −1.1 (a good catch: −1.0); —: no such number."
+    "over seeds for a ratio, over timed processes for a speed); *paper*: the paper's value for the same "
+    "measure; a catch: a mean reward per step of at least −1.1 (a good catch: −1.0); —: no such number."
 )
 
 
@@ -61,6 +62,25 @@ def _held(arm: dict, key: str) -> tuple[str, str]:
 def _ratio(ratio: dict) -> tuple[str, str]:
     """A ratio over seeds and its bootstrap interval: ``("0.97×", "[0.91, 1.05]")``."""
     return f"{ratio['estimate']:.2f}×", f"[{ratio['low']:.2f}, {ratio['high']:.2f}]"
+
+
+def _speed_ratio(path: str, variant: str = "job") -> tuple[str, str]:
+    """``variant``'s env steps per second ÷ SB3's and its interval, from a table written by a
+    benchmark's ``speed`` command: ``("1.04×", "[1.02, 1.05]")``.
+
+    Examples:
+        >>> _speed_ratio("ppo/speed.md")[0].endswith("×")
+        True
+    """
+    lines = [line for line in (DOCS / path).read_text().splitlines() if line.startswith("| ")]
+    header = [cell.strip() for cell in lines[0].strip("|").split("|")]
+    column = header.index("× SB3's env steps / s")
+    for line in lines[2:]:
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        if cells[0] == variant:
+            estimate, interval = cells[column].split(" ", 1)
+            return f"{estimate}×", interval
+    raise KeyError(f"{path} has no row for {variant!r}")
 
 
 def _difference(difference: dict) -> tuple[str, str]:
@@ -177,6 +197,12 @@ def summary() -> str:
          NONE, NONE, NONE, NONE),
         (f"SAC, MountainCarContinuous, {sac['sde']['steps']:,} steps", sac_page, "SDE vs SB3 gSDE",
          "late training return, first ÷ second", *_ratio(sac["sde_over_sb3"]["late"]), NONE, NONE, NONE, NONE),
+        ("`+experiment=ppo_halfcheetah_bullet`", ppo_page, "SDE vs SB3 gSDE",
+         "env steps per second of one iteration, first ÷ second", *_speed_ratio("ppo/speed.md"), NONE, NONE, NONE,
+         NONE),
+        ("`+experiment=sac_mountaincar`", sac_page, "SDE vs SB3 gSDE",
+         "env steps per second of one round, first ÷ second", *_speed_ratio("sac/speed_job.md"), NONE, NONE, NONE,
+         NONE),
     ]
     rows += _gsde_rows(_load("gsde_table/gsde_table.json"), "docs/reproduce/gsde_table.md")
     lines = ["| " + " | ".join(HEADER) + " |", "| " + " | ".join("---" for _ in HEADER) + " |"]

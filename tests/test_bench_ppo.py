@@ -203,6 +203,20 @@ def test_the_job_variant_times_train_pys_own_trainer_by_iteration_and_collection
     assert all(0 < c < d for c, d in zip(collect[1:], np.diff(ends), strict=True))
 
 
+def test_the_job_variants_phases_fit_inside_its_collection_and_iteration():
+    """``bench_ppo phases job`` (tiny sizes): pybullet's step, the policy's forward and the env's
+    transforms are parts of collection, and collection, GAE and update make up the iteration."""
+    pytest.importorskip("pybullet_envs_gymnasium")
+    tiny = ("algorithm.n_envs=2", "algorithm.n_steps=16", "algorithm.batch_size=16", "algorithm.n_epochs=1",
+            "actor.hidden=[8]", "algorithm.compile=false")
+    with timing.TIMER.on() as phases:
+        result = train.train_job(3, tiny)
+    parts = ["collect: pybullet step", "collect: policy forward", "collect: env transforms"]
+    assert all(phases[p] > 0 for p in parts) and sum(phases[p] for p in parts) < phases["collect"]
+    iterations = result["iteration_ends_s"][-1] - result["iteration_ends_s"][0]  # the two timed ones
+    assert phases["collect"] + phases["GAE"] + phases["update"] == pytest.approx(iterations, rel=0.2)
+
+
 @pytest.mark.e2e  # torch.compile of the SDE policy (inductor)
 def test_the_compiled_collection_policy_acts_as_the_eager_one():
     """``+policy`` (``Collector(compile_policy=True)``) changes how the SDE policy's forward runs,

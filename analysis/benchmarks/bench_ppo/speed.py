@@ -87,7 +87,8 @@ def phases(variants: list[str], rollouts: int) -> str:
     for variant in variants:
         with multiprocessing.get_context("spawn").Pool(1) as pool:
             table[variant] = pool.apply(iteration_phases, (variant, rollouts))
-    rows = ["iteration", "collect", "collect: pybullet step", "GAE", "update", "update: minibatch indexing",
+    rows = ["iteration", "collect", "collect: pybullet step", "collect: policy forward", "collect: env transforms",
+            "GAE", "update", "update: minibatch indexing",
             "update: loss forward", "update: backward", "update: clip + Adam step"]
     lines = [f"| seconds per iteration | {' | '.join(variants)} |", f"| --- |{' --- |' * len(variants)}"]
     for row in rows:

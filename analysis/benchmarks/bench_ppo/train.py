@@ -151,13 +151,39 @@ def train_job(rollouts: int, overrides: tuple[str, ...] = ()) -> dict:
         return batch
 
     trainer.collector.rollout = timed_rollout
+    if TIMER.active:
+        _time_job_phases(trainer)
     ends, cpu_ends, start, cpu_start = [], [], time.perf_counter(), time.process_time()
     for k in range(rollouts):
         trainer.update(k)
         ends.append(time.perf_counter() - start)
         cpu_ends.append(time.process_time() - cpu_start)
+        if k == 0:
+            TIMER.restart()  # the first iteration (warm-up, compilation) is not timed
     trainer.close()
     return {"iteration_ends_s": ends, "iteration_cpu_ends_s": cpu_ends, "collect_s": collect_s}
+
+
+def _time_job_phases(trainer) -> None:
+    """Times the job's phases under ``phases``' names: its collection and, within it, pybullet's
+    step, the policy's forward and the env's transforms; GAE; the update (compiled: timed whole)."""
+
+    def timed(phase, function):
+        def call(*args, **kwargs):
+            with TIMER.timed(phase):
+                return function(*args, **kwargs)
+
+        return call
+
+    collector = trainer.collector
+    collector.rollout = timed("collect", collector.rollout)
+    for env in collector.env.base_env.envs:
+        env.step = timed("collect: pybullet step", env.step)
+    collector.policy = timed("collect: policy forward", collector.policy)
+    for transform in collector.env.transform:
+        transform._step = timed("collect: env transforms", transform._step)
+    trainer.advantage = timed("GAE", trainer.advantage)
+    trainer.update_step = timed("update", trainer.update_step)
 
 
 def train_sb3(seed: int, steps: int, use_sde: bool = True, evaluate: bool = True) -> dict:
