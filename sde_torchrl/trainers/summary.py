@@ -200,26 +200,26 @@ def final_levels(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def final_lines(summary: dict[str, Any]) -> list[str]:
-    """The lines that end a job's log: each run's final deterministic evaluation (the result),
-    then the last training return (exploratory episodes, which a learner that explores widely
-    keeps below its evaluation), both in the estimator's return definition. Ball catching gives
+    """The lines that end a job's log: the last training return (exploratory episodes, which a
+    learner that explores widely keeps below its evaluation), then each run's final deterministic
+    evaluation, the result, last; both in the estimator's return definition. Ball catching gives
     the evaluation as the paper's mean reward per step, with each run's level and the count of
     runs per level (:func:`final_levels`).
 
     Examples:
         >>> final_lines({"env": "minimize", "final_eval_return": [-1.23456], "final_return": [-2.0]})
-        ['final evaluation per run (no exploration): [-1.235]', 'last training return per run: [-2.0]']
+        ['last training return per run: [-2.0]', 'final evaluation per run (no exploration): [-1.235]']
         >>> lines = final_lines({"env": "ballcatch", "final_eval_return": [-1.05, -2.5], "final_return": [-2.0, -2.9]})
-        >>> lines[0]
-        'final evaluation per run (mean reward per step, no exploration): run 0 -1.050 catch, run 1 -2.500 dropped'
         >>> lines[1]
+        'final evaluation per run (mean reward per step, no exploration): run 0 -1.050 catch, run 1 -2.500 dropped'
+        >>> lines[2]
         'levels of the final evaluations: 0 good catch, 1 catch, 0 on the hand, 0 slowed, 1 dropped (of 2 runs)'
     """
     training = f"last training return per run: {[round(value, 3) for value in summary['final_return']]}"
     reached = final_levels(summary)
     if not reached:
         evals = [round(value, 3) for value in summary["final_eval_return"]]
-        return [f"final evaluation per run (no exploration): {evals}", training]
+        return [training, f"final evaluation per run (no exploration): {evals}"]
     from sde_torchrl.envs.ballcatch.outcomes import LEVELS
 
     evals, levels = reached["final_eval_mean_reward"], reached["final_eval_level"]
@@ -228,5 +228,5 @@ def final_lines(summary: dict[str, Any]) -> list[str]:
                      for i, (value, level) in enumerate(zip(evals, levels, strict=True)))
     names = [name for _, name in LEVELS] + ["dropped"]
     counts = ", ".join(f"{levels.count(name)} {name}" for name in names)
-    return [f"final evaluation per run (mean reward per step, no exploration): {runs}",
-            f"levels of the final evaluations: {counts} (of {len(evals)} run{'s' if len(evals) > 1 else ''})", training]
+    return [training, f"final evaluation per run (mean reward per step, no exploration): {runs}",
+            f"levels of the final evaluations: {counts} (of {len(evals)} run{'s' if len(evals) > 1 else ''})"]
