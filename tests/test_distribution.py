@@ -34,6 +34,7 @@ from sde_torchrl.modules.distribution import (
     gaussian_log_prob,
     noise_matrix,
     sde_sample,
+    sde_sample_and_log_prob,
     sde_variance,
 )
 from sde_torchrl.modules.noise import SDENoisePrimer
@@ -297,6 +298,26 @@ def test_stored_noise_reproduces_the_taken_action_and_log_prob():
     dist = policy.get_dist(td.clone())
     torch.testing.assert_close(dist.rsample(), td["action"])
     torch.testing.assert_close(dist.log_prob(td["action"]), td["action_log_prob"])
+
+
+@pytest.mark.parametrize("gaussian", [None, -1.0])
+def test_a_sampling_step_writes_what_the_distribution_gives_bit_for_bit(gaussian):
+    """The unsquashed policy samples without building its distribution (eqs. 17-22): the action
+    is the distribution's ``rsample`` with the carried noise and its log-probability the
+    distribution's, exactly, with and without eq. (22)'s Gaussian part."""
+    torch.manual_seed(2)
+    sde = SDEParams(2, 3, gaussian_init_param=gaussian)
+    policy = make_sde_actor(_linear_actor(out_features=2), sde)
+    primer = sde.make_tensordict_primer()
+    td = TensorDict({"observation": torch.randn(7, 3), **dict(zip(
+        ("sde_noise", "sde_gaussian_noise"), [t for t in primer.draw((7,)) if t is not None], strict=False))}, [7])
+    with set_exploration_type(ExplorationType.RANDOM):
+        out = policy(td.clone())
+    dist = policy.get_dist(td.clone())
+    assert torch.equal(out["action"], dist.rsample())
+    assert torch.equal(out["action_log_prob"], dist.log_prob(out["action"]))
+    with pytest.raises(ValueError, match="noise has shape"):
+        sde_sample_and_log_prob(out["loc"], out["sde_sigma_hat"], torch.randn(7, 3), torch.randn(7, 3, 3))
 
 
 @pytest.mark.parametrize("squash", [False, True])

@@ -102,6 +102,51 @@ def sde_sample(
     return sample
 
 
+def sde_sample_and_log_prob(
+    loc: torch.Tensor,
+    sigma_hat: torch.Tensor,
+    features: torch.Tensor,
+    noise: torch.Tensor,
+    gaussian_scale: torch.Tensor | None = None,
+    gaussian_noise: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One exploring step's action and its log-density, without building a distribution: the
+    sample ``u = loc + (σ̂ ⊙ ξ) x [+ σ_gauss ε]`` (eqs. 17-19, 22) and ``log N(u; loc, σ²)`` with
+    ``σ² = Σ_i (x_i σ̂_ji)² [+ σ_gauss²]`` (eqs. 13, 20): the numbers
+    ``SDENormal(...).rsample()`` and its ``log_prob`` give, bit for bit, which is all a collection
+    step writes.
+
+    Args:
+        loc: the controller's mean, ``[*, A]``.
+        sigma_hat: ``σ̂``, ``[*, A, S]`` or broadcastable.
+        features: ``x``, ``[*, S]`` (cast to ``loc``'s dtype).
+        noise: the carried ``ξ``, ``[*, A, S]``.
+        gaussian_scale: ``σ_gauss`` of eq. (22), or ``None``.
+        gaussian_noise: the carried ``ε`` of eq. (22), with ``gaussian_scale``.
+
+    Returns:
+        ``(u, log p(u))``, shapes ``[*, A]`` and ``[*]``.
+
+    Raises:
+        ValueError: if ``sigma_hat`` or ``noise`` is not ``[..., A, S]``.
+
+    Examples:
+        >>> loc, x, sigma = torch.zeros(4, 2), torch.ones(4, 3), torch.full((2, 3), 0.1)
+        >>> sample, log_prob = sde_sample_and_log_prob(loc, sigma, x, torch.ones(4, 2, 3))
+        >>> dist = SDENormal(loc, sigma, x, noise=torch.ones(4, 2, 3))
+        >>> torch.equal(sample, dist.rsample()), torch.equal(log_prob, dist.log_prob(sample))
+        (True, True)
+    """
+    features = features.to(loc.dtype)
+    action_dim, feature_dim = loc.shape[-1], features.shape[-1]
+    _check_matrix("sigma_hat", sigma_hat, action_dim, feature_dim)
+    _check_matrix("noise", noise, action_dim, feature_dim)
+    sigma_hat, noise = sigma_hat.to(loc.dtype), noise.to(loc.dtype)
+    scale = sde_variance(sigma_hat, features, gaussian_scale).sqrt()
+    sample = sde_sample(loc, sigma_hat, noise, features, gaussian_scale, gaussian_noise)
+    return sample, gaussian_log_prob(sample, loc, scale)
+
+
 def sde_variance(
     sigma_hat: torch.Tensor,
     features: torch.Tensor,

@@ -20,7 +20,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, TensorSpec
 from torchrl.modules import ProbabilisticActor
 
-from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal
+from sde_torchrl.modules.distribution import SDENormal, TanhSDENormal, sde_sample_and_log_prob
 from sde_torchrl.modules.noise import ADD_PRIMER, deterministic_exploration
 from sde_torchrl.modules.sde import SDEParams
 
@@ -32,8 +32,10 @@ class SDEActor(ProbabilisticActor):
     ``u = loc + (σ̂ ⊙ ξ) x [+ σ_gauss ε]`` (eqs. 17-19, 22), the action ``a = u`` or, squashed,
     ``a = mid + half · tanh(u)``. Writes the action, its log-probability under the distribution
     (``dist.log_prob(a)``, what PPO's ratio compares) and, when squashed, ``u`` under
-    ``sample_key``: what the episodic estimators score. Under deterministic exploration the
-    action is the distribution's ``deterministic_sample`` and ``u = loc``. ``get_dist`` and
+    ``sample_key``: what the episodic estimators score. Unsquashed, a step computes the two without
+    building the distribution (:func:`~sde_torchrl.modules.distribution.sde_sample_and_log_prob`,
+    the same numbers). Under deterministic exploration the action is the distribution's
+    ``deterministic_sample`` and ``u = loc``. ``get_dist`` and
     everything else TorchRL's losses use are ``ProbabilisticActor``'s; the likelihood (eq. 20)
     does not depend on ``ξ``, so a loss that only scores stored actions (PPO, A2C) may leave the
     noise out of its minibatches, while sampling (this forward, SAC's ``rsample``) needs it.
@@ -108,6 +110,14 @@ class SDEActor(ProbabilisticActor):
     def forward(self, tensordict: TensorDictBase, tensordict_out: TensorDictBase | None = None,
                 **kwargs) -> TensorDictBase:
         tensordict = self.get_dist_params(tensordict, **kwargs)
+        out = tensordict if tensordict_out is None else tensordict_out
+        if not self.squash and not deterministic_exploration():  # what a collection step writes, and no more
+            params = {name: tensordict.get(key, None) for name, key in self.sde.dist_keys.items()}
+            if all(value is not None for value in params.values()):
+                action, log_prob = sde_sample_and_log_prob(**params)
+                out.set(self.action_key, action)
+                out.set(self.log_prob_key, log_prob)
+                return out
         dist = self.build_dist_from_params(tensordict)
         if deterministic_exploration():
             sample, action = dist.loc, dist.deterministic_sample
@@ -116,7 +126,6 @@ class SDEActor(ProbabilisticActor):
         else:
             sample = SDENormal.rsample(dist)
             action = dist.squash(sample) if self.squash else sample
-        out = tensordict if tensordict_out is None else tensordict_out
         out.set(self.action_key, action)
         out.set(self.log_prob_key, dist.log_prob(action))
         if self.squash:
