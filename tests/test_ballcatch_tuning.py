@@ -150,6 +150,42 @@ def test_the_rerun_sweep_is_round_three_s_choice_on_the_rules_seed(method, exper
     assert (sweep["seed"], sweep["runs"], sweep["eval_period"]) == (3, shard, 20)
 
 
+def test_the_round_four_rerun_sweep_is_round_four_s_choice_on_seed_4():
+    """PGPE's round-4 choice differs from round 3's: its rerun is the chosen job on seed 4, as
+    many runs as its reported sweep (learner_selection.md, round 4, "What follows")."""
+    from _helpers import REPO
+    from omegaconf import OmegaConf
+
+    chosen = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())["round3"]["methods"]["pgpe"]
+    assert chosen["chosen_round4"] != chosen["chosen"]
+    tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger")
+    job = [o for o in tuning.job_overrides("pgpe", chosen["chosen_round4"], round_=4)
+           if o.split("=")[0] not in tuning_only]
+    sweep = OmegaConf.to_container(compose_config("+experiment=ballcatch_pgpe_sigma3_fixed_sweep", "first_run=25"),
+                                   resolve=True)
+    candidate = OmegaConf.to_container(compose_config(*job), resolve=True)
+    assert {k: v for k, v in sweep.items() if k not in tuning_only} == \
+        {k: v for k, v in candidate.items() if k not in tuning_only}
+    assert (sweep["seed"], sweep["runs"], sweep["eval_period"]) == (4, 25, 20)
+
+
+def test_a_failed_job_is_shown_failed_and_counts_no_catch(tmp_path):
+    import shutil
+
+    from _helpers import REPO
+
+    committed = REPO / "results" / "ballcatch" / "tuning" / "round3" / "reinforce_sde"
+    folder = tmp_path / "round3" / "reinforce_sde"
+    for candidate in tuning.ROUNDS[4]:
+        shutil.copytree(committed / candidate, folder / candidate)
+    (folder / "C10" / "summary.json").unlink()  # the round-3 and round-4 choice, failed
+    (folder / "C10" / "error.txt").write_text("NonFiniteError: ...\n")
+    numbers = tuning.round3_numbers(tmp_path / "round3")
+    method = numbers["methods"]["reinforce_sde"]
+    assert method["failed"] == ["C10"] and "C10" not in (method["chosen"], method["chosen_round4"])
+    assert "| C10: C7, σ̂₀ = e⁻³ | failed |" in "\n".join(tuning.round3_markdown(numbers))
+
+
 def test_a_method_is_chosen_for_only_once_its_whole_grid_has_run(tmp_path):
     import shutil
 

@@ -205,9 +205,11 @@ def round3_numbers(folder: Path) -> dict:
             continue
 
         chosen = [round_choice(folder, method, results, round_) for round_ in (3, 4)]
+        failed = [c for c, r in results.items()
+                  if r is None and (folder / method / job_candidate(method, c) / "error.txt").exists()]
         methods[method] = {"label": label, "chosen": chosen[0], "chosen_round4": chosen[1],
                            "same_as": {c: job_candidate(method, c) for c in ROUNDS[4] if job_candidate(method, c) != c},
-                           "candidates": {c: candidate_numbers(r) for c, r in results.items()}}
+                           "candidates": {c: candidate_numbers(r) for c, r in results.items()}, "failed": failed}
     return {"seed": seed, "runs": runs, "methods": methods}
 
 
@@ -227,7 +229,8 @@ def round3_markdown(numbers: dict) -> list[str]:
     lines = ["", f"## Rounds 3 and 4 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
              "The same cells; ‡: the method's choice in round 3 (C7, C1, C10, C11, C12: most final catches, then "
              "good catches, then the mean), §: its choice in round 4 (the same with C13), each made once all of "
-             "that round's candidates have run; = C10: the same job (the method fixes σ̂ already).", "",
+             "that round's candidates have run; = C10: the same job (the method fixes σ̂ already); failed: the "
+             "job stopped with an error (its `error.txt`), its runs counted as not catching.", "",
              "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
              "| --- |" + " --- |" * len(methods)]
     for candidate in ROUNDS[4]:
@@ -235,6 +238,8 @@ def round3_markdown(numbers: dict) -> list[str]:
         for m in methods.values():
             c = m["candidates"][candidate]
             cell = "-" if c is None else f"{c['catches']} / {c['good_catches']}, {c['mean_final']:.2f}"
+            if candidate in m.get("failed", []):
+                cell = "failed"
             if candidate in m.get("same_as", {}):
                 cell = f"= {m['same_as'][candidate]}"
             marks = [mark for key, mark in (("chosen", "‡"), ("chosen_round4", "§")) if m.get(key) == candidate]
