@@ -14,8 +14,9 @@ Examples:
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
+from typing import Any
 from unittest import mock
 
 import torch
@@ -61,6 +62,22 @@ class PhaseTimer:
         yield
         self.add(phase, time.perf_counter() - start)
 
+    def wrap(self, phase: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        """``function`` with each call timed under ``phase`` (:meth:`timed`).
+
+        Examples:
+            >>> timer = PhaseTimer()
+            >>> with timer.on() as seconds:
+            ...     timer.wrap("update", abs)(-2), list(seconds)
+            (2, ['update'])
+        """
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            with self.timed(phase):
+                return function(*args, **kwargs)
+
+        return call
+
     def mark(self, phase: str | None) -> None:
         """Add the time since the last mark to ``phase`` (SB3's phases, between its callbacks)."""
         now = time.perf_counter()
@@ -99,22 +116,9 @@ def sb3_update_timed(model, timer: PhaseTimer = TIMER) -> Iterator[None]:
         (True, True, False)
     """
     policy, optimizer = model.policy, model.policy.optimizer
-    forward, adam_step, clip = policy.evaluate_actions, optimizer.step, torch.nn.utils.clip_grad_norm_
-
-    def timed_forward(*args, **kwargs):
-        with timer.timed("update: loss forward"):
-            return forward(*args, **kwargs)
-
-    def timed_clip(*args, **kwargs):
-        with timer.timed("update: clip + Adam step"):
-            return clip(*args, **kwargs)
-
-    def timed_step(*args, **kwargs):
-        with timer.timed("update: clip + Adam step"):
-            return adam_step(*args, **kwargs)
-
     with ExitStack() as patches:
-        patches.enter_context(mock.patch.object(policy, "evaluate_actions", timed_forward))
-        patches.enter_context(mock.patch.object(optimizer, "step", timed_step))
-        patches.enter_context(mock.patch.object(torch.nn.utils, "clip_grad_norm_", timed_clip))
+        for owner, name, phase in ((policy, "evaluate_actions", "update: loss forward"),
+                                   (optimizer, "step", "update: clip + Adam step"),
+                                   (torch.nn.utils, "clip_grad_norm_", "update: clip + Adam step")):
+            patches.enter_context(mock.patch.object(owner, name, timer.wrap(phase, getattr(owner, name))))
         yield

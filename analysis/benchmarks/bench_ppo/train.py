@@ -167,14 +167,7 @@ def train_job(rollouts: int, overrides: tuple[str, ...] = ()) -> dict:
 def _time_job_phases(trainer) -> None:
     """Times the job's phases under ``phases``' names: its collection and, within it, pybullet's
     step, the policy's forward and the env's transforms; GAE; the update (compiled: timed whole)."""
-
-    def timed(phase, function):
-        def call(*args, **kwargs):
-            with TIMER.timed(phase):
-                return function(*args, **kwargs)
-
-        return call
-
+    timed = TIMER.wrap
     collector = trainer.collector
     collector.rollout = timed("collect", collector.rollout)
     for env in collector.env.base_env.envs:
