@@ -15,8 +15,8 @@ from analysis.benchmarks.gsde_table import cli, report, run, sb3
 from analysis.benchmarks.gsde_table.cells import (
     ALGORITHMS,
     ENVS,
+    EXPERIMENTS,
     NOISES,
-    PAPER_BUDGET,
     Cell,
     cells,
     compose_cell,
@@ -165,17 +165,36 @@ def test_cells_and_their_train_overrides():
     assert "explorer=gaussian" in train_overrides(Cell("sac", "ant", "gaussian", 3))
     with pytest.raises(ValueError, match="noise"):
         Cell("ppo", "ant", "ou", 0)
+    assert Cell("sac", "mountaincar", "gaussian", 1).name == "sac_mountaincar_gaussian_seed1"
+    with pytest.raises(ValueError, match="ppo on mountaincar: no train.py experiment trains it"):
+        Cell("ppo", "mountaincar", "sde", 0)
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_the_full_fraction_is_each_experiments_own_budget(algorithm):
-    """At fraction 1 the cell runs the updates its experiment file gives (the zoo's budget)."""
-    from sde_torchrl.config.compose import compose
+def test_every_cells_experiment_exists():
+    assert len(EXPERIMENTS) == len(ALGORITHMS) * len(ENVS) + 1
+    for experiment in EXPERIMENTS.values():
+        assert (REPO / "conf" / "experiment" / f"{experiment}.yaml").exists(), experiment
 
-    for env in ENVS:
-        own = compose([f"+experiment={algorithm}_{env}_bullet"])
-        assert updates_for(1.0, algorithm, steps_per_update(own)) == own.updates
-        assert own.updates * steps_per_update(own) >= PAPER_BUDGET[algorithm]
+
+def test_a_cell_beyond_the_papers_table_is_refused_on_the_command_line_by_name(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["run", "--fraction", "0.01", "--algorithms", "a2c", "--envs", "mountaincar"])
+    assert exit_info.value.code == 2 and "a2c on mountaincar" in capsys.readouterr().err
+
+
+#: The paper's budget in env steps (rl-baselines3-zoo's n_timesteps of its entries), and the zoo's
+#: for MountainCarContinuous's SAC entry.
+BUDGET = {"ppo": 2_000_000, "a2c": 2_000_000, "sac": 1_000_000}
+
+
+@pytest.mark.parametrize(("algorithm", "env"), list(EXPERIMENTS))
+def test_the_full_fraction_is_each_experiments_own_budget(algorithm, env):
+    """At fraction 1 the cell runs the updates its experiment file gives, which reach the zoo's
+    budget (the paper's, for the PyBullet envs) at the first update past it."""
+    conf, _ = compose_cell(Cell(algorithm, env, "sde", 0), 1.0)
+    steps = conf.updates * steps_per_update(conf)
+    budget = 50_000 if env == "mountaincar" else BUDGET[algorithm]
+    assert budget <= steps < budget + steps_per_update(conf)
 
 
 def test_a_fraction_sets_updates_and_refuses_the_reserved_overrides():
@@ -185,7 +204,24 @@ def test_a_fraction_sets_updates_and_refuses_the_reserved_overrides():
         with pytest.raises(ValueError, match="--fraction"):
             compose_cell(Cell("a2c", "ant", "gaussian", 2), 0.01, [reserved])
     with pytest.raises(ValueError, match="fraction"):
-        updates_for(1.5, "ppo", 8192)
+        updates_for(1.5, 245)
+    assert compose_cell(Cell("ppo", "halfcheetah", "sde", 0), 0.25)[0].updates == 62  # 507,904 steps
+
+
+def test_the_mountaincar_cell_maps_to_the_zoos_sac_entry():
+    """rl-baselines3-zoo, hyperparams/sac.yml, MountainCarContinuous-v0: 50k steps, one env, no normalisation."""
+    conf, overrides = compose_cell(Cell("sac", "mountaincar", "sde", 0), 1.0)
+    settings = sb3.sb3_settings(conf)
+    assert overrides[0] == "+experiment=sac_mountaincar"
+    assert settings["env"] | {"gym_kwargs": {}} == {"id": "MountainCarContinuous-v0", "gym_kwargs": {},
+                                                    "episode_length": 999, "n_envs": 1, "time_feature": False,
+                                                    "normalize": False, "gamma": 0.9999}
+    kwargs = settings["kwargs"]
+    assert {k: kwargs[k] for k in ("learning_rate", "buffer_size", "batch_size", "ent_coef", "train_freq",
+                                   "gradient_steps", "gamma", "tau", "learning_starts", "use_sde")} == {
+        "learning_rate": 3e-4, "buffer_size": 50_000, "batch_size": 512, "ent_coef": 0.1, "train_freq": 32,
+        "gradient_steps": 32, "gamma": 0.9999, "tau": 0.01, "learning_starts": 0, "use_sde": True}
+    assert kwargs["policy_kwargs"]["log_std_init"] == -3.67 and kwargs["policy_kwargs"]["net_arch"] == [64, 64]
 
 
 def test_a_folder_refuses_runs_at_another_fraction_or_overrides(tmp_path):

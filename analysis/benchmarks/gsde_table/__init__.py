@@ -1,10 +1,12 @@
-"""The gSDE paper's PyBullet table, ours against Stable-Baselines3, trained cell by cell.
+"""``train.py``'s PPO, A2C and SAC jobs against Stable-Baselines3, trained cell by cell: the gSDE
+paper's PyBullet table, and the zoo's other SAC entry the project runs.
 
-A cell is an algorithm (PPO, A2C, SAC), an env (HalfCheetah, Ant, Hopper, Walker2D Bullet), a
-noise (SDE or plain Gaussian) and a seed. ``run`` trains each cell twice:
+A cell is an algorithm (PPO, A2C, SAC), an env (HalfCheetah, Ant, Hopper, Walker2D Bullet, the
+paper's; or MountainCarContinuous, SAC only), a noise (SDE or plain Gaussian) and a seed. ``run``
+trains each cell twice:
 
-* ours: ``train.py +experiment=<algo>_<env>_bullet`` (``explorer=gaussian`` for the Gaussian
-  side), as a command, into ``<out>/ours/<cell>/``;
+* ours: ``train.py +experiment=<algo>_<env>_bullet`` (``sac_mountaincar``; ``explorer=gaussian``
+  for the Gaussian side), as a command, into ``<out>/ours/<cell>/``;
 * SB3: ``PPO``, ``A2C`` or ``SAC`` with the settings read off the config ``train.py`` composes for
   that cell (:func:`.sb3.sb3_settings`: envs, rollout and minibatch sizes, epochs, γ, λ, clip, the
   rate and its schedule, the optimiser's eps, the gradient-norm bound, net_arch and activation,
@@ -13,9 +15,10 @@ noise (SDE or plain Gaussian) and a seed. ``run`` trains each cell twice:
   ``TimeFeatureWrapper``), the same budget, seed and evaluation schedule, into
   ``<out>/sb3/<cell>.json``.
 
-``--fraction F`` runs ``F`` of the paper's budget (2M env steps for A2C and PPO, 1M for SAC) on
-both sides; a folder holds one fraction and one set of overrides, and refuses to mix in another.
-``report`` writes the table (:mod:`.report`) beside the paper's numbers (:mod:`.paper`).
+``--fraction F`` runs ``F`` of each experiment's budget (rl-baselines3-zoo's, which for the
+PyBullet envs is the paper's: 2M env steps for A2C and PPO, 1M for SAC) on both sides; a folder
+holds one fraction and one set of overrides, and refuses to mix in another. ``report`` writes the
+table (:mod:`.report`) beside the paper's numbers (:mod:`.paper`).
 
 Usage::
 

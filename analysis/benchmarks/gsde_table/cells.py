@@ -1,16 +1,19 @@
 """The table's cells, the budget a run is given, and the config ``train.py`` composes for a cell.
 
-A cell is one (algorithm, env, noise, seed); its config is ``train.py +experiment=<algo>_<env>_bullet``
-(``explorer=gaussian`` for the Gaussian side) with ``updates`` cut to the run's fraction of the
-paper's budget and the run's extra overrides, the same config from which :mod:`.sb3` reads the
-settings of the Stable-Baselines3 side.
+A cell is one (algorithm, env, noise, seed); its config is the experiment that trains that
+algorithm on that env (:data:`EXPERIMENTS`: ``train.py +experiment=<algo>_<env>_bullet`` for the
+paper's PyBullet envs, ``sac_mountaincar`` beyond them), ``explorer=gaussian`` for the Gaussian
+side, with ``updates`` cut to the run's fraction of the experiment's budget and the run's extra
+overrides: the same config from which :mod:`.sb3` reads the settings of the Stable-Baselines3 side.
 
 Examples:
     >>> cell = Cell("ppo", "hopper", "gaussian", 2)
     >>> cell.name, train_overrides(cell, updates=3)
     ('ppo_hopper_gaussian_seed2', ('+experiment=ppo_hopper_bullet', 'seed=2', 'updates=3', 'explorer=gaussian'))
-    >>> updates_for(1.0, "ppo", 16 * 512), updates_for(0.01, "sac", 1000)
-    (245, 10)
+    >>> Cell("sac", "mountaincar", "sde", 0).experiment
+    'sac_mountaincar'
+    >>> updates_for(1.0, 245), updates_for(0.25, 245)
+    (245, 62)
 """
 
 from __future__ import annotations
@@ -23,13 +26,17 @@ from dataclasses import dataclass
 ALGORITHMS = ("ppo", "a2c", "sac")
 ENVS = ("halfcheetah", "ant", "hopper", "walker2d")
 NOISES = ("sde", "gaussian")
-#: The paper's budget in env steps (rl-baselines3-zoo's n_timesteps of these entries).
-PAPER_BUDGET = {"ppo": 2_000_000, "a2c": 2_000_000, "sac": 1_000_000}
+#: Every env a cell may have: the paper's, then those of the experiments beyond its table.
+ALL_ENVS = (*ENVS, "mountaincar")
+#: (algorithm, env) → the ``train.py`` experiment that trains it, with rl-baselines3-zoo's tuned
+#: settings and budget (its ``n_timesteps``: for the PyBullet envs the paper's).
+EXPERIMENTS = {**{(a, e): f"{a}_{e}_bullet" for a in ALGORITHMS for e in ENVS},
+               ("sac", "mountaincar"): "sac_mountaincar"}
 #: What a run's own overrides may not set: the cell and the fraction set them.
 RESERVED = ("updates", "seed")
 #: The envs' gymnasium ids, as the table names them.
 ENV_IDS = {"halfcheetah": "HalfCheetahBulletEnv-v0", "ant": "AntBulletEnv-v0", "hopper": "HopperBulletEnv-v0",
-           "walker2d": "Walker2DBulletEnv-v0"}
+           "walker2d": "Walker2DBulletEnv-v0", "mountaincar": "MountainCarContinuous-v0"}
 
 
 @dataclass(frozen=True, order=True)
@@ -49,9 +56,13 @@ class Cell:
     seed: int
 
     def __post_init__(self) -> None:
-        for name, allowed in (("algorithm", ALGORITHMS), ("env", ENVS), ("noise", NOISES)):
+        for name, allowed in (("algorithm", ALGORITHMS), ("env", ALL_ENVS), ("noise", NOISES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name}={getattr(self, name)!r}: one of {', '.join(allowed)}")
+        if (self.algorithm, self.env) not in EXPERIMENTS:
+            trained = ", ".join(a for a in ALGORITHMS if (a, self.env) in EXPERIMENTS)
+            raise ValueError(f"{self.algorithm} on {self.env}: no train.py experiment trains it (on {self.env}: "
+                             f"{trained})")
 
     @property
     def name(self) -> str:
@@ -60,8 +71,8 @@ class Cell:
 
     @property
     def experiment(self) -> str:
-        """The ``+experiment`` of ``train.py`` that trains it."""
-        return f"{self.algorithm}_{self.env}_bullet"
+        """The ``+experiment`` of ``train.py`` that trains it (:data:`EXPERIMENTS`)."""
+        return EXPERIMENTS[(self.algorithm, self.env)]
 
 
 def cells(algorithms: Iterable[str] = ALGORITHMS, envs: Iterable[str] = ENVS, noises: Iterable[str] = NOISES,
@@ -85,17 +96,18 @@ def steps_per_update(conf) -> int:
     return int(alg.n_envs * alg.n_steps)
 
 
-def updates_for(fraction: float, algorithm: str, update_steps: int) -> int:
-    """The updates that cover ``fraction`` of the paper's budget: the first update past it, as SB3
-    stops (PPO's 2M steps at 8,192 a update: 245), and at least one.
+def updates_for(fraction: float, updates: int) -> int:
+    """The updates that cover ``fraction`` of an experiment's ``updates`` (the zoo's budget, which
+    the experiment reaches at the first update past it, as SB3 stops): the first update past the
+    fraction, and at least one.
 
     Examples:
-        >>> updates_for(0.5, "a2c", 32), updates_for(1e-9, "ppo", 8192)
+        >>> updates_for(0.5, 62_500), updates_for(1e-9, 245)
         (31250, 1)
     """
     if not 0 < fraction <= 1:
         raise ValueError(f"fraction={fraction!r}: a number in (0, 1]")
-    return max(1, math.ceil(fraction * PAPER_BUDGET[algorithm] / update_steps - 1e-9))
+    return max(1, math.ceil(fraction * updates - 1e-9))
 
 
 def train_overrides(cell: Cell, updates: int | None = None, extra: Sequence[str] = ()) -> tuple[str, ...]:
@@ -111,7 +123,7 @@ def train_overrides(cell: Cell, updates: int | None = None, extra: Sequence[str]
 
 def compose_cell(cell: Cell, fraction: float, extra: Sequence[str] = ()):
     """The checked config (:func:`~sde_torchrl.config.schemas.train.validate`) that ``train.py``
-    runs for the cell at ``fraction`` of the paper's budget, with the overrides ``extra``.
+    runs for the cell at ``fraction`` of its experiment's budget, with the overrides ``extra``.
 
     Raises:
         ValueError: ``extra`` sets ``updates`` or ``seed`` (the fraction and the cell set them).
@@ -127,6 +139,6 @@ def compose_cell(cell: Cell, fraction: float, extra: Sequence[str] = ()):
             raise ValueError(f"override {override!r}: {' and '.join(RESERVED)} are the cell's and the fraction's "
                              "(--seeds, --fraction)")
     base = compose(list(train_overrides(cell, extra=extra)))
-    updates = updates_for(fraction, cell.algorithm, steps_per_update(base))
+    updates = updates_for(fraction, base.updates)
     overrides = train_overrides(cell, updates, extra)
     return validate(compose(list(overrides))), overrides

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from analysis.benchmarks import gsde_table
-from analysis.benchmarks.gsde_table.cells import ALGORITHMS, ENVS, NOISES, RESERVED, cells
+from analysis.benchmarks.gsde_table.cells import ALGORITHMS, ALL_ENVS, ENVS, NOISES, RESERVED, cells
 
 #: Where ``run`` writes and ``report`` reads by default.
 DEFAULT_OUT = Path("results/gsde_table/runs")
@@ -49,7 +49,7 @@ def _fraction(text: str) -> float:
     except ValueError:
         value = float("nan")
     if not 0 < value <= 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: a fraction of the paper's budget in (0, 1]")
+        raise argparse.ArgumentTypeError(f"{text!r}: a fraction of the experiments' budget in (0, 1]")
     return value
 
 
@@ -60,11 +60,13 @@ def parser() -> argparse.ArgumentParser:
     sub = top.add_subparsers(dest="command", required=True)
     run_p = sub.add_parser("run", help="train the cells on both sides (finished runs are skipped)")
     run_p.add_argument("--fraction", type=_fraction, required=True,
-                       help="fraction of the paper's budget (2M env steps for A2C and PPO, 1M for SAC), both sides")
+                       help="fraction of each experiment's budget (the zoo's: for the PyBullet envs the paper's, "
+                            "2M env steps for A2C and PPO, 1M for SAC), both sides")
     run_p.add_argument("--algorithms", type=_choices(ALGORITHMS), default=list(ALGORITHMS),
                        help=f"comma-separated, of {','.join(ALGORITHMS)} (default: all)")
-    run_p.add_argument("--envs", type=_choices(ENVS), default=list(ENVS),
-                       help=f"comma-separated, of {','.join(ENVS)} (default: all)")
+    run_p.add_argument("--envs", type=_choices(ALL_ENVS), default=list(ENVS),
+                       help=f"comma-separated, of {','.join(ALL_ENVS)} (default: the paper's, {','.join(ENVS)}; "
+                            "mountaincar with sac only)")
     run_p.add_argument("--noises", type=_choices(NOISES), default=list(NOISES),
                        help=f"comma-separated, of {','.join(NOISES)} (default: both)")
     run_p.add_argument("--seeds", type=_seeds, default=[0], help="seeds, as 0,1,2 or 0-4 (default: 0)")
@@ -96,12 +98,15 @@ def main(argv: list[str] | None = None) -> int:
         if "=" not in override or override.split("=", 1)[0].lstrip("+~") in RESERVED:
             top.error(f"--override {override!r}: KEY=VALUE, not {' or '.join(RESERVED)} "
                       "(the cells and --fraction set them)")
+    try:
+        table = cells(args.algorithms, args.envs, args.noises, args.seeds)
+    except ValueError as error:
+        top.error(str(error))
     from analysis.benchmarks.gsde_table.run import FolderMismatch, run_table
     from analysis.benchmarks.gsde_table.sb3 import UnmappableSetting
 
     try:
-        done, total, failures = run_table(cells(args.algorithms, args.envs, args.noises, args.seeds), args.fraction,
-                                          args.override, args.out, args.workers)
+        done, total, failures = run_table(table, args.fraction, args.override, args.out, args.workers)
     except (FolderMismatch, UnmappableSetting) as error:
         sys.stderr.write(f"error: {error}\n")
         return 2

@@ -34,11 +34,13 @@ PAPER_SEEDS = {"a2c": 6, "ppo": 6, "sac": 3}
 
 
 def paper_text(algorithm: str, env: str, noise: str) -> str:
-    """The paper's number for a cell as the report prints it.
+    """The paper's number for a cell as the report prints it, ``–`` for a cell beyond its table.
 
     Examples:
-        >>> paper_text("a2c", "walker2d", "sde")
-        '839 ± 56'
+        >>> paper_text("a2c", "walker2d", "sde"), paper_text("sac", "mountaincar", "sde")
+        ('839 ± 56', '–')
     """
+    if (algorithm, env) not in PAPER:
+        return "–"
     mean, sd = PAPER[(algorithm, env)][noise]
     return f"{mean} ± {sd}"

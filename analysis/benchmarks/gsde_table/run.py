@@ -2,7 +2,7 @@
 
 The folder::
 
-    <out>/table.json                       the fraction of the paper's budget and the overrides
+    <out>/table.json                       the fraction of the budget and the overrides
     <out>/ours/<algo>_<env>_<noise>_seed<k>/   train.py's run directory (metrics.csv, summary.json, ...)
     <out>/sb3/<algo>_<env>_<noise>_seed<k>.json        the SB3 run's record, written whole
     <out>/sb3/<algo>_<env>_<noise>_seed<k>.error.txt   a failed SB3 run's error (no record)
@@ -44,7 +44,7 @@ def open_folder(out: Path, fraction: float, overrides: Sequence[str]) -> dict[st
 
     Args:
         out: the folder.
-        fraction: the fraction of the paper's budget of this run.
+        fraction: the fraction of the experiments' budget of this run.
         overrides: the overrides of this run (both sides).
 
     Returns:
@@ -130,7 +130,7 @@ def run_table(cells: Sequence[Cell], fraction: float, overrides: Sequence[str], 
 
     Args:
         cells: the cells.
-        fraction: the fraction of the paper's budget (both sides).
+        fraction: the fraction of the experiments' budget (both sides).
         overrides: ``train.py`` overrides of every cell (both sides).
         out: the folder (:func:`open_folder`).
         workers: runs at a time.
