@@ -7,7 +7,7 @@ saying what each column is. This script writes that block from
 ``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
 (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
 ``methods_selected/methods.json``, ``methods_seed4/methods.json``, ``selected/fig5.json``), the
-quick start's run (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/bench_ppo.json``,
+quick start's run (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/gsde_table.json``,
 ``docs/sac/bench_sac.json``, ``docs/sac/zoo_budget/bench_sac.json``,
 ``docs/gsde_table/gsde_table.json`` and the speed tables the benchmarks' ``speed`` command writes
 (``docs/ppo/speed.md``, ``docs/sac/speed_job.md``), so that no figure in the README is typed by hand::
@@ -110,7 +110,9 @@ def summary() -> str:
     methods_latest = _load("ballcatch/methods_seed4/methods.json")["explorers"]
     quick_start_run = RESULTS / "ballcatch" / "runs" / "selected" / "seed0" / "summary.json"
     quick_start = json.loads(quick_start_run.read_text())["final_eval_return"][0]
-    ppo = _load("ppo/bench_ppo.json")
+    ppo = _load("ppo/gsde_table.json")["cells"]["ppo/halfcheetah/sde"]
+    ppo_final = ("first ÷ second", *_ratio(ppo["ours_vs_sb3"])) if ppo["ours_vs_sb3"]["kind"] == "ratio" else \
+        ("first − second", *_difference(ppo["ours_vs_sb3"]))
     sac = _load("sac/bench_sac.json")["mountaincar"]
     zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]
     ours_zoo, zoo_ratio = zoo["sde_compiled_policy"], zoo["sde_compiled_policy_over_sb3"]
@@ -186,14 +188,15 @@ def summary() -> str:
     for measure, which in ((ending, "final"), (ending_good, "final")):
         rows.append(catches(pgpe_latest, methods_page, "PGPE vs SDE", (methods_latest["pgpe"], methods_latest["sde"]),
                             measure, which, level=GOOD_CATCH if measure == ending_good else CATCH))
-    ppo_seeds = _mean_of(ppo["sde"]["final"], ppo["sb3"]["final"])
+    ppo_seeds = _mean_of(ppo["ours"]["final"], ppo["sb3"]["final"])
+    ppo_name = f"PPO, HalfCheetahBullet, {ppo['ours']['env_steps'][0]:,} steps"
     zoo_name = f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps"
     zoo_seeds = _mean_of(ours_zoo["final"], zoo["sb3"]["final"])
     rows += [
-        ("PPO, HalfCheetahBullet", ppo_page, "SDE vs SB3 gSDE", f"final return, {ppo_seeds}", mean(ppo["sde"]["final"]),
-         NONE, mean(ppo["sb3"]["final"]), NONE, NONE, NONE),
-        ("PPO, HalfCheetahBullet", ppo_page, "SDE vs SB3 gSDE", "final return, first ÷ second",
-         *_ratio(ppo["sde_over_sb3"]["final"]), NONE, NONE, NONE, NONE),
+        (ppo_name, ppo_page, "SDE vs SB3 gSDE", f"final return, {ppo_seeds}", mean(ppo["ours"]["final"]), NONE,
+         mean(ppo["sb3"]["final"]), NONE, NONE, NONE),
+        (ppo_name, ppo_page, "SDE vs SB3 gSDE", f"final return, {ppo_final[0]}", *ppo_final[1:], NONE, NONE, NONE,
+         NONE),
         (zoo_name, sac_page, "SDE vs SB3 gSDE", f"final deterministic return, {zoo_seeds}", mean(ours_zoo["final"]),
          NONE, mean(zoo["sb3"]["final"]), NONE, NONE, NONE),
         (zoo_name, sac_page, "SDE vs SB3 gSDE", f"final deterministic return, {zoo_final[0]}", *zoo_final[1:],

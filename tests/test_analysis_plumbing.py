@@ -13,7 +13,6 @@ from _helpers import REPO
 
 from analysis import figures, runner
 from analysis.benchmarks import common
-from analysis.benchmarks.bench_ppo import build as ppo_build
 from analysis.benchmarks.bench_ppo import speed as ppo_speed
 from analysis.benchmarks.bench_ppo import timing as ppo_timing
 from analysis.benchmarks.bench_sac import build as sac_build
@@ -130,7 +129,7 @@ def test_figure_helpers():
 
 
 @pytest.mark.parametrize("module", [
-    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_build, ppo_speed, ppo_timing, sac_build,
+    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_speed, ppo_timing, sac_build,
     sac_report,
 ], ids=lambda module: module.__name__)
 def test_docstring_examples_of_the_analysis_modules_run(module):

@@ -1,6 +1,7 @@
 """From a config with ``algorithm=ppo`` (or ``a2c``) to a ready :class:`~sde_torchrl.trainers.onpolicy.OnPolicyTrainer`.
 
-The pieces, as ``analysis/benchmarks/bench_ppo/`` measured them against Stable-Baselines3:
+The pieces, each Stable-Baselines3's counterpart (``analysis/benchmarks/gsde_table/`` trains both sides from one
+composed config):
 
 - the envs: ``n_envs`` gymnasium envs (:class:`~sde_torchrl.envs.vector.GymVectorEnv`), the raw
   training returns summed (``RewardSum``) before SB3's running normalisation
