@@ -60,17 +60,3 @@ def difference_of_means(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def bounds(interval: tuple[float, float, float]) -> list[float]:
     """``[low, high]`` of an :class:`~sde_torchrl.utils.intervals.Interval`, as the JSON files hold it."""
     return [interval[1], interval[2]]
-
-
-def binned_curve(run: dict, bin_steps: int, total: int) -> np.ndarray:
-    """Mean training return of the episodes that ended in each ``bin_steps`` window (NaN if none):
-    a benchmark run's ``curve`` (``[(env steps at the episode's end, return), ...]``) on a common grid.
-
-    Examples:
-        >>> binned_curve({"curve": [[10, 1.0], [20, 3.0], [150, 5.0]]}, 100, 200)
-        array([2., 5.])
-    """
-    points = np.asarray(run["curve"], dtype=float).reshape(-1, 2)
-    edges = np.arange(0, total + bin_steps, bin_steps)
-    which = np.clip(np.digitize(points[:, 0], edges[1:-1], right=True), 0, len(edges) - 2)
-    return np.array([points[which == b, 1].mean() if (which == b).any() else np.nan for b in range(len(edges) - 1)])

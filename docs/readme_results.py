@@ -8,9 +8,9 @@ saying what each column is. This script writes that block from
 (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
 ``methods_selected/methods.json``, ``methods_seed4/methods.json``, ``selected/fig5.json``), the
 quick start's run (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/gsde_table.json``,
-``docs/sac/bench_sac.json``, ``docs/sac/zoo_budget/bench_sac.json``,
-``docs/gsde_table/gsde_table.json`` and the speed tables the benchmarks' ``speed`` command writes
-(``docs/ppo/speed.md``, ``docs/sac/speed_job.md``), so that no figure in the README is typed by hand::
+``docs/sac/gsde_table.json``, ``docs/gsde_table/gsde_table.json`` and the speed tables the
+benchmarks' ``speed`` command writes (``docs/ppo/speed.md``, ``docs/sac/speed_job.md``), so that
+no figure in the README is typed by hand::
 
     python docs/readme_results.py           # rewrite the README's table
     python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
@@ -111,13 +111,7 @@ def summary() -> str:
     quick_start_run = RESULTS / "ballcatch" / "runs" / "selected" / "seed0" / "summary.json"
     quick_start = json.loads(quick_start_run.read_text())["final_eval_return"][0]
     ppo = _load("ppo/gsde_table.json")["cells"]["ppo/halfcheetah/sde"]
-    ppo_final = ("first ÷ second", *_ratio(ppo["ours_vs_sb3"])) if ppo["ours_vs_sb3"]["kind"] == "ratio" else \
-        ("first − second", *_difference(ppo["ours_vs_sb3"]))
-    sac = _load("sac/bench_sac.json")["mountaincar"]
-    zoo = _load("sac/zoo_budget/bench_sac.json")["mountaincar"]
-    ours_zoo, zoo_ratio = zoo["sde_compiled_policy"], zoo["sde_compiled_policy_over_sb3"]
-    zoo_final = ("first ÷ second", *_ratio(zoo_ratio["final"])) if "final" in zoo_ratio else \
-        ("first − second", *_difference(zoo_ratio["final_difference"]))
+    sac = _load("sac/gsde_table.json")["cells"]["sac/mountaincar/sde"]
 
     def paper_share(explorer: dict, level: str = CATCH) -> str:
         return f"{explorer['paper'][level]} %" if level in explorer.get("paper", {}) else NONE
@@ -188,23 +182,11 @@ def summary() -> str:
     for measure, which in ((ending, "final"), (ending_good, "final")):
         rows.append(catches(pgpe_latest, methods_page, "PGPE vs SDE", (methods_latest["pgpe"], methods_latest["sde"]),
                             measure, which, level=GOOD_CATCH if measure == ending_good else CATCH))
-    ppo_seeds = _mean_of(ppo["ours"]["final"], ppo["sb3"]["final"])
-    ppo_name = f"PPO, HalfCheetahBullet, {ppo['ours']['env_steps'][0]:,} steps"
-    zoo_name = f"SAC, MountainCarContinuous, the zoo's {ours_zoo['steps']:,} steps"
-    zoo_seeds = _mean_of(ours_zoo["final"], zoo["sb3"]["final"])
+    rows += _versus_sb3_rows(f"PPO, HalfCheetahBullet, {ppo['ours']['env_steps'][0]:,} steps", ppo_page, ppo,
+                             "final return")
+    rows += _versus_sb3_rows(f"SAC, MountainCarContinuous, the zoo's {sac['ours']['env_steps'][0]:,} steps", sac_page,
+                             sac, "final deterministic return")
     rows += [
-        (ppo_name, ppo_page, "SDE vs SB3 gSDE", f"final return, {ppo_seeds}", mean(ppo["ours"]["final"]), NONE,
-         mean(ppo["sb3"]["final"]), NONE, NONE, NONE),
-        (ppo_name, ppo_page, "SDE vs SB3 gSDE", f"final return, {ppo_final[0]}", *ppo_final[1:], NONE, NONE, NONE,
-         NONE),
-        (zoo_name, sac_page, "SDE vs SB3 gSDE", f"final deterministic return, {zoo_seeds}", mean(ours_zoo["final"]),
-         NONE, mean(zoo["sb3"]["final"]), NONE, NONE, NONE),
-        (zoo_name, sac_page, "SDE vs SB3 gSDE", f"final deterministic return, {zoo_final[0]}", *zoo_final[1:],
-         NONE, NONE, NONE, NONE),
-        (zoo_name, sac_page, "SDE vs SB3 gSDE", "env steps per second, first ÷ second", *_ratio(zoo_ratio["speed"]),
-         NONE, NONE, NONE, NONE),
-        (f"SAC, MountainCarContinuous, {sac['sde']['steps']:,} steps", sac_page, "SDE vs SB3 gSDE",
-         "late training return, first ÷ second", *_ratio(sac["sde_over_sb3"]["late"]), NONE, NONE, NONE, NONE),
         ("`+experiment=ppo_halfcheetah_bullet`", ppo_page, "SDE vs SB3 gSDE",
          "env steps per second of one iteration, first ÷ second", *_speed_ratio("ppo/speed.md"), NONE, NONE, NONE,
          NONE),
@@ -216,6 +198,31 @@ def summary() -> str:
     lines = ["| " + " | ".join(HEADER) + " |", "| " + " | ".join("---" for _ in HEADER) + " |"]
     lines += [f"| [{result}]({page}) | " + " | ".join(cells) + " |" for result, page, *cells in rows]
     return "\n".join(lines) + "\n\n" + LEGEND + "\n"
+
+
+def _versus_sb3_rows(name: str, page: str, cell: dict, measure: str) -> list[tuple[str, ...]]:
+    """A cell of a ``gsde_table`` report, ours against SB3: both sides' mean final return, ours ÷
+    SB3's (or ours − SB3's where a return is not positive) and the ratio of env steps per second.
+
+    Examples:
+        >>> side = {"final": [90.0, 94.0], "speed": [1.0, 1.0]}
+        >>> cell = {"ours": side, "sb3": side, "ours_vs_sb3": {"kind": "difference", "estimate": 0.0, "low": -2.0,
+        ...         "high": 2.0}, "speed_ratio": {"estimate": 1.0, "low": 0.9, "high": 1.1}}
+        >>> [row[3:6] for row in _versus_sb3_rows("SAC", "p.md", cell, "final return")]
+        [('final return, mean of 2 seeds each', '92', '—'), ('final return, first − second', '+0.0', '[-2.0, +2.0]'), \
+('env steps per second, first ÷ second', '1.00×', '[0.90, 1.10]')]
+    """
+    methods, versus = "SDE vs SB3 gSDE", cell["ours_vs_sb3"]
+    final = ("first ÷ second", *_ratio(versus)) if versus["kind"] == "ratio" else \
+        ("first − second", *_difference(versus))
+    seeds = _mean_of(cell["ours"]["final"], cell["sb3"]["final"])
+    return [
+        (name, page, methods, f"{measure}, {seeds}", f"{statistics.mean(cell['ours']['final']):.0f}", NONE,
+         f"{statistics.mean(cell['sb3']['final']):.0f}", NONE, NONE, NONE),
+        (name, page, methods, f"{measure}, {final[0]}", *final[1:], NONE, NONE, NONE, NONE),
+        (name, page, methods, "env steps per second, first ÷ second", *_ratio(cell["speed_ratio"]), NONE, NONE, NONE,
+         NONE),
+    ]
 
 
 def _gsde_rows(table: dict, page: str) -> list[tuple[str, ...]]:

@@ -15,8 +15,6 @@ from analysis import figures, runner
 from analysis.benchmarks import common
 from analysis.benchmarks.bench_ppo import speed as ppo_speed
 from analysis.benchmarks.bench_ppo import timing as ppo_timing
-from analysis.benchmarks.bench_sac import build as sac_build
-from analysis.benchmarks.bench_sac import report as sac_report
 from analysis.paper import ballcatch_scores, fig5
 from analysis.selection import ballcatch_tuning
 from sde_torchrl.jobs.run_dir import MetricRow, finished_runs, read_finished_run, read_metrics
@@ -129,8 +127,7 @@ def test_figure_helpers():
 
 
 @pytest.mark.parametrize("module", [
-    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_speed, ppo_timing, sac_build,
-    sac_report,
+    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_speed, ppo_timing,
 ], ids=lambda module: module.__name__)
 def test_docstring_examples_of_the_analysis_modules_run(module):
     import doctest

@@ -52,6 +52,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
     "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
     "ppo": (gsde_table, ["report", str(REPO / "results" / "ppo" / "f025")], REPO / "docs" / "ppo",
             ("gsde_table.md", "gsde_table.json")),
+    "sac": (gsde_table, ["report", str(REPO / "results" / "sac" / "mountaincar")], REPO / "docs" / "sac",
+            ("gsde_table.md", "gsde_table.json")),
     "gsde_table": (gsde_table, ["report", str(REPO / "results" / "gsde_table" / "f002")], REPO / "docs" / "gsde_table",
                    ("gsde_table.md", "gsde_table.json")),
     # every candidate is recorded: --resume runs none of them and rewrites the page from the record

@@ -1,11 +1,6 @@
-"""What the PPO and SAC benchmarks against Stable-Baselines3 share: the gymnasium env by its id,
-the return of each evaluation env's first episode, a run's record written whole with the versions
-it ran on, and the band of training curves over seeds.
-
-Examples:
-    >>> reward, done = torch.ones(2, 4), torch.tensor([[0, 1, 0, 1], [0, 0, 0, 1]], dtype=torch.bool)
-    >>> first_episode_returns(reward, done)
-    [2.0, 4.0]
+"""What the PPO and SAC benchmarks against Stable-Baselines3 share: the gymnasium env by its id, a
+run's record written whole with the versions it ran on, and variants timed in fresh processes
+with their speed table.
 """
 
 from __future__ import annotations
@@ -14,17 +9,10 @@ import importlib
 import json
 import os
 import platform
-import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-import torch
-
-from analysis.figures import binned_curve
-
-#: Deterministic evaluation episodes at the end of a run.
-EVAL_EPISODES = 10
 
 
 def gym_make(env_id: str, **kwargs):
@@ -34,12 +22,6 @@ def gym_make(env_id: str, **kwargs):
     if "Bullet" in env_id:
         import pybullet_envs_gymnasium  # noqa: F401  (registers the Bullet envs)
     return gym.make(env_id, **kwargs)
-
-
-def first_episode_returns(reward: torch.Tensor, done: torch.Tensor) -> list[float]:
-    """Each env's return up to and including its first ``done``; ``reward`` and ``done`` are ``[envs, steps]``."""
-    first_episode = (done.long().cumsum(-1) - done.long()) == 0  # up to and including the first done
-    return (reward * first_episode).sum(-1).tolist()
 
 
 def versions(*libraries: str) -> dict[str, str]:
@@ -57,15 +39,25 @@ def write_run(path: Path, result: dict) -> Path:
     return path
 
 
-def curve_band(runs: list[dict], bin_steps: int, total: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The runs' training curves on a common grid (:func:`~analysis.figures.binned_curve`): the
-    grid's env steps and, per window, the mean, lowest and highest over runs (NaN where no episode
-    of any run ended: a gap in the curve)."""
-    curves = np.stack([binned_curve(r, bin_steps, total) for r in runs])
-    x = (np.arange(curves.shape[1]) + 1) * bin_steps
-    with warnings.catch_warnings():  # a window where no episode ended is a gap in the curve
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return x, np.nanmean(curves, 0), np.nanmin(curves, 0), np.nanmax(curves, 0)
+def sb3_model(conf, benchmark: str):
+    """Stable-Baselines3's model and its training env with the settings of a job's checked config
+    (:func:`~analysis.benchmarks.gsde_table.sb3.sb3_settings`), seed 0.
+
+    Raises:
+        SystemExit: Stable-Baselines3 is not installed (naming the extra that installs it).
+
+    Returns:
+        ``(settings, model, env)``.
+    """
+    try:
+        import stable_baselines3  # noqa: F401
+    except ImportError as err:
+        raise SystemExit(f"{benchmark}: the sb3 variants need Stable-Baselines3: pip install -e '.[bench]' ({err})") \
+            from err
+    from analysis.benchmarks.gsde_table.sb3 import build_model, sb3_settings
+
+    settings = sb3_settings(conf)
+    return (settings, *build_model(settings, seed=0))
 
 
 def in_fresh_processes(timing: Callable[[str, int], tuple[float, float, float]], variants: Sequence[str],

@@ -1,6 +1,7 @@
 """From a config with ``algorithm=sac`` to a ready :class:`~sde_torchrl.trainers.offpolicy.SACTrainer`.
 
-The pieces, as ``analysis/benchmarks/bench_sac/`` measured them against Stable-Baselines3's ``SAC``:
+The pieces, each Stable-Baselines3's ``SAC`` counterpart (``analysis/benchmarks/gsde_table/`` trains both
+from one config):
 
 - the envs: one gymnasium env (:class:`~sde_torchrl.envs.vector.GymVectorEnv`), its training
   returns summed (``RewardSum``), then the SDE noise primer; the evaluation envs likewise,

@@ -80,8 +80,7 @@ STEPS_PER_SECOND = {"ballcatch": 2000, "other": 20000}
 #: PPO on HalfCheetahBullet with the zoo's settings ran at 374 on a shared 2-core machine.
 ONPOLICY_STEPS_PER_SECOND = 300
 #: Env steps per second of a SAC job (``algorithm=sac``), one gradient step per env step: the
-#: zoo's HalfCheetahBullet settings ran at 26 on a shared 2-core machine (``docs/sac/bench_sac.md``);
-#: a little less is assumed.
+#: zoo's HalfCheetahBullet settings ran at 26 on a shared 2-core machine; a little less is assumed.
 SAC_STEPS_PER_SECOND = 20
 #: Bytes per number of an on-policy rollout: its tensors, and what GAE and the minibatches copy
 #: (measured: 0.25 GB for 8,192 steps of 3,688 numbers).

@@ -98,7 +98,6 @@ class SACUpdate:
         optimizer: the ``optimizer`` config group's entries (:func:`~sde_torchrl.trainers.optim.make_optimizer`:
             Adam's options and the rate's schedule); ``None``: SB3's plain Adam.
         rounds: how many times :meth:`set_round` is called over the job (the schedule's length).
-        loss_noise: ``"fresh"`` (:func:`fresh_loss_noise`) or ``"stored"`` (the batch's ``ξ``).
         compile: compile the two losses and fuse the Adam steps (the module docstring).
 
     Returns (when called with a minibatch):
@@ -118,9 +117,8 @@ class SACUpdate:
     """
 
     def __init__(self, loss: SACLoss, sde: SDEParams | None, *, lr: float, tau: float,
-                 optimizer: Mapping[str, Any] | None = None, rounds: int = 1, loss_noise: str = "fresh",
-                 compile: bool = False) -> None:
-        self.loss, self.sde, self.loss_noise = loss, sde, loss_noise
+                 optimizer: Mapping[str, Any] | None = None, rounds: int = 1, compile: bool = False) -> None:
+        self.loss, self.sde = loss, sde
         options = {"_target_": "torch.optim.Adam"} if optimizer is None else optimizer
         groups = {"critic": list(loss.qvalue_network_params.flatten_keys().values()),
                   "actor": list(loss.actor_network_params.flatten_keys().values())}
@@ -149,7 +147,7 @@ class SACUpdate:
             schedule.apply(done)
 
     def __call__(self, batch: TensorDictBase) -> torch.Tensor:
-        if self.sde is not None and self.loss_noise == "fresh":
+        if self.sde is not None:
             fresh_loss_noise(batch, self.sde)
         critic, actor, alpha = (self.optimizers.get(name) for name in ("critic", "actor", "alpha"))
         critic_loss = self.critic_objective(batch)

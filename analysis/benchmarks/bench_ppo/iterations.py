@@ -11,6 +11,7 @@ from contextlib import nullcontext
 from typing import Any
 
 from analysis.benchmarks.bench_ppo.timing import TIMER, sb3_update_timed
+from analysis.benchmarks.common import sb3_model
 
 #: The experiment both sides run.
 EXPERIMENT = "ppo_halfcheetah_bullet"
@@ -74,15 +75,9 @@ def train_sb3(rollouts: int, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     (:func:`~analysis.benchmarks.gsde_table.sb3.sb3_settings`; ``("explorer=gaussian",)`` for its
     plain Gaussian), each iteration's end in wall and CPU seconds and each rollout's collection
     time (GAE included: SB3 computes it at the end of the rollout)."""
-    try:
-        from stable_baselines3.common.callbacks import BaseCallback
-    except ImportError as err:
-        raise SystemExit(f"bench_ppo: the sb3 variants need Stable-Baselines3: pip install -e '.[bench]' ({err})") \
-            from err
-    from analysis.benchmarks.gsde_table.sb3 import build_model, sb3_settings
+    settings, model, env = sb3_model(job_config(overrides), "bench_ppo")
+    from stable_baselines3.common.callbacks import BaseCallback
 
-    settings = sb3_settings(job_config(overrides))
-    model, env = build_model(settings, seed=0)
     if TIMER.active:  # pybullet's step, inside SB3's vectorised env
         for inner in env.venv.envs if hasattr(env, "venv") else env.envs:
             inner.step = TIMER.wrap("collect: pybullet step", inner.step)

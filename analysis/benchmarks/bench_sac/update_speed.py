@@ -1,19 +1,31 @@
-"""How long one SAC gradient step takes (``update-speed``): each method's step timed in one process,
-the methods interleaved, and the TorchRL SDE step split by function (cProfile)."""
+"""How long one SAC gradient step takes (``update-speed``): the job's own step and SB3's, built
+from the one config an experiment composes, timed in one process with the variants interleaved,
+and the job's eager step split by function (cProfile)."""
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
 
-from analysis.benchmarks.bench_sac.build import METHODS, ZOO, env_dims, make_loss, make_torchrl_env, make_torchrl_policy
-from analysis.benchmarks.bench_sac.report import NAMES
-from analysis.benchmarks.bench_sac.train import make_update
-from analysis.benchmarks.common import gym_make
+from analysis.benchmarks.bench_sac.rounds import job_config
+from analysis.benchmarks.common import sb3_model
 
-#: (file, function) whose cumulative time splits a TorchRL gradient step (``update-speed --profile``).
+#: The experiments ``--env`` picks.
+EXPERIMENTS = {"mountaincar": "sac_mountaincar", "halfcheetah": "sac_halfcheetah_bullet"}
+#: Each variant's overrides of the experiment: ``job`` as shipped (compiled losses, fused Adam),
+#: ``job+eager`` with ``algorithm.compile=false``, ``job_gauss`` its plain Gaussian; SB3's SAC
+#: with gSDE (``sb3``) and without (``sb3_gauss``) at the same settings.
+VARIANTS = {"job": (), "job+eager": ("algorithm.compile=false",), "job_gauss": ("explorer=gaussian",),
+            "sb3": (), "sb3_gauss": ("explorer=gaussian",)}
+#: Each variant's SB3 counterpart, against whose CPU time it is set.
+COUNTERPART = {"job": "sb3", "job+eager": "sb3", "job_gauss": "sb3_gauss", "sb3": "sb3", "sb3_gauss": "sb3_gauss"}
+#: Transitions collected with uniform random actions before the timed steps sample from them.
+FILL_STEPS = 1000
+#: (file, function) whose cumulative time splits the job's eager gradient step (``--profile``).
 PROFILE_PARTS = {
     "critic loss forward (SACLoss.qvalue_v2_loss)": ("objectives/sac.py", "qvalue_v2_loss"),
     "actor loss forward (SACLoss.actor_loss)": ("objectives/sac.py", "actor_loss"),
@@ -25,84 +37,86 @@ PROFILE_PARTS = {
 }
 
 
-def _random_transitions(n: int, obs_dim: int, action_dim: int, feature_dim: int):
-    from tensordict import TensorDict
-
-    noise = torch.randn(n, action_dim, feature_dim)
-    return TensorDict({
-        "observation": torch.randn(n, obs_dim), "action": torch.rand(n, action_dim) * 2 - 1, "sde_noise": noise,
-        "next": {"observation": torch.randn(n, obs_dim), "reward": torch.randn(n, 1), "sde_noise": noise,
-                 "done": torch.zeros(n, 1, dtype=torch.bool), "terminated": torch.zeros(n, 1, dtype=torch.bool)},
-    }, [n])
+def _fill_overrides(experiment: str) -> tuple[str, ...]:
+    """Overrides under which the job's first update collects :data:`FILL_STEPS` (rounded up to
+    whole rounds) with uniform random actions and takes no gradient step (SB3: ``learning_starts``)."""
+    train_freq = job_config(experiment=experiment).algorithm.train_freq
+    rounds = math.ceil(FILL_STEPS / train_freq)
+    return (f"algorithm.learning_starts={rounds * train_freq}", f"algorithm.rounds_per_update={rounds}", "updates=2",
+            "eval_episodes=1")
 
 
-def update_speed(env_key: str, updates: int, rounds: int, profile: bool = False, compile_update: bool = False) -> str:
-    """Milliseconds per gradient step of each method, timed in one process, the methods interleaved.
+def job_steps(experiment: str, overrides: tuple[str, ...], updates: int) -> Callable[[], None]:
+    """``updates`` gradient steps of the job's own trainer, each on a minibatch sampled from its
+    replay buffer (filled first by :func:`_fill_overrides`)."""
+    from sde_torchrl.config.build_sac import build_sac_trainer
 
-    SB3: ``model.train(updates, batch_size)`` on a buffer filled by 1,000 collected steps; TorchRL:
-    ``updates`` calls of :func:`.train.make_update`'s step on minibatches sampled from a ``ReplayBuffer`` of
-    1,000 random transitions. Each round times every method once; the median over ``rounds`` is
-    reported (wall and CPU), so that a neighbour's load hits all methods alike. With ``profile``,
-    the TorchRL SDE step's time is split by function (cProfile, cumulative); with ``compile_update``
-    the compiled SDE step (:func:`.train.make_update`) is timed too, its compilation in the warm-up round.
+    trainer = build_sac_trainer(job_config((*_fill_overrides(experiment), *overrides), experiment))
+    trainer.update(0)
+
+    def steps() -> None:
+        for _ in range(updates):
+            trainer.update_step(trainer.buffer.sample())
+
+    return steps
+
+
+def sb3_steps(experiment: str, overrides: tuple[str, ...], updates: int) -> Callable[[], None]:
+    """``updates`` gradient steps of SB3's SAC at the job's settings (``model.train``) on a buffer
+    filled as the job's."""
+    settings, model, _ = sb3_model(job_config((*_fill_overrides(experiment), *overrides), experiment), "bench_sac")
+    model.learn(settings["kwargs"]["learning_starts"])  # collection only: fills the buffer, sets up the logger
+    return lambda: model.train(updates, settings["kwargs"]["batch_size"])
+
+
+def update_speed(env: str, updates: int, rounds: int, variants: list[str], profile: bool = False) -> str:
+    """Milliseconds per gradient step of each variant (:data:`VARIANTS`), timed in one process on
+    one thread, the variants interleaved.
+
+    Each round times every variant once; the median over ``rounds`` is reported (wall and CPU), so
+    that a neighbour's load hits all variants alike; a first round warms up (and compiles). With
+    ``profile``, the job's eager step (``job+eager``) is split by function (cProfile, cumulative).
     """
-    from stable_baselines3 import SAC
-    from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
-
     torch.set_num_threads(1)
-    zoo = ZOO[env_key]
-    obs_dim, action_dim, _ = env_dims(zoo["env_id"])
-    action_spec = make_torchrl_env(zoo["env_id"], 0).action_spec
-    steps, methods = {}, (*METHODS, *(["sde_compiled"] if compile_update else []))
-    for method in methods:
-        if method.startswith("sb3"):
-            model = SAC("MlpPolicy", gym_make(zoo["env_id"]), learning_rate=zoo["learning_rate"],
-                        batch_size=zoo["batch_size"], ent_coef=zoo["ent_coef"], gamma=zoo["gamma"], tau=zoo["tau"],
-                        learning_starts=1000, use_sde=method == "sb3", seed=0, device="cpu",
-                        policy_kwargs={"log_std_init": zoo["log_std_init"], "net_arch": zoo["net_arch"]})
-            model.learn(1000)  # collection only (learning_starts): fills the buffer, sets up the logger
-            steps[method] = lambda model=model: model.train(updates, zoo["batch_size"])
-            continue
-        policy, critic, sde = make_torchrl_policy(method.removesuffix("_compiled"), obs_dim, action_spec, zoo)
-        update = make_update(make_loss(policy, critic, action_spec, zoo), sde, zoo,
-                             compile_update=method.endswith("_compiled"))
-        buffer = ReplayBuffer(storage=LazyTensorStorage(1000), sampler=RandomSampler(), batch_size=zoo["batch_size"])
-        buffer.extend(_random_transitions(1000, obs_dim, action_dim, sde.feature_dim if sde else 1))
-
-        def torchrl_steps(update=update, buffer=buffer):
-            for _ in range(updates):
-                update(buffer.sample())
-
-        steps[method] = torchrl_steps
-    wall, cpu = {m: [] for m in methods}, {m: [] for m in methods}
-    for _ in range(rounds + 1):  # the first round warms up
-        for method, step in steps.items():
+    experiment = EXPERIMENTS[env]
+    steps = {v: (sb3_steps if v.startswith("sb3") else job_steps)(experiment, VARIANTS[v], updates) for v in variants}
+    wall: dict[str, list[float]] = {v: [] for v in variants}
+    cpu: dict[str, list[float]] = {v: [] for v in variants}
+    for _ in range(rounds + 1):
+        for variant, step in steps.items():
             start, cpu_start = time.perf_counter(), time.process_time()
             step()
-            wall[method].append(1e3 * (time.perf_counter() - start) / updates)
-            cpu[method].append(1e3 * (time.process_time() - cpu_start) / updates)
-    lines = [f"{zoo['env_id']}: batch {zoo['batch_size']}, net {zoo['net_arch']}, {updates} gradient steps x "
-             f"{rounds} rounds (median; first round not timed)", "",
-             "| method | ms / gradient step (wall) | ms / gradient step (CPU) | CPU time / SB3 counterpart's |",
+            wall[variant].append(1e3 * (time.perf_counter() - start) / updates)
+            cpu[variant].append(1e3 * (time.process_time() - cpu_start) / updates)
+    conf = job_config(experiment=experiment)
+    lines = [f"`+experiment={experiment}` ({conf.env.id}): batch {conf.algorithm.batch_size}, hidden "
+             f"{list(conf.actor.hidden)}, {updates} gradient steps × {rounds} rounds (median; a first round not "
+             "timed)", "",
+             "| variant | ms / gradient step (wall) | ms / gradient step (CPU) | CPU time ÷ SB3 counterpart's |",
              "| --- | --- | --- | --- |"]
-    counterpart = {"sde": "sb3", "sde_compiled": "sb3", "plain": "sb3_gauss", "sb3": "sb3", "sb3_gauss": "sb3_gauss"}
-    med = {m: (float(np.median(wall[m][1:])), float(np.median(cpu[m][1:]))) for m in methods}
-    for method in methods:
-        lines.append(f"| {NAMES[method]} | {med[method][0]:.1f} | {med[method][1]:.1f} | "
-                     f"{med[method][1] / med[counterpart[method]][1]:.2f} |")
+    median = {v: (float(np.median(wall[v][1:])), float(np.median(cpu[v][1:]))) for v in variants}
+    for variant in variants:
+        counterpart = median.get(COUNTERPART[variant])
+        ratio = f"{median[variant][1] / counterpart[1]:.2f}" if counterpart else "–"
+        lines.append(f"| {variant} | {median[variant][0]:.1f} | {median[variant][1]:.1f} | {ratio} |")
     if profile:
-        import cProfile
-        import pstats
-
-        profiler = cProfile.Profile()
-        profiler.runcall(steps["sde"])
-        stats = pstats.Stats(profiler).stats
-        total = max(entry[3] for entry in stats.values())
-        lines += ["", f"{NAMES['sde']}: share of a gradient step (cProfile, cumulative, {updates} steps)", "",
-                  "| part | share |", "| --- | --- |"]
-        for label, (where, name) in PROFILE_PARTS.items():
-            cumulative = sum(entry[3] for (path, _, func), entry in stats.items()
-                             if where in path and (func == name or f"'{name}'" in func))
-            lines.append(f"| {label} | {cumulative / total:.0%} |")
+        lines += ["", *profile_lines(job_steps(experiment, VARIANTS["job+eager"], updates), updates)]
     return "\n".join(lines) + "\n"
 
+
+def profile_lines(steps: Callable[[], None], updates: int) -> list[str]:
+    """The share of each of :data:`PROFILE_PARTS` in ``steps()`` (cProfile, cumulative), as a table."""
+    import cProfile
+    import pstats
+
+    profiler = cProfile.Profile()
+    profiler.runcall(steps)
+    stats = pstats.Stats(profiler).stats
+    total = max(entry[3] for entry in stats.values())
+    lines = [f"job+eager: share of a gradient step (cProfile, cumulative, {updates} steps)", "",
+             "| part | share |", "| --- | --- |"]
+    for label, (where, name) in PROFILE_PARTS.items():
+        cumulative = sum(entry[3] for (path, _, func), entry in stats.items()
+                         if where in path and (func == name or f"'{name}'" in func))
+        lines.append(f"| {label} | {cumulative / total:.0%} |")
+    return lines
