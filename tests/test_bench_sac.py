@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from analysis.benchmarks.bench_ppo import iterations
 from analysis.benchmarks.bench_sac import cli, rounds, update_speed
 
 #: Small minibatches: the timed code, not its speed, is under test.
@@ -70,7 +71,12 @@ def test_update_speed_writes_its_table(tmp_path):
     assert "| backward passes |" in text and "| fresh loss noise |" in text
 
 
-def test_without_stable_baselines3_the_sb3_variants_say_how_to_install_it(monkeypatch):
+@pytest.mark.parametrize("script, side", [
+    ("bench_sac", lambda: rounds.sb3_rounds(4)),
+    ("bench_sac", lambda: update_speed.sb3_steps("sac_mountaincar", (), 2)),
+    ("bench_ppo", lambda: iterations.train_sb3(2)),
+], ids=["sac-speed", "sac-update-speed", "ppo-speed"])
+def test_without_stable_baselines3_the_sb3_variants_say_how_to_install_it(monkeypatch, script, side):
     monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # import stable_baselines3 raises ImportError
-    with pytest.raises(SystemExit, match=r"bench_sac: the sb3 variants need .*pip install -e '\.\[bench\]'"):
-        rounds.sb3_rounds(4)
+    with pytest.raises(SystemExit, match=rf"{script}: the sb3 variants need .*pip install -e '\.\[bench\]'"):
+        side()

@@ -293,6 +293,8 @@ def test_the_report_compares_by_ratio_or_by_difference_across_zero():
     assert gain["paper"] == 2512 - 1567
     text = report.page({"fraction": 0.1, "overrides": []}, stats)
     assert "2512 ± 21" in text and "(difference)" in text and "+945" in text
+    assert "Budget: 0.1 of each experiment's" in text
+    assert "Budget: all of each experiment's" in report.page({"fraction": 1.0, "overrides": []}, stats)
 
 
 @pytest.mark.e2e
