@@ -15,6 +15,8 @@ from analysis import figures, runner
 from analysis.benchmarks import common
 from analysis.benchmarks.bench_ppo import speed as ppo_speed
 from analysis.benchmarks.bench_ppo import timing as ppo_timing
+from analysis.benchmarks.gsde_table import cells as gsde_cells
+from analysis.benchmarks.gsde_table import report as gsde_report
 from analysis.paper import ballcatch_scores, fig5
 from analysis.selection import ballcatch_tuning
 from sde_torchrl.jobs.run_dir import MetricRow, finished_runs, read_finished_run, read_metrics
@@ -127,7 +129,7 @@ def test_figure_helpers():
 
 
 @pytest.mark.parametrize("module", [
-    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_speed, ppo_timing,
+    runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_speed, ppo_timing, gsde_cells, gsde_report,
 ], ids=lambda module: module.__name__)
 def test_docstring_examples_of_the_analysis_modules_run(module):
     import doctest

@@ -297,6 +297,14 @@ def test_the_report_compares_by_ratio_or_by_difference_across_zero():
     assert "Budget: all of each experiment's" in report.page({"fraction": 1.0, "overrides": []}, stats)
 
 
+def test_returns_about_zero_print_their_digits_not_minus_zero():
+    """MountainCar's Gaussian policies end at returns of a few thousandths below 0."""
+    assert report._mean_sd([-0.002, -0.009]) == "-0.0055 ± 0.0049"
+    difference = {"kind": "difference", "estimate": -0.0035, "low": -0.0074, "high": 0.0001}
+    assert report._interval_text(difference) == "-0.0035 [-0.0074, +0.0001]"
+    assert report._mean_sd([2374.0, 2200.0]) == "2287 ± 123" and report._mean_sd([0.0, 0.0]) == "0 ± 0"
+
+
 @pytest.mark.e2e
 def test_a_tiny_cell_on_both_sides_then_the_report(tmp_path):
     """A2C Hopper with SDE, 1,024 env steps a side (TimeFeatureWrapper, VecNormalize, RMSprop, the

@@ -12,6 +12,7 @@ the lowest and highest seed as a band, one panel per algorithm.
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -98,18 +99,33 @@ def compare(ours: list[float], theirs: list[float]) -> dict[str, Any]:
     return {"kind": "difference", **bootstrap_interval((ours, theirs), difference_of_means)._asdict()}
 
 
+def _return_format(*values: float) -> str:
+    """How returns print: whole numbers where any value is 10 or more in size, else as many
+    decimals as show the largest one's first two digits (a return of about 0 would otherwise
+    print as ``-0``).
+
+    Examples:
+        >>> f"{-0.0056:{_return_format(-0.0074, 0.0001)}}", f"{1234.5:{_return_format(1234.5, 3.0)}}"
+        ('-0.0056', '1234')
+    """
+    largest = max(abs(v) for v in values)
+    return ".0f" if largest >= 10 or largest == 0 else f".{1 - math.floor(math.log10(largest))}f"
+
+
 def _interval_text(interval: dict[str, Any] | Interval, unit: str = "") -> str:
     data = interval if isinstance(interval, dict) else interval._asdict()
-    digits = 2 if data.get("kind") == "ratio" or unit == "×" else 0
-    suffix = "×" if data.get("kind") == "ratio" or unit == "×" else ""
-    sign = "" if suffix else "+"
-    return (f"{data['estimate']:{sign}.{digits}f}{suffix} [{data['low']:{sign}.{digits}f}, "
-            f"{data['high']:{sign}.{digits}f}]")
+    ratio = data.get("kind") == "ratio" or unit == "×"
+    digits = ".2f" if ratio else _return_format(data["estimate"], data["low"], data["high"])
+    suffix, sign = ("×", "") if ratio else ("", "+")
+    return (f"{data['estimate']:{sign}{digits}}{suffix} [{data['low']:{sign}{digits}}, "
+            f"{data['high']:{sign}{digits}}]")
 
 
 def _mean_sd(values: list[float]) -> str:
+    mean = float(np.mean(values))
     spread = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
-    return f"{np.mean(values):.0f} ± {spread:.0f}"
+    digits = _return_format(mean, spread)
+    return f"{mean:{digits}} ± {spread:{digits}}"
 
 
 def statistics(runs: dict[tuple[str, str, str], dict[str, dict[int, dict]]]) -> dict[str, Any]:
