@@ -39,27 +39,6 @@ def write_run(path: Path, result: dict) -> Path:
     return path
 
 
-def sb3_model(conf, benchmark: str):
-    """Stable-Baselines3's model and its training env with the settings of a job's checked config
-    (:func:`~analysis.benchmarks.gsde_table.sb3.sb3_settings`), seed 0.
-
-    Raises:
-        SystemExit: Stable-Baselines3 is not installed (naming the extra that installs it).
-
-    Returns:
-        ``(settings, model, env)``.
-    """
-    try:
-        import stable_baselines3  # noqa: F401
-    except ImportError as err:
-        raise SystemExit(f"{benchmark}: the sb3 variants need Stable-Baselines3: pip install -e '.[bench]' ({err})") \
-            from err
-    from analysis.benchmarks.gsde_table.sb3 import build_model, sb3_settings
-
-    settings = sb3_settings(conf)
-    return (settings, *build_model(settings, seed=0))
-
-
 def in_fresh_processes(timing: Callable[[str, int], tuple[float, float, float]], variants: Sequence[str],
                        length: int, repeats: int) -> dict[str, list[tuple[float, float, float]]]:
     """``timing(variant, length)`` of each variant, each call in a fresh spawned process of its

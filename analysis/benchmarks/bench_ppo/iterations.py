@@ -11,7 +11,7 @@ from contextlib import nullcontext
 from typing import Any
 
 from analysis.benchmarks.bench_ppo.timing import TIMER, sb3_update_timed
-from analysis.benchmarks.common import sb3_model
+from analysis.benchmarks.gsde_table.sb3 import model_from_config
 
 #: The experiment both sides run.
 EXPERIMENT = "ppo_halfcheetah_bullet"
@@ -75,7 +75,7 @@ def train_sb3(rollouts: int, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     (:func:`~analysis.benchmarks.gsde_table.sb3.sb3_settings`; ``("explorer=gaussian",)`` for its
     plain Gaussian), each iteration's end in wall and CPU seconds and each rollout's collection
     time (GAE included: SB3 computes it at the end of the rollout)."""
-    settings, model, env = sb3_model(job_config(overrides), "bench_ppo")
+    settings, model, env = model_from_config(job_config(overrides), "bench_ppo")
     from stable_baselines3.common.callbacks import BaseCallback
 
     if TIMER.active:  # pybullet's step, inside SB3's vectorised env

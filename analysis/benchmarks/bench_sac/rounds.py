@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 
-from analysis.benchmarks.common import sb3_model
+from analysis.benchmarks.gsde_table.sb3 import model_from_config
 
 #: The experiment both sides run.
 EXPERIMENT = "sac_mountaincar"
@@ -44,7 +44,7 @@ def sb3_rounds(rounds: int, overrides: tuple[str, ...] = ()) -> list[tuple[float
     """The end of each of ``rounds`` rounds of SB3's SAC with the settings of the job's config
     (:func:`~analysis.benchmarks.gsde_table.sb3.sb3_settings`; ``("explorer=gaussian",)`` for its
     plain Gaussian), in wall and CPU seconds from its start (no evaluation)."""
-    settings, model, env = sb3_model(job_config(overrides), "bench_sac")
+    settings, model, env = model_from_config(job_config(overrides), "bench_sac")
     from stable_baselines3.common.callbacks import BaseCallback
 
     ends: list[tuple[float, float]] = []

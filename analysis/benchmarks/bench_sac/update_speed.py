@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from analysis.benchmarks.bench_sac.rounds import job_config
-from analysis.benchmarks.common import sb3_model
+from analysis.benchmarks.gsde_table.sb3 import model_from_config
 
 #: The experiments ``--env`` picks.
 EXPERIMENTS = {"mountaincar": "sac_mountaincar", "halfcheetah": "sac_halfcheetah_bullet"}
@@ -64,7 +64,8 @@ def job_steps(experiment: str, overrides: tuple[str, ...], updates: int) -> Call
 def sb3_steps(experiment: str, overrides: tuple[str, ...], updates: int) -> Callable[[], None]:
     """``updates`` gradient steps of SB3's SAC at the job's settings (``model.train``) on a buffer
     filled as the job's."""
-    settings, model, _ = sb3_model(job_config((*_fill_overrides(experiment), *overrides), experiment), "bench_sac")
+    conf = job_config((*_fill_overrides(experiment), *overrides), experiment)
+    settings, model, _ = model_from_config(conf, "bench_sac")
     model.learn(settings["kwargs"]["learning_starts"])  # collection only: fills the buffer, sets up the logger
     return lambda: model.train(updates, settings["kwargs"]["batch_size"])
 

@@ -218,6 +218,26 @@ def build_model(settings: dict[str, Any], seed: int):
     return model, env
 
 
+def model_from_config(conf, benchmark: str):
+    """Stable-Baselines3's model and its training env with the settings of a job's checked config
+    (:func:`sb3_settings`, :func:`build_model`), seed 0, for the benchmarks that time
+    both sides.
+
+    Raises:
+        SystemExit: Stable-Baselines3 is not installed (naming the extra that installs it).
+
+    Returns:
+        ``(settings, model, env)``.
+    """
+    try:
+        import stable_baselines3  # noqa: F401
+    except ImportError as err:
+        raise SystemExit(f"{benchmark}: the sb3 variants need Stable-Baselines3: pip install -e '.[bench]' ({err})") \
+            from err
+    settings = sb3_settings(conf)
+    return (settings, *build_model(settings, seed=0))
+
+
 def train_sb3(settings: dict[str, Any], seed: int) -> dict[str, Any]:
     """One SB3 training of a cell: ``total_timesteps`` env steps, evaluated every ``period_steps``
     (after the update that reaches them, as ours) and after the last update on ``episodes``
