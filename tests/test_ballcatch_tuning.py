@@ -71,6 +71,23 @@ def test_round_four_adds_c10_with_sigma_fixed_on_round_three_s_seed(method):
     assert tuning.ROUNDS[4] == [*tuning.ROUNDS[3], "C13"]  # C13 wins only by beating round 3's choice
 
 
+@pytest.mark.parametrize("method", list(tuning.METHODS))
+def test_round_five_adds_c10_with_sigma_at_ten_times_the_rate(method):
+    """Round 5 (learner_selection.md, 2026-12-05): C14 is C10's job with the exploration scale's
+    parameters at 10 α, on round 3's seed and runs; for ENAC, whose command fixes σ̂, it is C10's
+    job and is not run."""
+    c10 = validate(compose_config(*tuning.job_overrides(method, "C10", round_=3)))
+    c14 = validate(compose_config(*tuning.job_overrides(method, "C14", round_=5)))
+    assert (c14.explorer.init_param, c14.optimizer.sigma_lr_factor, c10.optimizer.sigma_lr_factor) == (-3.0, 10, 1)
+    assert (c14.seed, c14.runs, c14.updates) == (3000, 16, 500)
+    assert (c14.explorer, c14.lr, c14.estimator, c14.env) == (c10.explorer, c10.lr, c10.estimator, c10.env)
+    fixes_sigma = not tuning.METHODS[method][3]
+    assert tuning.job_candidate(method, "C14") == ("C10" if fixes_sigma else "C14")
+    assert [job.name for job in tuning.jobs(Path("t"), [method], ["C14"], round_=5)] == \
+        ([] if fixes_sigma else [f"{method}/C14"])
+    assert tuning.ROUNDS[5] == [*tuning.ROUNDS[4], "C14"]  # C14 wins only by beating round 4's choice
+
+
 def test_round_four_chooses_once_its_six_jobs_have_run(tmp_path):
     import shutil
 

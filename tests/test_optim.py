@@ -11,7 +11,7 @@ from _helpers import Crash, build, compose_config, crash_at, read_rows
 
 from sde_torchrl.config.errors import describe_error
 from sde_torchrl.config.schemas.train import validate
-from sde_torchrl.trainers.optim import LearningRateSchedule, lr_factor, make_optimizer
+from sde_torchrl.trainers.optim import LearningRateSchedule, exploration_parameters, lr_factor, make_optimizer
 
 OPTIONS = {
     "sgd": {"_target_": "torch.optim.SGD"},
@@ -103,6 +103,55 @@ def test_batched_job_run_equals_the_single_job(tmp_path, overrides):
                 assert float(value) == pytest.approx(float(theirs[key]), rel=1e-5, abs=1e-6), (key, mine["update"])
 
 
+# ------------------------------------------------------------- the exploration scale's rate
+
+
+def test_exploration_scale_steps_at_its_own_rate_by_eq_1():
+    """With ``sigma_lr_factor=k`` SGD steps σ̂'s parameter ``p`` by ``k α g_p`` and the actor's
+    ``θ`` by ``α g_θ`` (eq. 1 per group); the linear schedule keeps the ratio."""
+    trainer = build("runs=2", "optimizer.sigma_lr_factor=10", "optimizer.lr_schedule=linear")
+    policy, optimizer = trainer.policy, trainer.optimizer
+    scale = exploration_parameters(policy)
+    names = [name.rsplit(".", 1)[-1] for name, p in policy.named_parameters() if any(p is q for q in scale)]
+    assert names == ["sigma_param"]
+    lr = float(compose_config("+experiment=minimize").lr)
+    trainer.lr_schedule.apply(150)
+    assert [group["lr"] for group in optimizer.param_groups] == pytest.approx([lr / 2, 10 * lr / 2])
+    before = {name: p.detach().clone() for name, p in policy.named_parameters()}
+    grads = {name: torch.randn_like(p) for name, p in policy.named_parameters()}
+    for name, p in policy.named_parameters():
+        p.grad = -grads[name]  # the estimators' loss has gradient -g
+    optimizer.step()
+    for name, p in policy.named_parameters():
+        factor = 10 if "sigma" in name else 1
+        assert torch.allclose(p.detach(), before[name] + factor * lr / 2 * grads[name], rtol=0, atol=1e-7), name
+
+
+def test_adam_steps_the_exploration_scale_k_times_further():
+    """Adam's first step is ``α g / (|g| + ε)``: about ``α`` per parameter, ``k α`` for σ̂'s."""
+    theta, sigma = torch.nn.Parameter(torch.zeros(3)), torch.nn.Parameter(torch.zeros(2))
+    optimizer, _ = make_optimizer([theta, sigma], 0.01, {**OPTIONS["adam"], "sigma_lr_factor": 4.0}, 10,
+                                  scale_parameters=[sigma])
+    theta.grad, sigma.grad = torch.tensor([-2.0, 3.0, -0.5]), torch.tensor([1e-3, -5.0])
+    optimizer.step()
+    assert torch.allclose(theta.detach(), -0.01 * theta.grad.sign(), atol=1e-6)
+    assert torch.allclose(sigma.detach(), -0.04 * sigma.grad.sign(), atol=1e-5)
+
+
+def test_a_factor_of_one_or_a_fixed_scale_keeps_one_group():
+    """The default job's optimiser is the one it always was (one group), and so is a job whose σ̂
+    is fixed, whatever the factor."""
+    assert len(build("runs=1").optimizer.param_groups) == 1
+    fixed = build("runs=1", "optimizer.sigma_lr_factor=10", "explorer.learn_sigma=false")
+    assert exploration_parameters(fixed.policy) == [] and len(fixed.optimizer.param_groups) == 1
+
+
+def test_a_factor_without_the_scale_split_is_refused():
+    theta = torch.nn.Parameter(torch.zeros(2))
+    with pytest.raises(ValueError, match=r"optimizer.sigma_lr_factor=2.0: 1 for this job"):
+        make_optimizer([theta], 0.01, {"sigma_lr_factor": 2.0}, 10)
+
+
 # ----------------------------------------------------------------------------------- resume
 
 
@@ -148,6 +197,8 @@ def test_the_default_is_plain_ascent():
     (("optimizer=adam", "optimizer.betas=[0.9,1.5]"), "optimizer.betas=1.5: a number in [0, 1)"),
     (("optimizer=adam", "optimizer.eps=0"), "optimizer.eps=0.0: a finite number > 0"),
     (("optimizer=adam", "optimizer.momentum=0.9"), "optimizer.momentum: unknown key"),
+    (("optimizer.sigma_lr_factor=0",), "optimizer.sigma_lr_factor=0.0: a finite number > 0"),
+    (("optimizer=adam", "optimizer.sigma_lr_factor=nan"), "optimizer.sigma_lr_factor=nan: a finite number > 0"),
 ])
 def test_bad_optimizer_settings_fail_in_one_line(overrides, expected):
     with pytest.raises(Exception) as info:

@@ -208,6 +208,7 @@ BAD = [
     (("env=minimize",), "env=make_minimize_env: env=gym with algorithm=ppo"),
     (("actor.bias=false",), "actor.bias=false: actor=mlp with bias with algorithm=ppo"),
     (("explorer=pgpe",), "explorer=pgpe: an SDE explorer"),
+    (("optimizer.sigma_lr_factor=10",), "optimizer.sigma_lr_factor=10.0: 1 with algorithm=ppo"),
     (("explorer=gsde", "explorer.rollout_steps=7"), "explorer.rollout_steps=7: null or algorithm.n_steps (32)"),
     (("env.normalize_obs=stats",), "env.normalize_obs=stats: null (false) with algorithm=ppo"),
     (("algorithm.bogus=1",), "algorithm.bogus: unknown key"),

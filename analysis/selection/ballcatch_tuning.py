@@ -62,19 +62,24 @@ CANDIDATES = {
     "C12": ("C7, scaled observation and a constant feature", lambda a: [*CANDIDATES["C7"][1](a),
                                                                        "env.observation=scaled"]),
     "C13": ("C10, σ̂ fixed at e⁻³", lambda a: [*CANDIDATES["C10"][1](a), "explorer.learn_sigma=false"]),
+    "C14": ("C10, σ̂'s parameters at 10 α", lambda a: [*CANDIDATES["C10"][1](a), "optimizer.sigma_lr_factor=10"]),
 }
 #: the candidates that switch whether σ̂ is learned (fixed where the method's command learns it).
 SIGMA_SWITCHED = ("C9",)
 #: the candidates each round chooses among, in the order that breaks its last tie
-#: (learner_selection.md; rounds 2 and 3 added on 2026-12-03, round 4 on 2026-12-04).
+#: (learner_selection.md; rounds 2 and 3 added on 2026-12-03, round 4 on 2026-12-04, round 5 on
+#: 2026-12-05).
 ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)[:9], 3: ["C7", "C1", "C10", "C11", "C12"],
-          4: ["C7", "C1", "C10", "C11", "C12", "C13"]}
-#: round → (tuning seed, runs per job, folder under the tuning directory); round 4 adds its
-#: candidate to round 3's jobs on the same seed.
-ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), 3: (3000, 16, "round3"), 4: (3000, 16, "round3")}
+          4: ["C7", "C1", "C10", "C11", "C12", "C13"], 5: ["C7", "C1", "C10", "C11", "C12", "C13", "C14"]}
+#: round → (tuning seed, runs per job, folder under the tuning directory); rounds 4 and 5 add
+#: their candidate to round 3's jobs on the same seed.
+ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), 3: (3000, 16, "round3"), 4: (3000, 16, "round3"),
+              5: (3000, 16, "round3")}
 #: candidates that are another candidate's job for the methods whose command fixes σ̂ (ENAC):
-#: C13 fixes σ̂ at e⁻³, which C10 already does there.
-SAME_WHERE_SIGMA_FIXED = {"C13": "C10"}
+#: C13 fixes σ̂ at e⁻³, which C10 already does there, and C14 steps a σ̂ that is not learned.
+SAME_WHERE_SIGMA_FIXED = {"C13": "C10", "C14": "C10"}
+#: rounds 3 to 5: the key of a method's choice in each round's numbers, and its mark in the table.
+LATER_ROUNDS = {3: ("chosen", "‡"), 4: ("chosen_round4", "§"), 5: ("chosen_round5", "¶")}
 
 
 def job_overrides(method: str, candidate: str, round_: int = 1) -> list[str]:
@@ -107,6 +112,8 @@ def jobs(out: Path, methods: list[str], candidates: list[str], round_: int = 1) 
         ['tuning/round3/pgpe/C7']
         >>> [job.name for job in jobs(Path("tuning"), ["enac_sde", "pgpe"], ["C13"], round_=4)]
         ['pgpe/C13']
+        >>> jobs(Path("tuning"), ["pgpe"], ["C14"], round_=5)[0].overrides[-8:-6]
+        ('explorer.init_param=-3', 'optimizer.sigma_lr_factor=10')
     """
     folder = out / ROUND_JOBS[round_][2]
     return [TrainJob(f"{m}/{c}", tuple(job_overrides(m, c, round_)), folder / m / c)
@@ -120,6 +127,8 @@ def job_candidate(method: str, candidate: str) -> str:
     Examples:
         >>> job_candidate("enac_sde", "C13"), job_candidate("reinforce_sde", "C13")
         ('C10', 'C13')
+        >>> job_candidate("enac_rex", "C14"), job_candidate("pgpe", "C14")
+        ('C10', 'C14')
     """
     learns_sigma = METHODS[method][3]
     return candidate if learns_sigma else SAME_WHERE_SIGMA_FIXED.get(candidate, candidate)
@@ -194,21 +203,23 @@ def candidate_numbers(finals: list[float] | None) -> dict | None:
 
 
 def round3_numbers(folder: Path) -> dict:
-    """Rounds 3 and 4's jobs under ``folder`` (``<method>/<candidate>``, one seed) and each method's
+    """Rounds 3 to 5's jobs under ``folder`` (``<method>/<candidate>``, one seed) and each method's
     choice in each round, made once all its candidates of that round have finished or failed
     (more catches, then good catches, then the mean; a failed job counts as no catch)."""
     seed, runs, _ = ROUND_JOBS[3]
+    last = max(LATER_ROUNDS)
     methods = {}
     for method, (label, *_) in METHODS.items():
-        results = {c: final_evaluations(folder / method / job_candidate(method, c)) for c in ROUNDS[4]}
+        results = {c: final_evaluations(folder / method / job_candidate(method, c)) for c in ROUNDS[last]}
         if all(r is None for r in results.values()):
             continue
 
-        chosen = [round_choice(folder, method, results, round_) for round_ in (3, 4)]
         failed = [c for c, r in results.items()
                   if r is None and (folder / method / job_candidate(method, c) / "error.txt").exists()]
-        methods[method] = {"label": label, "chosen": chosen[0], "chosen_round4": chosen[1],
-                           "same_as": {c: job_candidate(method, c) for c in ROUNDS[4] if job_candidate(method, c) != c},
+        methods[method] = {"label": label,
+                           **{key: round_choice(folder, method, results, r) for r, (key, _) in LATER_ROUNDS.items()},
+                           "same_as": {c: job_candidate(method, c) for c in ROUNDS[last]
+                                       if job_candidate(method, c) != c},
                            "candidates": {c: candidate_numbers(r) for c, r in results.items()}, "failed": failed}
     return {"seed": seed, "runs": runs, "methods": methods}
 
@@ -222,18 +233,19 @@ def round_choice(folder: Path, method: str, results: dict[str, list[float] | Non
 
 
 def round3_markdown(numbers: dict) -> list[str]:
-    """Rounds 3 and 4's table: one row per candidate, one column per method that ran any of its jobs."""
+    """Rounds 3 to 5's table: one row per candidate, one column per method that ran any of its jobs."""
     methods = numbers["methods"]
     if not methods:
         return []
-    lines = ["", f"## Rounds 3 and 4 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
+    lines = ["", f"## Rounds 3 to 5 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
              "The same cells; ‡: the method's choice in round 3 (C7, C1, C10, C11, C12: most final catches, then "
-             "good catches, then the mean), §: its choice in round 4 (the same with C13), each made once all of "
-             "that round's candidates have run; = C10: the same job (the method fixes σ̂ already); failed: the "
-             "job stopped with an error (its `error.txt`), its runs counted as not catching.", "",
+             "good catches, then the mean), §: its choice in round 4 (the same with C13), ¶: its choice in round "
+             "5 (the same with C14), each made once all of that round's candidates have run; = C10: the same job "
+             "(the method fixes σ̂ already); failed: the job stopped with an error (its `error.txt`), its runs "
+             "counted as not catching.", "",
              "| candidate | " + " | ".join(m["label"] for m in methods.values()) + " |",
              "| --- |" + " --- |" * len(methods)]
-    for candidate in ROUNDS[4]:
+    for candidate in ROUNDS[max(LATER_ROUNDS)]:
         cells = []
         for m in methods.values():
             c = m["candidates"][candidate]
@@ -242,19 +254,20 @@ def round3_markdown(numbers: dict) -> list[str]:
                 cell = "failed"
             if candidate in m.get("same_as", {}):
                 cell = f"= {m['same_as'][candidate]}"
-            marks = [mark for key, mark in (("chosen", "‡"), ("chosen_round4", "§")) if m.get(key) == candidate]
+            marks = [mark for key, mark in LATER_ROUNDS.values() if m.get(key) == candidate]
             cells.append(" ".join([cell, *marks]))
         lines.append(f"| {candidate}: {CANDIDATES[candidate][0]} | " + " | ".join(cells) + " |")
-    for round_, key in ((3, "chosen"), (4, "chosen_round4")):
+    for round_, (key, _) in LATER_ROUNDS.items():
         waiting = [m["label"] for m in methods.values() if m.get(key) is None]
         if waiting:
             lines += ["", f"Not chosen yet in round {round_}, its candidates not all run: {', '.join(waiting)}."]
-    changed = [f"{m['label']} {m['chosen']} → {m['chosen_round4']}" for m in methods.values()
-               if m.get("chosen_round4") not in (None, m["chosen"])]
-    decided = [m for m in methods.values() if m.get("chosen_round4") is not None]
-    if decided:
-        lines += ["", "Round 4 changes the choice of: " + (", ".join(changed) if changed else "no method") +
-                  f" (of the {len(decided)} methods it has decided)."]
+    for round_ in list(LATER_ROUNDS)[1:]:
+        key, before = LATER_ROUNDS[round_][0], LATER_ROUNDS[round_ - 1][0]
+        decided = [m for m in methods.values() if m.get(key) is not None and m.get(before) is not None]
+        changed = [f"{m['label']} {m[before]} → {m[key]}" for m in decided if m[key] != m[before]]
+        if decided:
+            lines += ["", f"Round {round_} changes the choice of: " + (", ".join(changed) if changed else "no method")
+                      + f" (of the {len(decided)} methods it has decided)."]
     return lines
 
 

@@ -26,7 +26,7 @@ from sde_torchrl.jobs.heap import fix_mmap_threshold
 from sde_torchrl.jobs.resources import keeps_step_scores
 from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.objectives.estimators import ENACEstimator
-from sde_torchrl.trainers.optim import make_optimizer
+from sde_torchrl.trainers.optim import exploration_parameters, make_optimizer
 from sde_torchrl.trainers.trainer import Trainer
 from sde_torchrl.utils.devices import training_device
 from sde_torchrl.utils.rng import RunStreams
@@ -118,7 +118,8 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     # the update): the estimator and the env need no option for it (sde_torchrl.utils.nonfinite).
     estimator = instantiate(conf.estimator, policy=policy)
     warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
-    optimizer, lr_schedule = make_optimizer(policy.parameters(), conf.lr, asdict(conf.optimizer), conf.updates)
+    optimizer, lr_schedule = make_optimizer(policy.parameters(), conf.lr, asdict(conf.optimizer), conf.updates,
+                                            scale_parameters=exploration_parameters(policy))
     logger = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)

@@ -11,6 +11,10 @@ stay independent: run ``r`` of a batched job steps exactly as a job of that run 
 The learning rate of update ``k`` is a pure function of ``k`` (:func:`lr_factor`), set before
 each step (:class:`LearningRateSchedule`): a resumed job steps with the rates an uninterrupted
 one does without any scheduler state to checkpoint.
+
+The exploration scale's parameters (SDE's ``p`` with ``σ̂ = expln(p)``, eq. 23; PGPE's ``σ``) may
+step at a rate of their own, ``sigma_lr_factor × α`` (:func:`exploration_parameters`): with Adam
+every parameter travels at most ``Σ_k α_k`` over a job, which bounds how far ``σ̂`` can shrink.
 """
 
 from __future__ import annotations
@@ -20,14 +24,14 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from sde_torchrl.utils.checks import fraction, one_of, positive_int
+from sde_torchrl.utils.checks import ArgumentError, fraction, one_of, positive_int
 from sde_torchrl.utils.options import LR_SCHEDULES
 
 if TYPE_CHECKING:  # torch is imported when an optimiser is made: the config schemas read this module
     import torch
 
-#: Config keys of the ``optimizer`` group that describe the schedule, not the optimiser.
-SCHEDULE_KEYS = ("lr_schedule", "final_lr_fraction")
+#: Config keys of the ``optimizer`` group that describe the rates, not the optimiser.
+SCHEDULE_KEYS = ("lr_schedule", "final_lr_fraction", "sigma_lr_factor")
 #: ``_target_`` values the ``optimizer`` group may name.
 OPTIMIZER_TARGETS = ("torch.optim.SGD", "torch.optim.Adam", "torch.optim.RMSprop")
 #: The optimisers with a fused CPU kernel (``fused=True``): the same update rule in one pass.
@@ -64,6 +68,30 @@ def lr_factor(schedule: str, update: int, updates: int, final_fraction: float) -
     if schedule == "cosine":
         return final_fraction + (1.0 - final_fraction) * 0.5 * (1.0 + math.cos(math.pi * progress))
     return 1.0
+
+
+def exploration_parameters(policy: torch.nn.Module) -> list[torch.nn.Parameter]:
+    """The learnable parameters of the exploration scale: those held directly by every submodule
+    that reports an exploration scale (``exploration_scale()``: SDE's ``p`` and the Gaussian part's
+    parameter, the Gaussian baseline's ``log σ``, PGPE's ``σ``), none of the actor's.
+
+    Args:
+        policy: the policy module (actor and explorer).
+
+    Returns:
+        The parameters, in module order (empty where the scale is fixed).
+
+    Examples:
+        >>> import torch
+        >>> from sde_torchrl.modules.gaussian import GaussianScale
+        >>> policy = torch.nn.Sequential(torch.nn.Linear(3, 2), GaussianScale(2))
+        >>> [tuple(p.shape) for p in exploration_parameters(policy)]
+        [(2,)]
+        >>> exploration_parameters(torch.nn.Sequential(torch.nn.Linear(3, 2), GaussianScale(2, learn_sigma=False)))
+        []
+    """
+    return [parameter for module in policy.modules() if callable(getattr(module, "exploration_scale", None))
+            for parameter in module.parameters(recurse=False) if parameter.requires_grad]
 
 
 class LearningRateSchedule:
@@ -105,7 +133,8 @@ class LearningRateSchedule:
 
 
 def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options: Mapping[str, Any],
-                   updates: int, *, fused: bool = False) -> tuple[torch.optim.Optimizer, LearningRateSchedule | None]:
+                   updates: int, *, fused: bool = False, scale_parameters: Iterable[torch.nn.Parameter] | None = None,
+                   ) -> tuple[torch.optim.Optimizer, LearningRateSchedule | None]:
     """The optimiser and learning-rate schedule that an ``optimizer`` config group describes.
 
     Args:
@@ -117,12 +146,17 @@ def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options:
         fused: step with torch's fused kernel where the optimiser has one (:data:`FUSED_TARGETS`;
             others step as they are): the same rule in one pass over the parameters, with results
             that may differ from the default kernel's in the last bits.
+        scale_parameters: those of ``parameters`` that set the exploration scale
+            (:func:`exploration_parameters`): a parameter group of their own, with the rate
+            ``sigma_lr_factor × lr`` (the schedule keeps the ratio). ``None``: the caller has no
+            such split, and ``sigma_lr_factor`` must be 1.
 
     Returns:
         The optimiser, and the schedule (``None`` for a constant rate).
 
     Raises:
-        ArgumentError: for an optimiser class or schedule that is not allowed.
+        ArgumentError: for an optimiser class or schedule that is not allowed, or a
+            ``sigma_lr_factor`` other than 1 without ``scale_parameters``.
 
     Examples:
         >>> import torch
@@ -133,17 +167,40 @@ def make_optimizer(parameters: Iterable[torch.nn.Parameter], lr: float, options:
         ('Adam', 'cosine')
         >>> make_optimizer([theta], 0.01, {"_target_": "torch.optim.Adam"}, 100, fused=True)[0].defaults["fused"]
         True
+        >>> sigma = torch.nn.Parameter(torch.zeros(2))
+        >>> optimizer, _ = make_optimizer([theta, sigma], 0.01, {"sigma_lr_factor": 10}, 100, scale_parameters=[sigma])
+        >>> [group["lr"] for group in optimizer.param_groups]
+        [0.01, 0.1]
     """
     options = dict(options)
     target = options.pop("_target_", "torch.optim.SGD")
     module, name = one_of("optimizer._target_", target, OPTIMIZER_TARGETS).rsplit(".", 1)
     schedule = options.pop("lr_schedule", "constant")
     final_fraction = options.pop("final_lr_fraction", 0.0)
+    groups = _parameter_groups(list(parameters), lr, options.pop("sigma_lr_factor", 1.0), scale_parameters)
     if "betas" in options:
         options["betas"] = tuple(options["betas"])
     if fused and target in FUSED_TARGETS:
         options["fused"] = True
-    optimizer = getattr(importlib.import_module(module), name)(parameters, lr=lr, **options)
+    optimizer = getattr(importlib.import_module(module), name)(groups, lr=lr, **options)
     if one_of("optimizer.lr_schedule", schedule, LR_SCHEDULES) == "constant":
         return optimizer, None
     return optimizer, LearningRateSchedule(optimizer, schedule, updates, final_fraction)
+
+
+def _parameter_groups(parameters: list[torch.nn.Parameter], lr: float, sigma_lr_factor: float,
+                      scale_parameters: Iterable[torch.nn.Parameter] | None) -> list[dict[str, Any]]:
+    """``parameters`` as optimiser groups: one, or the others and the exploration scale's at
+    ``sigma_lr_factor × lr``."""
+    if scale_parameters is None:
+        if sigma_lr_factor != 1:
+            raise ArgumentError("optimizer.sigma_lr_factor", sigma_lr_factor,
+                                "1 for this job: a rate of its own for the exploration scale is an option of the "
+                                "episodic estimators' jobs (no algorithm=ppo, a2c or sac)")
+        return [{"params": parameters}]
+    scale_ids = {id(p) for p in scale_parameters}
+    scale = [p for p in parameters if id(p) in scale_ids]
+    others = [p for p in parameters if id(p) not in scale_ids]
+    if sigma_lr_factor == 1 or not scale:
+        return [{"params": parameters}]
+    return [{"params": others}, {"params": scale, "lr": lr * sigma_lr_factor}]

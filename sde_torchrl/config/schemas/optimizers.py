@@ -32,6 +32,8 @@ class SGDOptimizerConf(Frozen):
         lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay
             (:func:`sde_torchrl.trainers.optim.lr_factor`).
         final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
+        sigma_lr_factor: the exploration scale's parameters step at ``sigma_lr_factor × lr``
+            (:func:`~sde_torchrl.trainers.optim.exploration_parameters`; episodic jobs only), ``> 0``.
 
     Examples:
         >>> SGDOptimizerConf(momentum=0.9).lr_schedule
@@ -43,6 +45,7 @@ class SGDOptimizerConf(Frozen):
     nesterov: bool = False
     lr_schedule: str = "constant"
     final_lr_fraction: float = 0.0
+    sigma_lr_factor: float = 1.0
 
     def __post_init__(self) -> None:
         fraction("optimizer.momentum", self.momentum, below_one=True)
@@ -61,6 +64,8 @@ class AdamOptimizerConf(Frozen):
         eps: added to the root of the second moment, ``> 0``.
         lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay.
         final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
+        sigma_lr_factor: the exploration scale's parameters step at ``sigma_lr_factor × lr``
+            (:func:`~sde_torchrl.trainers.optim.exploration_parameters`; episodic jobs only), ``> 0``.
 
     Examples:
         >>> AdamOptimizerConf().betas
@@ -72,6 +77,7 @@ class AdamOptimizerConf(Frozen):
     eps: float = 1e-8
     lr_schedule: str = "constant"
     final_lr_fraction: float = 0.0
+    sigma_lr_factor: float = 1.0
 
     def __post_init__(self) -> None:
         if len(self.betas) != 2:
@@ -92,6 +98,8 @@ class RMSpropOptimizerConf(Frozen):
         eps: added to its root, ``> 0``.
         lr_schedule: the rate over updates: ``constant``, ``linear`` or ``cosine`` decay.
         final_lr_fraction: the factor on ``lr`` that a decay heads for, in ``[0, 1]``.
+        sigma_lr_factor: the exploration scale's parameters step at ``sigma_lr_factor × lr``
+            (:func:`~sde_torchrl.trainers.optim.exploration_parameters`; episodic jobs only), ``> 0``.
 
     Examples:
         >>> RMSpropOptimizerConf().alpha
@@ -103,6 +111,7 @@ class RMSpropOptimizerConf(Frozen):
     eps: float = 1e-8
     lr_schedule: str = "constant"
     final_lr_fraction: float = 0.0
+    sigma_lr_factor: float = 1.0
 
     def __post_init__(self) -> None:
         fraction("optimizer.alpha", self.alpha, below_one=True)
@@ -113,4 +122,5 @@ class RMSpropOptimizerConf(Frozen):
 def _check_schedule(conf: Any) -> None:
     one_of("optimizer.lr_schedule", conf.lr_schedule, LR_SCHEDULES)
     fraction("optimizer.final_lr_fraction", conf.final_lr_fraction)
+    finite("optimizer.sigma_lr_factor", conf.sigma_lr_factor, minimum=0, strict=True)
 

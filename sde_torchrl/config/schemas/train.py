@@ -195,6 +195,10 @@ def _check_onpolicy(conf: TrainConf) -> None:
                                         "last hidden layer)")
     if isinstance(conf.explorer, PGPEExplorerConf):
         raise ArgumentError("explorer", "pgpe", f"an SDE explorer (sde, gsde, ...) or gaussian with algorithm={name}")
+    if getattr(conf.optimizer, "sigma_lr_factor", 1.0) != 1:
+        raise ArgumentError("optimizer.sigma_lr_factor", conf.optimizer.sigma_lr_factor,
+                            f"1 with algorithm={name} (a rate of its own for the exploration scale is an option "
+                            "of the episodic estimators' jobs)")
     rollout, steps = ("train_freq", conf.algorithm.train_freq) if name == "sac" else ("n_steps", conf.algorithm.n_steps)
     if isinstance(conf.explorer, ExplorerConf):
         if conf.explorer.schedule in ROLLOUT_SCHEDULES and conf.explorer.rollout_steps not in (None, steps):
