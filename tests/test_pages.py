@@ -47,6 +47,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                       BALLCATCH / "methods_seed4", ("methods.md", "methods.json")),
     "score_probe": (fig5, [*(str(RECORDS / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
                              "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
+    "held_training": (fig5, [str(RECORDS / "runs" / "held_training" / explorer) for explorer in ("sde", "rex")],
+                      BALLCATCH / "held_training", ("fig5.md", "fig5.json")),
     "selected/fig5": (fig5, [str(RECORDS / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
     "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
