@@ -92,13 +92,14 @@ def test_every_bullet_experiment_composes(experiment, explorer):
 
 def test_one_update_of_a_bullet_experiment_with_tiny_sizes():
     """The experiment as it builds: the PyBullet env through its module id, the linear clip
-    range (0.4 at the first update, 0.2 halfway)."""
+    range (0.4 at the first update, 0.2 halfway). Eager: the compiled objective has its own
+    end-to-end test, and compiling it here would cost this fast-loop test three quarters of its time."""
     pytest.importorskip("pybullet_envs_gymnasium")
     from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
 
     conf = validate(compose_config("+experiment=ppo_hopper_bullet", "algorithm.n_envs=2", "algorithm.n_steps=16",
                                    "algorithm.batch_size=16", "algorithm.n_epochs=1", "actor.hidden=[8]",
-                                   "updates=2", "eval_episodes=1", "logger=none"))
+                                   "updates=2", "eval_episodes=1", "logger=none", "algorithm.compile=false"))
     trainer = build_onpolicy_trainer(conf)
     try:
         assert trainer.update(0)["return_mean"].isfinite().all()
