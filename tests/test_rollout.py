@@ -67,6 +67,31 @@ def test_tensor_rollout_equals_env_rollout(schedule, every_n, actor, squash, gau
         torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
 
 
+@pytest.mark.parametrize("schedule, actor", [("episode", "linear"), ("step", "linear"), ("step", "mlp")])
+def test_one_draw_of_every_steps_noise_gives_the_step_by_step_episodes_bit_for_bit(schedule, actor, monkeypatch):
+    """Tensor stepping draws every step's ξ at once where the primer can; the episodes, and where
+    the streams stand after them, are those of drawing step by step, bit for bit."""
+    results = []
+    for one_draw in (True, False):
+        env, policy = _setup(schedule, actor=actor)
+        primer = noise_primer(env)
+        if not one_draw:
+            monkeypatch.setattr(primer, "episode_noise", lambda *args, **kwargs: None)
+        else:
+            assert primer.episode_noise((2, 3), 6) is not None
+            env, policy = _setup(schedule, actor=actor)  # that look drew: start again
+            primer = noise_primer(env)
+        with torch.no_grad():
+            episodes = _fast(tensor_rollout, env, policy, 6)
+        results.append((episodes, primer.streams.normal((2, 5)), env.base_env._streams.normal((2, 5))))
+    (batched, *batched_next), (stepped, *stepped_next) = results
+    assert set(batched.keys(True, True)) == set(stepped.keys(True, True))
+    for key in stepped.keys(True, True):
+        assert torch.equal(batched[key], stepped[key]), key
+    for got, want in zip(batched_next, stepped_next, strict=True):
+        assert torch.equal(got, want)
+
+
 def test_tensor_rollout_is_deterministic_under_deterministic_exploration():
     env, policy = _setup("episode")
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):

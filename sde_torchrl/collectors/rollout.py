@@ -79,7 +79,8 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
 from sde_torchrl.modules.actors import BatchedLinear
-from sde_torchrl.modules.distribution import TanhSDENormal, sde_sample
+from sde_torchrl.modules.distribution import TanhSDENormal, noise_matrix, sde_sample
+from sde_torchrl.modules.distribution import explore as explore_with
 from sde_torchrl.modules.noise import SDENoisePrimer, deterministic_exploration
 from sde_torchrl.modules.pgpe import ParameterExplorer
 from sde_torchrl.modules.sde import SDEParams
@@ -228,7 +229,9 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
     batch = env.batch_size
     x = env.initial_state()
     explore = not deterministic_exploration()
-    noise, gaussian, age = primer.start(batch, x.device) if explore else (None, None, None)
+    # every step's ξ in one draw where the primer can (the same numbers): Θ̂ then comes in one product
+    all_noise = primer.episode_noise(batch, steps, x.device) if explore else None
+    noise, gaussian, age = primer.start(batch, x.device) if explore and all_noise is None else (None, None, None)
     sigma = align(sde.sde_sigma, sde.run_dims, len(batch))
     gaussian_scale = sde.gaussian_scale(len(batch))
     mid, half = _mid_half(*_bounds(policy, x.device))  # once, not per step
@@ -238,19 +241,26 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
         if t == 0:  # the policy's dtype, known from its first output: cast σ̂ (and σ_gauss) once
             sigma = sigma.to(loc.dtype)
             gaussian_scale = None if gaussian_scale is None else gaussian_scale.to(loc.dtype)
-        sample = sde_sample(loc, sigma, noise, x.to(loc.dtype), gaussian_scale, gaussian) if explore else loc
+            exploration = None if all_noise is None else noise_matrix(sigma, all_noise)  # Θ̂ of every step
+        if exploration is not None:
+            sample = explore_with(loc, exploration[t], x.to(loc.dtype))
+        else:
+            sample = sde_sample(loc, sigma, noise, x.to(loc.dtype), gaussian_scale, gaussian) if explore else loc
         x_next, reward = env.transition(x, mid + half * torch.tanh(sample) if policy.squash else sample)
         for column, value in ((observations, x), (locs, loc), (samples, sample), (noises, noise),
                               (gaussians, gaussian), (next_observations, x_next), (rewards, reward)):
             column.append(value)
         x = x_next
-        if explore and t < steps - 1:  # after the last step every episode ends: the reset draws
+        if noise is not None and t < steps - 1:  # after the last step every episode ends: the reset draws
             noise, gaussian, age = primer.advance(noise, gaussian, age)
     time_dim = len(batch)
     observation, loc, sample, next_observation, reward = (
         torch.stack(column, dim=time_dim) for column in (observations, locs, samples, next_observations, rewards)
     )
-    stacked_noise = None if noises[0] is None else torch.stack(noises, dim=time_dim)
+    if all_noise is not None:
+        stacked_noise = all_noise.movedim(0, time_dim).contiguous()
+    else:
+        stacked_noise = None if noises[0] is None else torch.stack(noises, dim=time_dim)
     stacked_gaussian = None if gaussians[0] is None else torch.stack(gaussians, dim=time_dim)
     return _episodes(policy, observation, next_observation, loc, sample, reward, stacked_noise, stacked_gaussian)
 

@@ -68,6 +68,27 @@ def noise_matrix(sigma_hat: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
     return sigma_hat * noise
 
 
+def explore(loc: torch.Tensor, exploration: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+    """The SDE action for a given exploration matrix: ``u = loc + Θ̂ x`` (eq. 17).
+
+    :func:`sde_sample` computes ``Θ̂ = σ̂ ⊙ ξ`` first; a caller that knows ``Θ̂`` for every step
+    of an episode before it starts (the fast collection paths) forms it once and calls this.
+
+    Args:
+        loc: the controller's mean ``f(x; θ)``, ``[*, A]``.
+        exploration: ``Θ̂``, ``[*, A, S]``.
+        features: ``x``, ``[*, S]``.
+
+    Returns:
+        ``u``, ``[*, A]``.
+
+    Examples:
+        >>> explore(torch.zeros(2), torch.full((2, 3), 0.1), torch.ones(3))
+        tensor([0.3000, 0.3000])
+    """
+    return loc + (exploration @ features.unsqueeze(-1)).squeeze(-1)
+
+
 def sde_sample(
     loc: torch.Tensor,
     sigma_hat: torch.Tensor,
@@ -96,7 +117,7 @@ def sde_sample(
         >>> sde_sample(torch.zeros(2), torch.full((2, 3), 0.1), torch.ones(2, 3), torch.ones(3))
         tensor([0.3000, 0.3000])
     """
-    sample = loc + (noise_matrix(sigma_hat, noise) @ features.unsqueeze(-1)).squeeze(-1)
+    sample = explore(loc, noise_matrix(sigma_hat, noise), features)
     if gaussian_scale is not None:
         sample = sample + gaussian_scale * gaussian_noise
     return sample

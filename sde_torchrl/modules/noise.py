@@ -183,6 +183,42 @@ class SDENoisePrimer(TensorDictPrimer):
                     if self.gaussian else None)
         return noise, gaussian
 
+    def episode_noise(self, batch: Sequence[int], steps: int, device: torch.device | str | None = None
+                      ) -> torch.Tensor | None:
+        """The ``ξ`` of every step of fresh episodes in one draw, or ``None`` where one draw cannot
+        give them.
+
+        :meth:`start` then ``steps - 1`` calls of :meth:`advance` draw ``steps`` times
+        ``[*batch, A, S]``; per-run streams serve each run its numbers in order, so one draw of
+        ``[runs, steps, *batch[1:], A, S]`` holds the same numbers and leaves the streams where
+        the step-by-step draws leave them. That holds for the ``"episode"`` and ``"step"``
+        schedules without eq. (22)'s ``ε`` (whose draws would interleave) and with per-run streams
+        (torch's global generator gives other numbers for one large draw).
+
+        Args:
+            batch: the batch shape, runs first.
+            steps: episode length ``T``.
+            device: the data's device.
+
+        Returns:
+            ``ξ`` for each step, ``[steps, *batch, A, S]`` (contiguous), or ``None``.
+
+        Examples:
+            >>> from sde_torchrl.utils.rng import RunStreams
+            >>> one = SDENoisePrimer(1, 2, schedule="step", streams=RunStreams(0, runs=3, stream="explore"))
+            >>> other = SDENoisePrimer(1, 2, schedule="step", streams=RunStreams(0, runs=3, stream="explore"))
+            >>> noise, _, _ = one.start((3, 4))
+            >>> steps = [noise] + [one.advance(noise, None, None)[0] for _ in range(4)]
+            >>> bool((other.episode_noise((3, 4), 5) == torch.stack(steps)).all())
+            True
+        """
+        if self.gaussian or self.schedule not in ("episode", "step") or self.streams is None:
+            return None
+        batch = tuple(batch)
+        draws = draw_noise((batch[0], steps, *batch[1:], self.action_dim, self.feature_dim), self.streams,
+                           dtype=self.noise_dtype, device=device).movedim(1, 0)
+        return (draws if self.schedule == "step" else draws[:1].expand_as(draws)).contiguous()
+
     def start(self, batch: Sequence[int], device: torch.device | str | None = None
               ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """The noise of a fresh episode for every batch element (what a full reset writes).
