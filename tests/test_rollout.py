@@ -381,6 +381,21 @@ def test_collect_episodes_steps_tensors_where_it_can(schedule, mode):
     assert not episodes["loc"].requires_grad  # collected without a graph
 
 
+@pytest.mark.parametrize("setup", [lambda: _setup("step"), lambda: _pgpe_setup(),
+                                   lambda: _catching_setup("episode", steps=30)])
+def test_episodes_of_a_fast_path_are_tensors_autograd_can_score(setup):
+    """The fast paths run in inference mode; what they return, and the streams they leave, are
+    ordinary tensors: the log-likelihood of the episodes has a gradient."""
+    env, policy = setup()
+    episodes = collect_episodes(env, policy, 6)
+    assert not any(value.is_inference() for value in episodes.values(True, True))
+    for streams in (noise_primer(env).streams if noise_primer(env) else None, env.base_env._streams):
+        assert streams is None or not streams.normal((streams.runs, 1)).is_inference()
+    parameter = next(p for p in policy.parameters() if p.requires_grad)
+    (parameter.sum() * episodes["loc"].sum()).backward()
+    assert parameter.grad is not None
+
+
 @pytest.mark.parametrize("schedule", ["episode", "step"])
 @pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
 def test_collect_episodes_runs_linear_episodes_where_it_can(mode, schedule):

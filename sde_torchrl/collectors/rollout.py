@@ -141,7 +141,8 @@ def collect_episodes(
 
     Takes the fastest path that gives ``env.rollout``'s episodes (see the module docstring for
     what each path guarantees), else ``env.rollout(steps, policy, break_when_any_done=False)``.
-    Runs under ``torch.no_grad()``; the exploration type in force (e.g.
+    Runs under ``torch.no_grad()``, a fast path under ``torch.inference_mode()`` (its episodes
+    cloned out of it); the exploration type in force (e.g.
     ``set_exploration_type(ExplorationType.DETERMINISTIC)``) applies.
 
     Args:
@@ -169,12 +170,20 @@ def collect_episodes(
     with torch.no_grad():
         if fast:
             if (base := linear_episode_env(env, policy)) is not None:
-                return linear_episode_rollout(base, policy, steps, noise_primer(env))
+                return _without_autograd(linear_episode_rollout, base, policy, steps, noise_primer(env))
             if (base := tensor_step_env(env, policy)) is not None:
-                return tensor_rollout(base, policy, steps, noise_primer(env))
+                return _without_autograd(tensor_rollout, base, policy, steps, noise_primer(env))
             if (base := parameter_step_env(env, policy)) is not None:
-                return parameter_rollout(base, policy, steps)
+                return _without_autograd(parameter_rollout, base, policy, steps)
         return env.rollout(steps, policy, break_when_any_done=False)
+
+
+def _without_autograd(collect, *args) -> TensorDict:
+    """``collect(*args)`` under ``torch.inference_mode()``, which spares its many small per-step
+    ops autograd's bookkeeping, its episodes cloned out of it: the update's autograd reads them."""
+    with torch.inference_mode():
+        episodes = collect(*args)
+    return episodes.clone()
 
 
 # -------------------------------------------------------------------------- tensor stepping

@@ -78,8 +78,9 @@ class RunStreams:
             raise ValueError(f"leading dimension of {shape} must equal the number of runs ({self.runs})")
         n = math.prod(shape[1:])
         if self._buffer.shape[1] < n:
-            fresh = torch.stack([torch.randn(max(self.chunk, n), generator=g) for g in self.generators])
-            self._buffer = torch.cat([self._buffer, fresh], dim=1)
+            with torch.inference_mode(False):  # a buffer that autograd may read, wherever it is refilled
+                fresh = torch.stack([torch.randn(max(self.chunk, n), generator=g) for g in self.generators])
+                self._buffer = torch.cat([self._buffer, fresh], dim=1)
         out, self._buffer = self._buffer[:, :n], self._buffer[:, n:]
         return out.reshape(shape)
 
