@@ -297,6 +297,7 @@ def test_batched_dead_client_names_the_world(benv):
         benv.step(td.set("action", torch.zeros(3, 4)))
 
 
+@pytest.mark.e2e  # worker processes: spawned, each importing torch and the env
 def test_parallel_helper_runs_two_processes():
     env = make_parallel_ballcatch(num_workers=2, worlds_per_worker=2)
     try:

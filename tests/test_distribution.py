@@ -579,6 +579,7 @@ def test_compiled_policy_matches_eager():
     torch.testing.assert_close(got["action_log_prob"], want["action_log_prob"])
 
 
+@pytest.mark.e2e  # worker processes: spawned, each importing torch and the env
 def test_parallel_env_with_the_primer_on_the_batched_env():
     torch.manual_seed(0)
     sde = SDEParams(1, 3)
