@@ -112,3 +112,23 @@ def test_quick_start_training_command_runs(tmp_path):
                             timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     assert (tmp_path / "run" / "summary.json").exists()
+
+
+def _github_anchor(heading: str) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_every_relative_link_of_the_readme_reaches_its_file_and_heading():
+    """A reader following a link from the front door lands on the file, and on the heading it names."""
+    broken = []
+    for target in re.findall(r"\]\(([^)#:]+\.md|[^):]+\.md#[^)]+)\)", README.read_text()):
+        path, _, anchor = target.partition("#")
+        page = REPO / path
+        if not page.is_file():
+            broken.append(target)
+        elif anchor:
+            headings = re.findall(r"^#+ (.+)$", page.read_text(), re.M)
+            if anchor not in {_github_anchor(h) for h in headings}:
+                broken.append(target)
+    assert not broken, f"links from README.md that reach no file or heading: {broken}"
