@@ -64,6 +64,17 @@ def test_counts_best_and_final_levels(tmp_path):
     assert "(paper 68 %)" in (tmp_path / "out" / "fig5.md").read_text()
 
 
+def test_the_first_evaluation_is_counted_beside_the_final_one(tmp_path):
+    """What training added: the runs at each level at the first evaluation (after 20 updates)."""
+    curves = [[-1.05, -1.2, -0.95], [-0.98, -1.3, -1.5], [-2.5, -1.0, -1.0]]
+    _write_job(tmp_path / "sde", "sde", 0, curves)
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 0
+    first = json.loads((tmp_path / "out" / "fig5.json").read_text())["explorers"]["sde"]["first_evaluation"]
+    assert first == {"update": 20, "reached": {"-2.0": 2, "-1.5": 2, "-1.1": 2, "-1.0": 1}}
+    assert ("SDE: at the first evaluation, after 20 updates, a catch (R ≥ -1.1) in 67 % of runs and a good catch "
+            "(R ≥ -1.0) in 33 %; at the final one 67 % and 67 %") in (tmp_path / "out" / "fig5.md").read_text()
+
+
 def test_collapsed_exploration_is_counted_with_its_first_update(tmp_path):
     # 60 updates each; σ = 0.135 (end/0.135)^(u/59) first falls below 1e-3 where u > 59 ln(135)/ln(0.135/end).
     sigmas = [(1e-6, 1e-4), (1e-5, 0.2), (0.05, 0.3), (1e-4, 1e-4)]

@@ -193,6 +193,26 @@ def collapsed(by_run: dict[int, dict]) -> dict | None:
     return out
 
 
+def first_evaluation(by_run: dict[int, dict]) -> dict | None:
+    """What the runs reached at their first evaluation during training, beside their final one:
+    the update of that evaluation (1-based: after that many updates) and, per level, the runs
+    whose evaluation reached it then. Read beside the final counts, it says what the rest of
+    training added. ``None`` if a run has no evaluation during training or the runs' first ones
+    come after different updates.
+
+    Examples:
+        >>> runs = {0: {"evals": [(19, -1.05), (39, -1.2)], "final": -1.2},
+        ...         1: {"evals": [(19, -2.5), (39, -0.9)], "final": -0.9}}
+        >>> first_evaluation(runs)
+        {'update': 20, 'reached': {'-2.0': 1, '-1.5': 1, '-1.1': 1, '-1.0': 0}}
+    """
+    firsts = [min(run["evals"]) for run in by_run.values() if run["evals"]]
+    if len(firsts) != len(by_run) or len({update for update, _ in firsts}) != 1:
+        return None
+    return {"update": firsts[0][0] + 1,
+            "reached": {f"{level}": sum(value >= level for _, value in firsts) for level in LEVELS}}
+
+
 def kept(by_run: dict[int, dict], window: int = WINDOW) -> dict | None:
     """Whether runs keep their level: per run, the best mean of ``window`` consecutive
     evaluations minus the mean of the last ``window`` (the drop from its peak: 0 where the run
@@ -251,6 +271,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
         stats["improvement"] = improvement(by_run, (initial or {}).get(explorer, {}))
         stats["collapse"] = collapsed(by_run)
         stats["kept"] = kept(by_run)
+        stats["first_evaluation"] = first_evaluation(by_run)
         explorers[explorer] = stats
     result = {"estimator": estimator, "explorers": explorers}
 
@@ -340,6 +361,13 @@ def write_markdown(result: dict, path: Path) -> None:
                         f"-{c[key]['last_update']})" if c[key]["runs"] else "")
                      for key, words in (("any", "some exploration scale"), ("all", "every exploration scale"))]
             lines += ["", f"{explorer.upper()}: exploration collapsed: " + "; ".join(parts)]
+    for explorer, stats in result["explorers"].items():
+        if stats.get("first_evaluation"):
+            first, n = stats["first_evaluation"], stats["runs"]
+            lines += ["", f"{explorer.upper()}: at the first evaluation, after {first['update']} updates, a catch "
+                      f"(R ≥ -1.1) in {_percent(first['reached']['-1.1'] / n)} % of runs and a good catch "
+                      f"(R ≥ -1.0) in {_percent(first['reached']['-1.0'] / n)} %; at the final one "
+                      f"{_percent(stats['final']['-1.1'] / n)} % and {_percent(stats['final']['-1.0'] / n)} %"]
     for explorer, stats in result["explorers"].items():
         if stats.get("kept"):
             k = stats["kept"]
