@@ -5,7 +5,8 @@ Regenerating Table 1 (``python -m analysis.paper.table1``) is mostly its REX job
 process on one thread, for each cell given: ``collect_ms``, the episodes of one update by the fast
 path the trainer takes (:func:`sde_torchrl.collectors.rollout.collect_episodes`), and
 ``update_ms``, the estimator and the optimiser step on them (``Trainer.update``: the scores, the
-gradient, the guards). Medians over ``--repeats`` blocks of ``--updates`` updates each.
+gradient, the guards), update after update as the job makes them (``--updates`` of the job's
+2,000 at most). Medians over ``--repeats`` blocks of ``--updates`` updates each.
 
 Prints ONE JSON line: per cell (``explorer`` at ``episode_length``) its ``collect_ms``,
 ``update_ms`` and ``steps_per_update`` (runs × episodes × steps).
@@ -34,18 +35,18 @@ def time_cell(explorer: str, length: int, updates: int, repeats: int) -> dict[st
     cfg = compose(["+experiment=episode_length_sweep", f"env.episode_length={length}", f"explorer={explorer}",
                    "logger=none"])
     trainer = build_trainer(cfg, tempfile.mkdtemp())
-    episodes = trainer.collect()
-    trainer.update(episodes, 0)  # warm-up
-    collect, update = [], []
-    for _ in range(repeats):
-        start = time.perf_counter()
+    trainer.update(trainer.collect(), 0)  # warm-up
+    collect, update, k = [], [], 1
+    for _ in range(repeats):  # the job's own sequence of updates, each on fresh episodes
+        collected = stepped = 0.0
         for _ in range(updates):
+            start = time.perf_counter()
             episodes = trainer.collect()
-        collect.append((time.perf_counter() - start) / updates)
-        start = time.perf_counter()
-        for k in range(updates):
+            middle = time.perf_counter()
             trainer.update(episodes, k)
-        update.append((time.perf_counter() - start) / updates)
+            collected, stepped, k = collected + middle - start, stepped + time.perf_counter() - middle, k + 1
+        collect.append(collected / updates)
+        update.append(stepped / updates)
     trainer.close()
     return {"collect_ms": round(1e3 * statistics.median(collect), 3),
             "update_ms": round(1e3 * statistics.median(update), 3),
