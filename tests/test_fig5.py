@@ -75,6 +75,17 @@ def test_the_first_evaluation_is_counted_beside_the_final_one(tmp_path):
             "(R ≥ -1.0) in 33 %; at the final one 67 % and 67 %") in (tmp_path / "out" / "fig5.md").read_text()
 
 
+def test_how_steadily_runs_stay_at_a_catch_is_the_mean_share_of_later_catching_evaluations(tmp_path):
+    curves = [[-1.05, -1.2, -0.95], [-0.98, -1.3, -1.5], [-2.5, -1.0, -1.0], [-2.0, -1.8, -1.05]]
+    _write_job(tmp_path / "sde", "sde", 0, curves)
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 0
+    held = json.loads((tmp_path / "out" / "fig5.json").read_text())["explorers"]["sde"]["catch_held"]
+    assert held == {"share": pytest.approx((0.5 + 0.0 + 1.0) / 3), "runs": 3}  # the last run's only catch is its last
+    assert ("SDE: once at a catch: of the 3 runs whose evaluation reached a catch (R ≥ -1.1) before the last, "
+            "the evaluations after the first such one are catches too in 50 % on average") in (
+        tmp_path / "out" / "fig5.md").read_text()
+
+
 def test_collapsed_exploration_is_counted_with_its_first_update(tmp_path):
     # 60 updates each; σ = 0.135 (end/0.135)^(u/59) first falls below 1e-3 where u > 59 ln(135)/ln(0.135/end).
     sigmas = [(1e-6, 1e-4), (1e-5, 0.2), (0.05, 0.3), (1e-4, 1e-4)]

@@ -213,6 +213,29 @@ def first_evaluation(by_run: dict[int, dict]) -> dict | None:
             "reached": {f"{level}": sum(value >= level for _, value in firsts) for level in LEVELS}}
 
 
+def catch_held(by_run: dict[int, dict]) -> dict | None:
+    """How steadily runs stay at a catch once they reach one: over the runs whose evaluations
+    reach a catch (R ≥ -1.1) before their last, the mean share of the evaluations after their
+    first catching one that are catches too (1: never below again), and the runs counted.
+    ``None`` if no run reaches a catch before its last evaluation.
+
+    Examples:
+        >>> runs = {0: {"evals": [(19, -1.5), (39, -1.05), (59, -1.2), (79, -1.0)]},
+        ...         1: {"evals": [(19, -1.0), (39, -0.9), (59, -0.95), (79, -1.0)]},
+        ...         2: {"evals": [(19, -2.0), (39, -2.0), (59, -1.5), (79, -1.05)]}}
+        >>> catch_held(runs)
+        {'share': 0.75, 'runs': 2}
+    """
+    shares = []
+    for run in by_run.values():
+        values = [value for _, value in sorted(run["evals"])]
+        first = next((i for i, value in enumerate(values[:-1]) if value >= -1.1), None)
+        if first is not None:
+            later = values[first + 1:]
+            shares.append(sum(value >= -1.1 for value in later) / len(later))
+    return {"share": sum(shares) / len(shares), "runs": len(shares)} if shares else None
+
+
 def kept(by_run: dict[int, dict], window: int = WINDOW) -> dict | None:
     """Whether runs keep their level: per run, the best mean of ``window`` consecutive
     evaluations minus the mean of the last ``window`` (the drop from its peak: 0 where the run
@@ -272,6 +295,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
         stats["collapse"] = collapsed(by_run)
         stats["kept"] = kept(by_run)
         stats["first_evaluation"] = first_evaluation(by_run)
+        stats["catch_held"] = catch_held(by_run)
         explorers[explorer] = stats
     result = {"estimator": estimator, "explorers": explorers}
 
@@ -368,6 +392,12 @@ def write_markdown(result: dict, path: Path) -> None:
                       f"(R ≥ -1.1) in {_percent(first['reached']['-1.1'] / n)} % of runs and a good catch "
                       f"(R ≥ -1.0) in {_percent(first['reached']['-1.0'] / n)} %; at the final one "
                       f"{_percent(stats['final']['-1.1'] / n)} % and {_percent(stats['final']['-1.0'] / n)} %"]
+    for explorer, stats in result["explorers"].items():
+        if stats.get("catch_held"):
+            held = stats["catch_held"]
+            lines += ["", f"{explorer.upper()}: once at a catch: of the {held['runs']} runs whose evaluation reached a "
+                      f"catch (R ≥ -1.1) before the last, the evaluations after the first such one are catches too "
+                      f"in {_percent(held['share'])} % on average"]
     for explorer, stats in result["explorers"].items():
         if stats.get("kept"):
             k = stats["kept"]
