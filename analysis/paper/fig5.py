@@ -385,32 +385,37 @@ def write_markdown(result: dict, path: Path) -> None:
                         f"-{c[key]['last_update']})" if c[key]["runs"] else "")
                      for key, words in (("any", "some exploration scale"), ("all", "every exploration scale"))]
             lines += ["", f"{explorer.upper()}: exploration collapsed: " + "; ".join(parts)]
-    for explorer, stats in result["explorers"].items():
-        if stats.get("first_evaluation"):
-            first, n = stats["first_evaluation"], stats["runs"]
-            lines += ["", f"{explorer.upper()}: at the first evaluation, after {first['update']} updates, a catch "
-                      f"(R ≥ -1.1) in {_percent(first['reached']['-1.1'] / n)} % of runs and a good catch "
-                      f"(R ≥ -1.0) in {_percent(first['reached']['-1.0'] / n)} %; at the final one "
-                      f"{_percent(stats['final']['-1.1'] / n)} % and {_percent(stats['final']['-1.0'] / n)} %"]
-    for explorer, stats in result["explorers"].items():
-        if stats.get("catch_held"):
-            held = stats["catch_held"]
-            lines += ["", f"{explorer.upper()}: once at a catch: of the {held['runs']} runs whose evaluation reached a "
-                      f"catch (R ≥ -1.1) before the last, the evaluations after the first such one are catches too "
-                      f"in {_percent(held['share'])} % on average"]
-    for explorer, stats in result["explorers"].items():
-        if stats.get("kept"):
-            k = stats["kept"]
-            lines += ["", f"{explorer.upper()}: level kept: the best mean of {k['window']} consecutive evaluations "
-                      f"lies {k['drop'][1]:.2f} above the mean of the last {k['window']} in the median run "
-                      f"(quartiles {k['drop'][0]:.2f}-{k['drop'][2]:.2f}); that mean reached a catch (R ≥ -1.1) at "
-                      f"some point in {_percent(k['catch_some_window'] / k['runs'])} % of runs and at the end in "
-                      f"{_percent(k['catch_last_window'] / k['runs'])} %"]
+    for key, sentence in (("first_evaluation", _first_evaluation_sentence), ("catch_held", _catch_held_sentence),
+                          ("kept", _kept_sentence)):
+        lines += [line for explorer, stats in result["explorers"].items() if stats.get(key)
+                  for line in ("", f"{explorer.upper()}: {sentence(stats)}")]
     lines += ["", "Cells: percent of runs whose best / final deterministic evaluation reached the level, with its "
               "95 % Wilson interval; the paper's count out of 100 runs where it states one. A − B: the "
               "difference in percentage points with its 95 % bootstrap interval over runs; * where the interval "
               "excludes 0."]
     path.write_text("\n".join(lines) + "\n")
+
+
+def _first_evaluation_sentence(stats: dict) -> str:
+    first, n = stats["first_evaluation"], stats["runs"]
+    return (f"at the first evaluation, after {first['update']} updates, a catch (R ≥ -1.1) in "
+            f"{_percent(first['reached']['-1.1'] / n)} % of runs and a good catch (R ≥ -1.0) in "
+            f"{_percent(first['reached']['-1.0'] / n)} %; at the final one {_percent(stats['final']['-1.1'] / n)} % "
+            f"and {_percent(stats['final']['-1.0'] / n)} %")
+
+
+def _catch_held_sentence(stats: dict) -> str:
+    held = stats["catch_held"]
+    return (f"once at a catch: of the {held['runs']} runs whose evaluation reached a catch (R ≥ -1.1) before the "
+            f"last, the evaluations after the first such one are catches too in {_percent(held['share'])} % on average")
+
+
+def _kept_sentence(stats: dict) -> str:
+    k = stats["kept"]
+    return (f"level kept: the best mean of {k['window']} consecutive evaluations lies {k['drop'][1]:.2f} above the "
+            f"mean of the last {k['window']} in the median run (quartiles {k['drop'][0]:.2f}-{k['drop'][2]:.2f}); "
+            f"that mean reached a catch (R ≥ -1.1) at some point in {_percent(k['catch_some_window'] / k['runs'])} % "
+            f"of runs and at the end in {_percent(k['catch_last_window'] / k['runs'])} %")
 
 
 def mean_curve(by_run: dict[int, dict]) -> tuple[list[int], list[tuple[float, float, float]]]:
