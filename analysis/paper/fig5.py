@@ -40,6 +40,8 @@ from analysis.figures import bounds, difference_of_means, saved_figure, style
 #: Levels of the paper's right-hand plots: "slowed down", "kept on the fingers", "catch",
 #: "good catch".
 LEVELS = (-2.0, -1.5, -1.1, -1.0)
+#: The paper's catch: closing the hand and holding the ball (R ≥ -1.1).
+CATCH = -1.1
 #: The paper's counts out of 100 runs where it states them (section 4.2).
 PAPER = {
     "reinforce": {"sde": {-1.0: 68, -1.1: 98}, "rex": {-1.0: 7}},
@@ -229,10 +231,10 @@ def catch_held(by_run: dict[int, dict]) -> dict | None:
     shares = []
     for run in by_run.values():
         values = [value for _, value in sorted(run["evals"])]
-        first = next((i for i, value in enumerate(values[:-1]) if value >= -1.1), None)
+        first = next((i for i, value in enumerate(values[:-1]) if value >= CATCH), None)
         if first is not None:
             later = values[first + 1:]
-            shares.append(sum(value >= -1.1 for value in later) / len(later))
+            shares.append(sum(value >= CATCH for value in later) / len(later))
     return {"share": sum(shares) / len(shares), "runs": len(shares)} if shares else None
 
 
@@ -259,8 +261,8 @@ def kept(by_run: dict[int, dict], window: int = WINDOW) -> dict | None:
     means = [np.convolve(curve, np.ones(window) / window, mode="valid") for curve in curves]
     drops = [float(m.max() - m[-1]) for m in means]
     return {"window": window, "runs": len(curves), "drop": [float(q) for q in np.quantile(drops, [0.25, 0.5, 0.75])],
-            "catch_some_window": sum(bool(m.max() >= -1.1) for m in means),
-            "catch_last_window": sum(bool(m[-1] >= -1.1) for m in means)}
+            "catch_some_window": sum(bool(m.max() >= CATCH) for m in means),
+            "catch_last_window": sum(bool(m[-1] >= CATCH) for m in means)}
 
 
 def report(runs: dict[str, dict[int, dict]], estimator: str,
