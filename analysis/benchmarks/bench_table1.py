@@ -9,7 +9,8 @@ gradient, the guards), update after update as the job makes them (``--updates`` 
 2,000 at most). Medians over ``--repeats`` blocks of ``--updates`` updates each.
 
 Prints ONE JSON line: per cell (``explorer`` at ``episode_length``) its ``collect_ms``,
-``update_ms`` and ``steps_per_update`` (runs × episodes × steps).
+``update_ms`` and ``steps_per_update`` (runs × episodes × steps). ``--scores autograd`` times the
+updates with autograd's scores in place of the closed form the sweeps use.
 
 Usage:
     python -m analysis.benchmarks.bench_table1 [--lengths 45 15] [--explorers rex sde] [--updates 100]
@@ -29,11 +30,12 @@ from sde_torchrl.config.build import build_trainer
 from sde_torchrl.config.compose import compose
 
 
-def time_cell(explorer: str, length: int, updates: int, repeats: int) -> dict[str, float]:
+def time_cell(explorer: str, length: int, updates: int, repeats: int, scores: str | None = None) -> dict[str, float]:
     """Median milliseconds per update of collection and of estimation and step, for the
-    ``episode_length_sweep`` job of ``explorer`` at ``length``."""
+    ``episode_length_sweep`` job of ``explorer`` at ``length`` (its scores computed as ``scores``
+    says, else as the experiment sets)."""
     cfg = compose(["+experiment=episode_length_sweep", f"env.episode_length={length}", f"explorer={explorer}",
-                   "logger=none"])
+                   "logger=none", *([f"scores={scores}"] if scores else [])])
     trainer = build_trainer(cfg, tempfile.mkdtemp())
     trainer.update(trainer.collect(), 0)  # warm-up
     collect, update, k = [], [], 1
@@ -60,12 +62,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--explorers", nargs="+", default=["rex", "sde"], choices=["rex", "sde"])
     parser.add_argument("--updates", type=int, default=100, help="updates per timed block")
     parser.add_argument("--repeats", type=int, default=3, help="timed blocks; the median is printed")
+    parser.add_argument("--scores", choices=["autograd", "closed_form"],
+                        help="how the scores are computed (default: as the experiment sets, closed_form)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    cells = {f"{explorer}_el{length}": time_cell(explorer, length, args.updates, args.repeats)
+    cells = {f"{explorer}_el{length}": time_cell(explorer, length, args.updates, args.repeats, args.scores)
              for explorer in args.explorers for length in args.lengths}
-    print(json.dumps({"cells": cells, "updates": args.updates, "repeats": args.repeats,
-                      "threads": torch.get_num_threads(), "torch": torch.__version__}))
+    print(json.dumps({"cells": cells, "scores": args.scores or "closed_form", "updates": args.updates,
+                      "repeats": args.repeats, "threads": torch.get_num_threads(), "torch": torch.__version__}))
     return 0
 
 

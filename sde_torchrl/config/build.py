@@ -19,6 +19,7 @@ from omegaconf import DictConfig
 from tensordict.nn import TensorDictSequential
 
 from sde_torchrl.config.schemas.algorithms import SACConf
+from sde_torchrl.config.schemas.estimators import PGPEEstimatorConf
 from sde_torchrl.config.schemas.policy import PGPEExplorerConf
 from sde_torchrl.config.schemas.train import TrainConf, loop_settings, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
@@ -116,7 +117,9 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
     # The trainer collects and updates under the non-finite policy "guarded" (its FiniteGuard names
     # the update): the estimator and the env need no option for it (sde_torchrl.utils.nonfinite).
-    estimator = instantiate(conf.estimator, policy=policy)
+    # PGPE scores its parameter distribution in closed form: the top-level `scores` is the others'
+    scores = {} if isinstance(conf.estimator, PGPEEstimatorConf) else {"scores": conf.scores}
+    estimator = instantiate(conf.estimator, policy=policy, **scores)
     warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
     optimizer, lr_schedule = make_optimizer(policy.parameters(), conf.lr, asdict(conf.optimizer), conf.updates,
                                             scale_parameters=exploration_parameters(policy))

@@ -60,7 +60,8 @@ NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress", "max_memory_gb")
 #: key is left out of the result config, so that those checkpoints still resume. Off its default
 #: it counts (``device=cuda`` rounds otherwise than the CPU: not the same job). A dotted key names
 #: an option inside a config group.
-LATER_KEYS = {"device": "cpu", "env.observation": "raw", "algorithm": None, "optimizer.sigma_lr_factor": 1.0}
+LATER_KEYS = {"device": "cpu", "env.observation": "raw", "algorithm": None, "optimizer.sigma_lr_factor": 1.0,
+              "scores": "autograd"}
 
 
 class CheckpointMismatchError(ValueError):

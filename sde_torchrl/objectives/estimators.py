@@ -33,9 +33,10 @@ from sde_torchrl.objectives.base import (
     NonFiniteEpisodesError,
     check_rewards_runs_and_inputs,
 )
+from sde_torchrl.objectives.linear_scores import closed_form_refusal, linear_scores
 from sde_torchrl.utils.checks import one_of
 from sde_torchrl.utils.nonfinite import GUARDED_FIX, check_finite
-from sde_torchrl.utils.options import EPISODE_RETURNS
+from sde_torchrl.utils.options import EPISODE_RETURNS, SCORE_METHODS
 
 #: The expected policy, as the errors name it.
 POLICY_FORM = "make_sde_actor(actor, SDEParams(...)), an SDEActor"
@@ -297,6 +298,11 @@ class EpisodicEstimator(GradientEstimator):
         variance_weighted: the authors' "auto-alpha" scores: each action element's
             log-likelihood weighted by its constant variance ``σ_j²`` (see
             :class:`EpisodeLogLikelihood`).
+        scores: ``"autograd"``, the scores as autograd differentiates the policy's
+            log-likelihood (:func:`episode_scores`, any actor), or ``"closed_form"``, eqs. 16,
+            21 and 24 evaluated directly for a linear controller
+            (:func:`~sde_torchrl.objectives.linear_scores.linear_scores`: the same scores to
+            float rounding, several times faster to compute).
 
     Input contract (:meth:`check_episodes`, at every forward pass): episodes shaped
     ``[*runs, N, T]`` with ``N, T >= 1``, features ``[*runs, N, T, S]`` and action samples
@@ -361,9 +367,15 @@ class EpisodicEstimator(GradientEstimator):
     def __init__(
         self, policy: SDEActor, max_grad_norm: float | None = None, *,
         max_grad_entry: float | None = None, episode_return: str = "mean", variance_weighted: bool = False,
+        scores: str = "autograd",
     ) -> None:
         super().__init__(max_grad_norm, max_grad_entry, episode_return)
         self.log_likelihood = EpisodeLogLikelihood(policy, variance_weighted)
+        one_of("scores", scores, SCORE_METHODS)
+        refusal = closed_form_refusal(self.log_likelihood) if scores == "closed_form" else None
+        if refusal is not None:
+            raise ValueError(f"scores=closed_form needs a linear SDE controller: {refusal}; use scores=autograd")
+        self.closed_form = scores == "closed_form"
         self._tensor_keys = self.default_keys()
         self._set_in_keys()
 
@@ -388,7 +400,10 @@ class EpisodicEstimator(GradientEstimator):
         return {n: p for n, p in self.log_likelihood.named_parameters() if p.requires_grad}
 
     def scores(self, episodes: TensorDictBase) -> dict[str, torch.Tensor]:
-        """Each episode's score ``ψ_n`` per learnable parameter (eq. 9, :func:`episode_scores`)."""
+        """Each episode's score ``ψ_n`` per learnable parameter (eq. 9, :func:`episode_scores`, or
+        in closed form)."""
+        if self.closed_form:
+            return linear_scores(self.log_likelihood, episodes)
         return episode_scores(self.log_likelihood, episodes)
 
     def estimate(self, scores: torch.Tensor, returns: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -679,7 +694,10 @@ class GPOMDPEstimator(EpisodicEstimator):
 
     def episode_and_step_scores(self, episodes):
         """The per-step scores, computed once, and the episode scores they sum to."""
-        per_step = step_scores(self.log_likelihood, episodes)
+        if self.closed_form:
+            per_step = linear_scores(self.log_likelihood, episodes, per_step=True)
+        else:
+            per_step = step_scores(self.log_likelihood, episodes)
         time_dim = episodes.batch_dims - 1
         return {name: score.sum(time_dim) for name, score in per_step.items()}, per_step
 

@@ -32,6 +32,9 @@ REWARD_STATES = ("noise_free", "noisy")
 EPISODE_RETURNS = ("sum", "mean")
 #: The learning rate over the updates.
 LR_SCHEDULES = ("constant", "linear", "cosine")
+#: How REINFORCE, ENAC and GPOMDP compute the policy's scores: autograd through the policy, or
+#: eqs. 16, 21 and 24 for a linear controller (:mod:`sde_torchrl.objectives.linear_scores`).
+SCORE_METHODS = ("autograd", "closed_form")
 #: What a NaN or an infinity does (:mod:`sde_torchrl.utils.nonfinite`): raise where it is found
 #: (the default), or pass, for a guard that checks the results itself (the trainer's).
 NONFINITE_POLICIES = ("raise", "guarded")

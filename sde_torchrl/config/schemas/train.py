@@ -22,9 +22,9 @@ from sde_torchrl.config.schemas.frozen import Frozen, freeze
 from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf, MLPActorConf, PGPEExplorerConf
 from sde_torchrl.jobs.resources import check_memory
 from sde_torchrl.trainers.settings import TrainingSettings
-from sde_torchrl.utils.checks import ArgumentError, finite, non_negative_int, positive_int
+from sde_torchrl.utils.checks import ArgumentError, finite, non_negative_int, one_of, positive_int
 from sde_torchrl.utils.devices import check_device_name
-from sde_torchrl.utils.options import ROLLOUT_SCHEDULES
+from sde_torchrl.utils.options import ROLLOUT_SCHEDULES, SCORE_METHODS
 
 # ``typing`` generics, not ``X | None``: OmegaConf reads these annotations at runtime.
 # ruff: noqa: UP007, UP045
@@ -67,6 +67,12 @@ class TrainConf(Frozen):
         r_lim: convergence threshold on the mean exploratory return (``null``: not tracked).
         stop_at_threshold: end the job once every run has exceeded ``r_lim``.
         tensor_rollout: collect by tensor stepping where the env allows (``false``: ``env.rollout``).
+        scores: how REINFORCE, ENAC and GPOMDP compute each episode's score: ``autograd``
+            through the policy (any actor), or ``closed_form``, eqs. 16, 21 and 24 for a
+            bias-free linear controller of the exploration features without eq. 22's Gaussian
+            part (the same scores to float rounding, several times faster; another actor is
+            refused when the job is built). PGPE's estimator, which scores its parameter
+            distribution in closed form whatever this says, does not read it.
         episode_queue: ``Q > 0``: each update uses the last ``Q`` episodes per run (the
             ball-catching schedule); a multiple of ``episodes_per_update``.
         checkpoint_period: write ``checkpoint.pt`` every this many updates (0: only at the end).
@@ -106,6 +112,7 @@ class TrainConf(Frozen):
     r_lim: Optional[float] = None
     stop_at_threshold: bool = False
     tensor_rollout: bool = True
+    scores: str = "autograd"
     episode_queue: int = 0
     checkpoint_period: int = 25
     progress: Optional[bool] = None
@@ -122,6 +129,7 @@ class TrainConf(Frozen):
         if self.seed >= 2**64:  # torch seeds its generators with 64 bits
             raise ArgumentError("seed", self.seed, "an integer >= 0 and below 2**64")
         finite("lr", self.lr, minimum=0, strict=True)
+        one_of("scores", self.scores, SCORE_METHODS)
         loop_settings(self)  # the training loop's own fields: TrainingSettings checks them
         if self.max_memory_gb is not None:
             finite("max_memory_gb", self.max_memory_gb, minimum=0, strict=True)
