@@ -40,7 +40,7 @@ def _episodes(likelihood, runs, n=5, t=7, seed=0):
 
 
 @pytest.mark.parametrize("runs", [None, 3])
-@pytest.mark.parametrize("sharing", ["element", "action", "feature"])
+@pytest.mark.parametrize("sharing", ["element", "action", "single", "feature"])
 @pytest.mark.parametrize("transform", ["expln", "exp"])
 @pytest.mark.parametrize("weighted", [False, True])
 def test_closed_form_scores_equal_autograds(runs, sharing, transform, weighted):
@@ -113,3 +113,24 @@ def test_estimators_give_the_same_gradient_with_either_scores(estimator):
     closed = estimator(policy, variance_weighted=True, scores="closed_form")(episodes.clone())["gradient"]
     assert autograd.abs().max() > 0
     torch.testing.assert_close(closed, autograd, rtol=1e-4, atol=1e-5)
+
+
+def test_the_config_key_reaches_the_estimator_and_refuses_an_mlp(tmp_path):
+    from sde_torchrl.config.build import build_trainer
+    from sde_torchrl.config.compose import compose
+    from sde_torchrl.config.schemas.train import validate
+    from sde_torchrl.utils.checks import ArgumentError
+
+    trainer = build_trainer(compose(["+experiment=noise_sweep", "runs=2", "logger=none"]), str(tmp_path / "a"))
+    assert trainer.estimator.closed_form  # the Table 1 sweeps set it
+    trainer.close()
+    with pytest.raises(ArgumentError, match="scores=numeric: one of autograd, closed_form"):
+        validate(compose(["scores=numeric"]))
+    for overrides, missing in ((["actor=mlp"], "actor=linear with actor.bias=false"),
+                               (["actor.bias=true"], "actor=linear with actor.bias=false"),
+                               (["explorer.gaussian_init_param=-1"], "no Gaussian part")):
+        with pytest.raises(ArgumentError, match=f"scores=closed_form: autograd, or closed_form with {missing}"):
+            validate(compose(["scores=closed_form", *overrides]))
+    pgpe = build_trainer(compose(["+experiment=noise_sweep", "explorer=pgpe", "estimator=pgpe", "runs=2",
+                                  "logger=none"]), str(tmp_path / "c"))
+    pgpe.close()  # PGPE's estimator, always in closed form, does not take the key

@@ -19,7 +19,13 @@ from sde_torchrl.config.schemas.algorithms import A2CConf, SACConf
 from sde_torchrl.config.schemas.envs import GymEnvConf
 from sde_torchrl.config.schemas.estimators import GPOMDPEstimatorConf, PGPEEstimatorConf, ReinforceEstimatorConf
 from sde_torchrl.config.schemas.frozen import Frozen, freeze
-from sde_torchrl.config.schemas.policy import ExplorerConf, GaussianExplorerConf, MLPActorConf, PGPEExplorerConf
+from sde_torchrl.config.schemas.policy import (
+    ExplorerConf,
+    GaussianExplorerConf,
+    LinearActorConf,
+    MLPActorConf,
+    PGPEExplorerConf,
+)
 from sde_torchrl.jobs.resources import check_memory
 from sde_torchrl.trainers.settings import TrainingSettings
 from sde_torchrl.utils.checks import ArgumentError, finite, non_negative_int, one_of, positive_int
@@ -144,6 +150,7 @@ class TrainConf(Frozen):
                                                    "algorithm=ppo or a2c")
         _check_can_learn(self)
         _check_pgpe(self)
+        _check_scores(self)
         if self.env is not None and self.estimator is not None:
             check_memory(self)
 
@@ -249,6 +256,24 @@ def _check_pgpe(conf: TrainConf) -> None:
         raise ArgumentError("episodes_per_update", conf.episodes_per_update,
                             "at least 2 parameter draws per update with estimator=pgpe (4 episodes with "
                             "symmetric sampling): the batch-mean baseline of one draw cancels its return")
+
+
+def _check_scores(conf: TrainConf) -> None:
+    """``scores=closed_form`` only for what eqs. 16, 21 and 24 describe: a bias-free linear
+    controller of the exploration features (the observation itself) without eq. 22's Gaussian
+    part; PGPE's estimator does not read the key."""
+    if conf.scores != "closed_form" or isinstance(conf.estimator, PGPEEstimatorConf):
+        return
+    if not isinstance(conf.actor, LinearActorConf) or conf.actor.bias:
+        missing = "actor=linear with actor.bias=false"
+    elif getattr(conf.explorer, "gaussian_init_param", None) is not None:
+        missing = "no Gaussian part (explorer.gaussian_init_param=null)"
+    elif getattr(conf.env, "constant_feature", False):
+        missing = "the observation as the exploration features (env.constant_feature=false)"
+    else:
+        return
+    raise ArgumentError("scores", "closed_form", f"autograd, or closed_form with {missing}: the closed form "
+                                                 "is that of the paper's linear controller (eqs. 16, 21, 24)")
 
 
 def _check_can_learn(conf: TrainConf) -> None:
