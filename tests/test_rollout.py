@@ -8,7 +8,15 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import RewardScaling, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from sde_torchrl import LinearActor, MLPActor, SDEParams, make_minimize_env, make_sde_actor
+from sde_torchrl import (
+    LinearActor,
+    MinimizeEnv,
+    MLPActor,
+    SDEParams,
+    make_minimize_env,
+    make_sde_actor,
+    nonfinite_policy,
+)
 from sde_torchrl.collectors.rollout import (
     collect_episodes,
     episode_matrix,
@@ -23,6 +31,7 @@ from sde_torchrl.collectors.rollout import (
 from sde_torchrl.envs.ballcatch import make_ballcatch_env
 from sde_torchrl.envs.ballcatch.models import ARM_MODELS, SCRIPTED_WEIGHTS
 from sde_torchrl.modules.pgpe import ParameterExplorer
+from sde_torchrl.utils.checks import ArgumentError, NonFiniteInputError
 from sde_torchrl.utils.rng import RunStreams
 
 
@@ -241,10 +250,73 @@ def test_linear_episode_path_needs_a_bias_free_linear_map_fixed_per_episode(setu
     env.close()
 
 
+class _StepsOnly(MinimizeEnv):
+    """The minimisation task without its whole-episode method: an env that only steps tensors."""
+
+    linear_episodes = None  # a protocol's method set to None is absent to isinstance
+
+
 def test_linear_episode_path_needs_an_env_that_runs_linear_episodes():
-    env, policy = _setup("episode")  # the minimisation task steps tensors only
-    assert tensor_step_env(env, policy) is not None
-    assert linear_episode_env(env, policy) is None
+    env, policy = _setup("episode")
+    assert linear_episode_env(env, policy) is env.base_env
+    stepped = TransformedEnv(_StepsOnly(episodes=3, dim=2, runs=2), env.transform.clone())
+    assert tensor_step_env(stepped, policy) is stepped.base_env
+    assert linear_episode_env(stepped, policy) is None
+
+
+@pytest.mark.parametrize("squash", [False, True])
+@pytest.mark.parametrize("schedule", ["episode", "step"])
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_linear_minimize_episodes_are_the_tensor_rollout_episodes(mode, schedule, squash):
+    # Tensor stepping acts with Θ x + Θ̂ x, the whole-episode path with (Θ + Θ̂) x: float32
+    # rounding apart; the random draws (start jitter, state noise, ξ) are the same numbers.
+    env, policy = _setup(schedule, squash=squash)
+    env2, policy2 = _setup(schedule, squash=squash)
+    assert linear_episode_env(env2, policy2) is env2.base_env
+    with torch.no_grad(), set_exploration_type(mode):
+        reference = _fast(tensor_rollout, env, policy, 6)
+        fast = _fast(linear_episode_rollout, env2, policy2, 6)
+    assert set(fast.keys(True, True)) == set(reference.keys(True, True))
+    for key in ["is_init", ("next", "done"), ("next", "truncated"), "sde_noise"]:
+        if key in reference.keys(True, True):
+            assert torch.equal(fast[key], reference[key]), key
+    for key in fast.keys(True, True):
+        torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
+    for streams in (policy.sde.streams, env.base_env._streams):  # both paths leave the streams alike
+        twin = policy2.sde.streams if streams is policy.sde.streams else env2.base_env._streams
+        assert torch.equal(streams.normal((2, 5)), twin.normal((2, 5)))
+
+
+@pytest.mark.parametrize("reward_state", ["noisy", "noise_free"])
+def test_linear_minimize_episodes_follow_the_transition(reward_state):
+    """Per-step maps: each step is ``transition`` under ``u_t = M_t x_t``, the draws in its order."""
+    kwargs = dict(episodes=3, dim=2, runs=2, x0_spread=1.0, seed=5, reward_state=reward_state)
+    env, env2 = MinimizeEnv(**kwargs), MinimizeEnv(**kwargs)
+    maps = 0.3 * torch.randn(2, 3, 4, 2, 2)
+    states, samples, rewards = env.linear_episodes(maps, 4, squash=False)
+    x = env2.initial_state()
+    for t in range(4):
+        u = (x.unsqueeze(-2) @ maps[..., t, :, :].transpose(-1, -2)).squeeze(-2)
+        x_next, reward = env2.transition(x, u)
+        for got, expected in ((states[..., t, :], x), (samples[..., t, :], u), (rewards[..., t, :], reward),
+                              (states[..., t + 1, :], x_next)):
+            assert torch.equal(got, expected)
+        x = x_next
+
+
+def test_linear_minimize_episodes_refuse_bad_input():
+    env = MinimizeEnv(episodes=3, dim=2, runs=2)
+    with pytest.raises(ValueError, match=r"matrices must have shape \(2, 3, 2, 2\) or \(2, 3, 4, 2, 2\)"):
+        env.linear_episodes(torch.zeros(2, 3, 2), 4)
+    with pytest.raises(ArgumentError, match="steps"):
+        env.linear_episodes(torch.zeros(2, 3, 2, 2), 0)
+    diverged = torch.zeros(2, 3, 4, 2, 2)
+    diverged[1, 2, 3] = float("nan")
+    with pytest.raises(NonFiniteInputError, match="action: NaN/inf in run 1 episode 2 step 3"):
+        env.linear_episodes(diverged, 4)
+    with nonfinite_policy("guarded"):
+        states, _, rewards = env.linear_episodes(diverged, 4)
+    assert states[1, 2, -1].isnan().all() and rewards[1, 2, -1].isnan().all() and rewards[0].isfinite().all()
 
 
 @pytest.mark.parametrize("schedule", ["episode", "step"])
@@ -371,8 +443,8 @@ def _assert_same_episodes(got, expected):
 @pytest.mark.parametrize("schedule", ["episode", "step"])
 @pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
 def test_collect_episodes_steps_tensors_where_it_can(schedule, mode):
-    env, policy = _setup(schedule)
-    env2, policy2 = _setup(schedule)
+    env, policy = _setup(schedule, actor="mlp")
+    env2, policy2 = _setup(schedule, actor="mlp")
     with set_exploration_type(mode):
         with torch.no_grad():
             reference = _fast(tensor_rollout, env, policy, 6)
@@ -381,7 +453,7 @@ def test_collect_episodes_steps_tensors_where_it_can(schedule, mode):
     assert not episodes["loc"].requires_grad  # collected without a graph
 
 
-@pytest.mark.parametrize("setup", [lambda: _setup("step"), lambda: _pgpe_setup(),
+@pytest.mark.parametrize("setup", [lambda: _setup("step"), lambda: _setup("step", actor="mlp"), lambda: _pgpe_setup(),
                                    lambda: _catching_setup("episode", steps=30)])
 def test_episodes_of_a_fast_path_are_tensors_autograd_can_score(setup):
     """The fast paths run in inference mode; what they return, and the streams they leave, are
@@ -398,9 +470,11 @@ def test_episodes_of_a_fast_path_are_tensors_autograd_can_score(setup):
 
 @pytest.mark.parametrize("schedule", ["episode", "step"])
 @pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
-def test_collect_episodes_runs_linear_episodes_where_it_can(mode, schedule):
-    env, policy = _catching_setup(schedule, steps=30)
-    env2, policy2 = _catching_setup(schedule, steps=30)
+@pytest.mark.parametrize("task", ["catching", "minimize"])
+def test_collect_episodes_runs_linear_episodes_where_it_can(mode, schedule, task):
+    def setup():
+        return _catching_setup(schedule, steps=30) if task == "catching" else _setup(schedule)
+    (env, policy), (env2, policy2) = setup(), setup()
     with set_exploration_type(mode):
         with torch.no_grad():
             reference = _fast(linear_episode_rollout, env, policy, 30)

@@ -41,14 +41,17 @@ What every path guarantees, for the same env, policy and random-stream states:
   ``::test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds``. Linear episodes draw
   the same ``ξ`` (per episode or per step) bit for bit and leave the streams where tensor
   stepping leaves them (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_the_primer``);
-  the env evaluates the maps in float64 where tensor stepping rounds to float32, so before the
-  ball reaches the hand ``observation``, ``is_init``, ``done`` and ``truncated`` are identical
-  and ``loc``, ``action_sample``, ``action``, the next observation and the reward
-  agree to 1e-4, and mean episode rewards to 0.02 over 120 steps
+  the ball-catching worlds evaluate the maps in float64 where tensor stepping rounds to
+  float32, so before the ball reaches the hand ``observation``, ``is_init``, ``done`` and
+  ``truncated`` are identical and ``loc``, ``action_sample``, ``action``, the next observation
+  and the reward agree to 1e-4, and mean episode rewards to 0.02 over 120 steps
   (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, SDE and REX, random and
-  deterministic exploration). Parameter-exploring episodes draw PGPE's ``ξ`` from the
-  explorer's streams as ``env.rollout`` does (the random draws of the env's primer, which the
-  explorer replaces at every episode start, are not made) and compute the same numbers:
+  deterministic exploration); on the minimisation task ``Θ x + Θ̂ x`` becomes ``(Θ + Θ̂) x``,
+  which agrees to float32 rounding
+  (``::test_linear_minimize_episodes_are_the_tensor_rollout_episodes``). Parameter-exploring
+  episodes draw PGPE's ``ξ`` from the explorer's streams as ``env.rollout`` does (the random
+  draws of the env's primer, which the explorer replaces at every episode start, are not made)
+  and compute the same numbers:
   every key they write equals ``env.rollout``'s bit for bit
   (``::test_parameter_rollout_equals_env_rollout``).
 * **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the observation (the
@@ -125,7 +128,7 @@ class TensorStepEnv(Protocol):
 @runtime_checkable
 class LinearEpisodeEnv(TensorStepEnv, Protocol):
     """A :class:`TensorStepEnv` that also runs whole episodes of fixed linear controllers
-    (:class:`~sde_torchrl.envs.BatchedBallCatchEnv`)."""
+    (:class:`~sde_torchrl.envs.BatchedBallCatchEnv`, :class:`~sde_torchrl.envs.MinimizeEnv`)."""
 
     def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
         """Fresh episodes under ``u_t = M_t x_t``, ``M`` shaped ``[*batch, A, S]`` (one map per
@@ -367,12 +370,15 @@ def episode_matrix(
         raise ValueError("linear maps known in advance need schedule='episode' or 'step' and no Gaussian noise")
     if deterministic_exploration():
         return align(weight, sde.run_dims, len(batch)).expand(*batch, sde.action_dim, sde.feature_dim), None
-    noise, gaussian, age = primer.start(batch, weight.device)
-    noises = [noise]
-    for _ in range(steps - 1):
-        noise, gaussian, age = primer.advance(noise, gaussian, age)
-        noises.append(noise)
-    noise = torch.stack(noises, dim=len(batch)) if primer.schedule == "step" else noises[0]
+    every_step = primer.episode_noise(batch, steps, weight.device)  # one draw, where it gives the same numbers
+    if every_step is None:
+        noise, gaussian, age = primer.start(batch, weight.device)
+        noises = [noise]
+        for _ in range(steps - 1):
+            noise, gaussian, age = primer.advance(noise, gaussian, age)
+            noises.append(noise)
+        every_step = torch.stack(noises)
+    noise = every_step.movedim(0, len(batch)).contiguous() if primer.schedule == "step" else every_step[0]
     theta = align(weight, sde.run_dims, noise.dim() - 2).expand(noise.shape)
     return theta + align(sde.sde_sigma, sde.run_dims, noise.dim() - 2) * noise, noise
 

@@ -130,8 +130,70 @@ class MinimizeEnv(EnvBase):
                      f"gradient with max_grad_norm); {GUARDED_FIX}")
         successor = x + self.step_size * u
         x_next = successor + self.noise_std * self._draw("normal", tuple(x.shape))
+        return x_next, self._reward(successor, x_next)
+
+    def linear_episodes(self, matrices: torch.Tensor, steps: int, squash: bool = True) -> tuple[torch.Tensor, ...]:
+        """Fresh episodes under a linear controller ``u_t = M_t x_t`` whose maps are known in
+        advance: one ``M`` per episode or one per step.
+
+        SDE with its episode schedule makes the exploratory policy one linear map of the state
+        for a whole episode (``Θ + Θ̂``, eqs. 17-19), REX one known map per step (``Θ + Θ̂_t``),
+        and the deterministic policy is ``Θ`` itself. The episode is :meth:`transition` unrolled
+        with no policy call per step: the start states and every step's state noise come from the
+        env's streams in one draw each (the numbers, in the order, that :meth:`initial_state` and
+        ``steps`` calls of :meth:`transition` draw), and the rewards are computed once at the end.
+
+        Args:
+            matrices: ``M``, shaped ``[*batch_size, d, d]`` (one per episode) or
+                ``[*batch_size, steps, d, d]`` (one per step).
+            steps: episode length.
+            squash: apply ``tanh`` to ``M x`` before it acts (the bounds ``[-1, 1]``).
+
+        Returns:
+            ``(states [*batch, steps + 1, d], pre-squash actions [*batch, steps, d], rewards
+            [*batch, steps, 1])``.
+
+        Raises:
+            ArgumentError: ``steps`` is not a positive integer.
+            ValueError: ``matrices`` has another shape.
+            NonFiniteInputError: an action is NaN or infinite, naming its run, episode and step
+                (as :meth:`transition`, under the non-finite policy ``"raise"``).
+
+        Examples:
+            >>> env = MinimizeEnv(episodes=4, runs=2, x0=2.0, seed=0)
+            >>> states, actions, rewards = env.linear_episodes(torch.full((2, 4, 1, 1), -5.0), 15, squash=False)
+            >>> states.shape, actions.shape, rewards.shape
+            (torch.Size([2, 4, 16, 1]), torch.Size([2, 4, 15, 1]), torch.Size([2, 4, 15, 1]))
+        """
+        positive_int("steps", steps)
+        batch, d = tuple(self.batch_size), self.dim
+        if tuple(matrices.shape) not in ((*batch, d, d), (*batch, steps, d, d)):
+            raise ValueError(f"matrices must have shape {(*batch, d, d)} or {(*batch, steps, d, d)}, "
+                             f"got {tuple(matrices.shape)}")
+        per_step = matrices.dim() == len(batch) + 3
+        x = self.initial_state()
+        # step t's noise: what the t-th call of transition draws (each run's stream in order)
+        runs = 0 if self.runs is None else 1  # the draws' leading run dimension, if any
+        noise = self.noise_std * self._draw("normal", (*batch[:runs], steps, *batch[runs:], d)).movedim(runs, 0)
+        rows = matrices.transpose(-1, -2)  # u_t as the row x_tᵀ M_tᵀ
+        states, samples = [x], []
+        for t in range(steps):
+            samples.append((x.unsqueeze(-2) @ (rows[..., t, :, :] if per_step else rows)).squeeze(-2))
+            x = x + self.step_size * (torch.tanh(samples[-1]) if squash else samples[-1]) + noise[t]
+            states.append(x)
+        time_dim = len(batch)
+        states, samples = torch.stack(states, time_dim), torch.stack(samples, time_dim)
+        actions = torch.tanh(samples) if squash else samples
+        check_finite("action", actions, ("episode", "step") if self.runs is None else ("run", "episode", "step"),
+                     "the policy produced them (a diverged policy: lower the learning rate or bound the "
+                     f"gradient with max_grad_norm); {GUARDED_FIX}")
+        successors = states[..., :-1, :] + self.step_size * actions
+        return states, samples, self._reward(successors, states[..., 1:, :])
+
+    def _reward(self, successor: torch.Tensor, x_next: torch.Tensor) -> torch.Tensor:
+        """``-‖x_t + s u_t‖²`` or ``-‖x_{t+1}‖²`` by ``reward_state``, ``[..., 1]``."""
         scored = successor if self.reward_state == "noise_free" else x_next
-        return x_next, -scored.square().sum(-1, keepdim=True)
+        return -scored.square().sum(-1, keepdim=True)
 
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
         # Fresh starts for the whole batch: on a partial reset TorchRL keeps, by the "_reset"
