@@ -119,7 +119,9 @@ def test_json_written_atomically(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- command line
 
-CLI = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=7")
+# 1,000 updates (about 4 s of training under CI's load): a signal sent once some rows are written
+# lands in the middle of training, not after the last update (150 left a few tenths of a second).
+CLI = ("+experiment=minimize", "runs=2", "updates=1000", "eval_period=10", "checkpoint_period=7")
 
 
 def rows_in(path: Path) -> int:
@@ -180,7 +182,7 @@ def test_ctrl_c_and_kill_then_resume_equals_uninterrupted(tmp_path):
     assert (run_dir / "metrics.csv").read_bytes() == (ref_dir / "metrics.csv").read_bytes()
     resumed, uninterrupted = summary_without_wall(run_dir), summary_without_wall(ref_dir)
     assert resumed == uninterrupted
-    assert resumed["updates_done"] == 150
+    assert resumed["updates_done"] == 1000
     scalars = Path("sde_torchrl", "scalars", "return_mean.csv")  # TorchRL's CSV logger too
     assert (run_dir / scalars).read_bytes() == (ref_dir / scalars).read_bytes()
     assert not list(run_dir.glob("*.tmp"))
@@ -241,7 +243,7 @@ def test_the_resume_line_pastes_back_as_it_is_printed(tmp_path, multirun):
 
     where = tmp_path / "runs with spaces"
     run_dir = where / "0" if multirun else where
-    cli = ("+experiment=minimize", "runs=2", "updates=150", "eval_period=10", "checkpoint_period=0", "logger=none")
+    cli = (*CLI[:2], "updates=1000", "eval_period=10", "checkpoint_period=0", "logger=none")
     proc = subprocess.Popen(train_command(*cli, run_dir=where, multirun=multirun), cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
@@ -252,6 +254,7 @@ def test_the_resume_line_pastes_back_as_it_is_printed(tmp_path, multirun):
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 143, stderr[-2000:]
     line = next(line for line in own_stderr_lines(stderr) if line.startswith("interrupted by SIGTERM"))
+    assert load_checkpoint(run_dir / "checkpoint.pt")["updates"] < 1000, "the signal came after the last update"
     override = shlex.quote(f"hydra.{'sweep' if multirun else 'run'}.dir={where}")
     assert line.endswith(f"; run the same command with {override} to resume"), line
     resumed = subprocess.run([sys.executable, "train.py", *(["-m"] if multirun else []), *cli, *shlex.split(override)],
