@@ -20,6 +20,10 @@ from sde_torchrl.utils.nonfinite import GUARDED_FIX, check_finite
 from sde_torchrl.utils.options import REWARD_STATES
 from sde_torchrl.utils.rng import RunStreams
 
+#: What to do about a non-finite action, as the env's error says it.
+_ACTION_FIX = ("the policy produced them (a diverged policy: lower the learning rate or bound the gradient with "
+               f"max_grad_norm); {GUARDED_FIX}")
+
 
 class MinimizeEnv(EnvBase):
     """Minimise ``‖x‖²`` by steering ``x`` with noisy steps (paper section 4.1).
@@ -125,9 +129,7 @@ class MinimizeEnv(EnvBase):
         """
         if u.shape != x.shape:
             raise ValueError(f"action has shape {tuple(u.shape)}, expected {tuple(x.shape)}")
-        check_finite("action", u, ("episode",) if self.runs is None else ("run", "episode"),
-                     "the policy produced them (a diverged policy: lower the learning rate or bound the "
-                     f"gradient with max_grad_norm); {GUARDED_FIX}")
+        check_finite("action", u, ("episode",) if self.runs is None else ("run", "episode"), _ACTION_FIX)
         successor = x + self.step_size * u
         x_next = successor + self.noise_std * self._draw("normal", tuple(x.shape))
         return x_next, self._reward(successor, x_next)
@@ -185,8 +187,7 @@ class MinimizeEnv(EnvBase):
         states, samples = torch.stack(states, time_dim), torch.stack(samples, time_dim)
         actions = torch.tanh(samples) if squash else samples
         check_finite("action", actions, ("episode", "step") if self.runs is None else ("run", "episode", "step"),
-                     "the policy produced them (a diverged policy: lower the learning rate or bound the "
-                     f"gradient with max_grad_norm); {GUARDED_FIX}")
+                     _ACTION_FIX)
         successors = states[..., :-1, :] + self.step_size * actions
         return states, samples, self._reward(successors, states[..., 1:, :])
 
