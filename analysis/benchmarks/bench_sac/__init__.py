@@ -15,7 +15,7 @@ steps of the job and of SB3 in one process and splits the job's eager step by fu
 
 Usage::
 
-    python -m analysis.benchmarks.bench_sac speed job job+eager sb3 --rounds 30 --repeats 8 --out docs/sac/speed_job.md
+    python -m analysis.benchmarks.bench_sac speed job job+eager sb3 --rounds 30 --repeats 12 --out docs/sac/speed_job.md
     python -m analysis.benchmarks.bench_sac update-speed job job+eager job_gauss sb3 sb3_gauss --env mountaincar \
         --profile --out docs/sac/update_speed_mountaincar.md
 
