@@ -282,9 +282,8 @@ def test_linear_minimize_episodes_are_the_tensor_rollout_episodes(mode, schedule
             assert torch.equal(fast[key], reference[key]), key
     for key in fast.keys(True, True):
         torch.testing.assert_close(fast[key], reference[key], msg=lambda m, key=key: f"{key}: {m}")
-    for streams in (policy.sde.streams, env.base_env._streams):  # both paths leave the streams alike
-        twin = policy2.sde.streams if streams is policy.sde.streams else env2.base_env._streams
-        assert torch.equal(streams.normal((2, 5)), twin.normal((2, 5)))
+    for streams, twin in ((policy.sde.streams, policy2.sde.streams), (env.base_env._streams, env2.base_env._streams)):
+        assert torch.equal(streams.normal((2, 5)), twin.normal((2, 5)))  # both paths leave the streams alike
 
 
 @pytest.mark.parametrize("reward_state", ["noisy", "noise_free"])

@@ -178,14 +178,14 @@ class MinimizeEnv(EnvBase):
         runs = 0 if self.runs is None else 1  # the draws' leading run dimension, if any
         noise = self.noise_std * self._draw("normal", (*batch[:runs], steps, *batch[runs:], d)).movedim(runs, 0)
         rows = matrices.transpose(-1, -2)  # u_t as the row x_tᵀ M_tᵀ
-        states, samples = [x], []
+        states, samples, actions = [x], [], []
         for t in range(steps):
             samples.append((x.unsqueeze(-2) @ (rows[..., t, :, :] if per_step else rows)).squeeze(-2))
-            x = x + self.step_size * (torch.tanh(samples[-1]) if squash else samples[-1]) + noise[t]
+            actions.append(torch.tanh(samples[-1]) if squash else samples[-1])
+            x = x + self.step_size * actions[-1] + noise[t]
             states.append(x)
         time_dim = len(batch)
-        states, samples = torch.stack(states, time_dim), torch.stack(samples, time_dim)
-        actions = torch.tanh(samples) if squash else samples
+        states, samples, actions = (torch.stack(column, time_dim) for column in (states, samples, actions))
         check_finite("action", actions, ("episode", "step") if self.runs is None else ("run", "episode", "step"),
                      _ACTION_FIX)
         successors = states[..., :-1, :] + self.step_size * actions
