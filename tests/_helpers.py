@@ -63,10 +63,10 @@ def crash_at(trainer, at: int) -> None:
     """Makes ``trainer`` raise :class:`Crash` when it starts update ``at``."""
     original = trainer.update
 
-    def crashing_update(episodes, k):
+    def crashing_update(episodes, k, *scores):
         if k == at:
             raise Crash(f"crash at {k}")
-        return original(episodes, k)
+        return original(episodes, k, *scores)
 
     trainer.update = crashing_update
 

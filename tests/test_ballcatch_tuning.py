@@ -11,6 +11,7 @@ from _helpers import compose_config
 
 from analysis.selection import ballcatch_tuning as tuning
 from sde_torchrl.config.schemas.train import validate
+from sde_torchrl.utils.checks import ArgumentError
 
 
 @pytest.mark.parametrize("method", list(tuning.METHODS))
@@ -86,6 +87,28 @@ def test_round_five_adds_c10_with_sigma_at_ten_times_the_rate(method):
     assert [job.name for job in tuning.jobs(Path("t"), [method], ["C14"], round_=5)] == \
         ([] if fixes_sigma else [f"{method}/C14"])
     assert tuning.ROUNDS[5] == [*tuning.ROUNDS[4], "C14"]  # C14 wins only by beating round 4's choice
+
+
+@pytest.mark.parametrize("method", [m for m in tuning.METHODS if m != "pgpe"])
+def test_round_six_adds_c10_and_c1_with_queued_episodes_scored_as_collected(method):
+    """Round 6 (learner_selection.md, 2026-12-06): C15 is C10's job and C16 C1's with
+    ``queue_scores=as_collected``, on round 3's seed and runs, for every method (ENAC too: its
+    controller's scores are kept); nothing else changes."""
+    for candidate, base, base_round in (("C15", "C10", 3), ("C16", "C1", 3)):
+        before = validate(compose_config(*tuning.job_overrides(method, base, round_=base_round)))
+        after = validate(compose_config(*tuning.job_overrides(method, candidate, round_=6)))
+        assert (before.queue_scores, after.queue_scores) == ("rescored", "as_collected")
+        assert (after.seed, after.runs, after.updates, after.episode_queue) == (3000, 16, 500, 20)
+        assert (after.explorer, after.lr, after.estimator, after.env, after.optimizer) == \
+            (before.explorer, before.lr, before.estimator, before.env, before.optimizer)
+        names = [job.name for job in tuning.jobs(Path("t"), [method], [candidate], round_=6)]
+        assert names == [f"{method}/{candidate}"]
+    assert tuning.ROUNDS[6] == [*tuning.ROUNDS[5], "C15", "C16"]  # they win only by beating round 5's choice
+
+
+def test_round_six_cannot_run_pgpe_until_its_estimator_keeps_scores():
+    with pytest.raises(ArgumentError, match="queue_scores=as_collected: rescored with estimator=pgpe"):
+        validate(compose_config(*tuning.job_overrides("pgpe", "C15", round_=6)))
 
 
 def test_round_four_chooses_once_its_six_jobs_have_run(tmp_path):

@@ -7,7 +7,7 @@ the queue holds the last ``Q`` episodes of each run (``Q`` a multiple of ``N``).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import torch
@@ -59,11 +59,20 @@ class EpisodeQueue:
         """The queued episodes as nested tensors (``None`` before the first batch)."""
         return None if self.episodes is None else self.episodes.to_dict()
 
-    def load_state_dict(self, state: dict[str, Any] | None, batch_size: Sequence[int]) -> None:
-        """Restores :meth:`state_dict`; ``batch_size`` is ``[runs, Q, T]``."""
+    def load_state_dict(self, state: dict[str, Any] | None, batch_size: Sequence[int],
+                        nested: Mapping[str, Sequence[int]] | None = None) -> None:
+        """Restores :meth:`state_dict`; ``batch_size`` is ``[runs, Q, T]``, or ``[runs, Q]`` for
+        entries kept per episode, with ``nested`` giving the batch size of each nested
+        TensorDict whose batch is longer where the state holds it (``{"episodes": [runs, Q, T]}``;
+        a dotted name for a deeper one)."""
         if state is None:
             self.episodes = None
             return
         self.episodes = TensorDict(state, batch_size=list(batch_size))
+        for name, size in (nested or {}).items():
+            key = tuple(name.split("."))
+            if key not in self.episodes.keys(include_nested=True):
+                continue
+            self.episodes.set(key, TensorDict(self.episodes.get(key).to_dict(), batch_size=list(size)))
         if self.device is not None:
             self.episodes = self.episodes.to(self.device)

@@ -16,9 +16,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
+from typing import ClassVar
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from tensordict.utils import NestedKey
 from torch import nn
@@ -363,6 +364,8 @@ class EpisodicEstimator(GradientEstimator):
         done: NestedKey = ("next", "done")
 
     tensor_keys: _AcceptedKeys
+    #: whether the estimate reads per-step scores beside the episode scores (GPOMDP's).
+    reads_step_scores: ClassVar[bool] = False
 
     def __init__(
         self, policy: SDEActor, max_grad_norm: float | None = None, *,
@@ -416,6 +419,74 @@ class EpisodicEstimator(GradientEstimator):
         """The episode scores (:meth:`scores`) and, for an estimator that needs them, the
         per-step scores they sum (:func:`step_scores`; ``None`` here)."""
         return self.scores(episodes), None
+
+    def collected_scores(self, episodes: TensorDictBase) -> TensorDict:
+        """The scores of ``episodes`` under the current parameters, to be kept with them while
+        they wait in an episode queue and handed back to :meth:`forward` (``scores=``): a queued
+        episode then keeps the score of the policy that acted, as the authors' PyBrain learners
+        store each step's log-likelihood derivative when the action is taken.
+
+        Args:
+            episodes: TensorDict shaped ``[*runs, N, T]``, one whole episode per row.
+
+        Returns:
+            TensorDict shaped ``[*runs, N]``: ``"episode"``, the episode scores per learnable
+            parameter (:meth:`scores`), and for an estimator that reads them (GPOMDP)
+            ``"step"``, the per-step scores ``[*runs, N, T, ...]`` they sum.
+
+        Examples:
+            >>> import torch
+            >>> from sde_torchrl import LinearActor, SDEParams, make_sde_actor
+            >>> policy = make_sde_actor(LinearActor(3, 2), SDEParams(2, 3))
+            >>> loss = ReinforceEstimator(policy)
+            >>> steps = TensorDict({"observation": torch.randn(4, 10, 3), "action": torch.randn(4, 10, 2),
+            ...                     ("next", "reward"): torch.randn(4, 10, 1)}, [4, 10])
+            >>> kept = loss.collected_scores(steps)
+            >>> kept.batch_size, sorted(kept["episode"].keys())
+            (torch.Size([4]), ['actor.module.0.module.weight', 'sde.sigma_param'])
+            >>> with torch.no_grad():
+            ...     _ = policy.module[0].module[0].module.weight.add_(1.0)  # the policy moves on
+            >>> bool(loss(steps, scores=kept)["gradient"].ne(loss(steps)["gradient"]).any())
+            True
+        """
+        per_parameter, per_step = self.episode_and_step_scores(episodes)
+        batch = episodes.batch_size
+        kept = TensorDict({"episode": TensorDict(per_parameter, batch_size=batch[:-1])}, batch_size=batch[:-1])
+        if per_step is not None:
+            kept["step"] = TensorDict(per_step, batch_size=batch)
+        return kept
+
+    def _kept_scores(
+        self, scores: TensorDictBase, episodes: TensorDictBase,
+    ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor] | None]:
+        """The episode and per-step scores of :meth:`collected_scores`, checked against the
+        episodes and the learnable parameters."""
+        batch = tuple(episodes.batch_size)
+        if not isinstance(scores, TensorDictBase) or tuple(scores.batch_size) != batch[:-1]:
+            got = tuple(scores.batch_size) if isinstance(scores, TensorDictBase) else type(scores).__name__
+            raise EpisodesError(f"scores: got {got}; expected the TensorDict of collected_scores(episodes), "
+                                f"shaped {batch[:-1]} ([*runs, N] of episodes shaped {batch})")
+        parameters = self.learnable_parameters()
+        run_dims = len(batch) - 2
+        per_step = None
+        parts = [("episode", batch[:-1])] + ([("step", batch)] if self.reads_step_scores else [])
+        for part, leading in parts:
+            if part not in scores.keys():
+                raise EpisodesError(f"scores lack {part!r}: make them with collected_scores(episodes) of this "
+                                    f"estimator ({type(self).__name__})")
+            given = scores[part]
+            if sorted(given.keys()) != sorted(parameters):
+                raise EpisodesError(f"scores[{part!r}] cover {sorted(given.keys())}, but the learnable parameters "
+                                    f"are {sorted(parameters)}: score the episodes with this estimator's "
+                                    "collected_scores(episodes), after any change to which parameters learn")
+            for name, p in parameters.items():
+                expected = (*leading, *p.shape[run_dims:])
+                if tuple(given[name].shape) != expected:
+                    raise EpisodesError(f"scores[{part!r}][{name!r}] has shape {tuple(given[name].shape)}, "
+                                        f"expected {expected}")
+            if part == "step":
+                per_step = {name: given[name] for name in parameters}
+        return {name: scores["episode"][name] for name in parameters}, per_step
 
     def estimate_from_episodes(
         self, episodes: TensorDictBase, scores: torch.Tensor, returns: torch.Tensor,
@@ -512,25 +583,32 @@ class EpisodicEstimator(GradientEstimator):
                          f"max_grad_norm, {GUARDED_FIX} and get NaN estimates",
                          error=partial(NonFiniteEpisodesError, key=what))
 
-    def forward(self, episodes: TensorDictBase) -> TensorDictBase:
+    def forward(self, episodes: TensorDictBase, scores: TensorDictBase | None = None) -> TensorDictBase:
         """Estimates one gradient per run from the episodes.
 
         Args:
             episodes: TensorDict shaped ``[*runs, N, T]``, one whole episode per row.
+            scores: the episodes' scores as :meth:`collected_scores` kept them (under the
+                parameters that collected each episode); ``None``: scored now, under the
+                current parameters.
 
         Returns:
             TensorDict with ``loss_objective``, ``return_mean``, ``gradient``, ``score_norm``,
             ``gradient_norm`` and the estimator's diagnostics.
 
         Raises:
-            EpisodesError: the episodes break the input contract (:meth:`check_episodes`).
+            EpisodesError: the episodes break the input contract (:meth:`check_episodes`), or
+                ``scores`` are not :meth:`collected_scores` of episodes of that shape.
             NonFiniteEpisodesError: NaN or infinity in the episodes, the scores or the gradient
                 (under the non-finite policy ``"raise"``).
         """
         self.check_episodes(episodes)
         returns = self.returns(episodes)
         run_dims = episodes.batch_dims - 2
-        per_parameter, per_step = self.episode_and_step_scores(episodes)
+        if scores is None:
+            per_parameter, per_step = self.episode_and_step_scores(episodes)
+        else:
+            per_parameter, per_step = self._kept_scores(scores, episodes)
         scores = flatten_scores(per_parameter, run_dims)
         self._check_finite("scores", per_parameter, run_dims, per_episode=True)
         gradient, diagnostics = self.estimate_from_episodes(episodes, scores, returns, per_step)
@@ -687,6 +765,8 @@ class GPOMDPEstimator(EpisodicEstimator):
         (torch.Size([2]), torch.Size([5, 2]))
         >>> out["loss_objective"].backward()
     """
+
+    reads_step_scores: ClassVar[bool] = True
 
     def scores(self, episodes):
         """Each episode's score ``ψ_n``: the sum of its per-step scores (eq. 9, :func:`step_scores`)."""

@@ -81,10 +81,13 @@ class FiniteGuard:
                                  detail=f"; largest parameter entry: {name} = {largest:.3g}")
         return returns
 
-    def check_estimate(self, update: int, out: TensorDictBase, episodes: TensorDictBase) -> None:
-        """The estimator's output: per-run score norms and the gradient ``[runs, K]``."""
+    def check_estimate(self, update: int, out: TensorDictBase, episodes: TensorDictBase,
+                       scores: TensorDictBase | None = None) -> None:
+        """The estimator's output: per-run score norms and the gradient ``[runs, K]``; ``scores``:
+        the episodes' scores as collected, where the estimator was given them."""
         if not _finite(out["score_norm"]):
-            self._raise_named(update, "score", self.estimator.scores(episodes), out["score_norm"])
+            named = self.estimator.scores(episodes) if scores is None else dict(scores["episode"].items())
+            self._raise_named(update, "score", named, out["score_norm"])
         if not _finite(out["gradient"]):
             self._raise_named(update, "gradient", self._split(out["gradient"]))
 

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sde_torchrl.utils.checks import ArgumentError, is_finite_number, multiple_of, non_negative_int, positive_int
+from sde_torchrl.utils.checks import (
+    ArgumentError,
+    is_finite_number,
+    multiple_of,
+    non_negative_int,
+    one_of,
+    positive_int,
+)
+from sde_torchrl.utils.options import QUEUE_SCORES
 
 
 @dataclass(frozen=True)
@@ -30,6 +38,10 @@ class TrainingSettings:
             ball-catching schedule: each update uses the last ``Q`` episodes of each run,
             filled at the start by ``Q / N`` collections, then renewed by ``N`` new
             episodes after every update (``Q`` must be a multiple of ``N``).
+        queue_scores: with a queue, ``rescored``: every queued episode scored again at each
+            update under the current parameters; ``as_collected``: scored once when collected,
+            under the parameters that collected it, and kept with it (the authors' PyBrain
+            learners store each step's log-likelihood derivative when the action is taken).
 
     Examples:
         >>> TrainingSettings(updates=300, episodes_per_update=10, episode_length=15).eval_period
@@ -50,6 +62,7 @@ class TrainingSettings:
     stop_at_threshold: bool = False
     tensor_rollout: bool = True
     episode_queue: int = 0
+    queue_scores: str = "rescored"
 
     def __post_init__(self) -> None:
         for name in ("updates", "episodes_per_update", "episode_length", "eval_episodes"):
@@ -57,6 +70,11 @@ class TrainingSettings:
         for name in ("eval_period", "episode_queue", "first_run"):
             non_negative_int(name, getattr(self, name))
         multiple_of("episode_queue", self.episode_queue, "episodes_per_update", self.episodes_per_update)
+        one_of("queue_scores", self.queue_scores, QUEUE_SCORES)
+        if self.queue_scores == "as_collected" and not self.episode_queue:
+            raise ArgumentError("queue_scores", "as_collected", "rescored without an episode queue (episode_queue=0: "
+                                "every update's episodes are fresh and scored by the parameters that collected "
+                                "them either way), or set episode_queue > 0")
         if self.r_lim is not None and not is_finite_number(self.r_lim):
             raise ArgumentError("r_lim", self.r_lim, "a finite number, or null")
         if self.stop_at_threshold and self.r_lim is None:

@@ -21,7 +21,7 @@ import time
 from typing import Any
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -76,7 +76,10 @@ class Trainer:
         self.runs = env.batch_size[0]
         self.guard = FiniteGuard(policy, estimator, self.runs, settings.first_run)
         device = next(iter(estimator.learnable_parameters().values())).device
-        self.queue = EpisodeQueue(settings.episode_queue, settings.episodes_per_update, estimator.in_keys,
+        #: with ``queue_scores=as_collected`` the queue holds ``{"episodes", "scores"}`` per episode
+        self.keeps_scores = bool(settings.episode_queue) and settings.queue_scores == "as_collected"
+        kept = ["episodes", "scores"] if self.keeps_scores else estimator.in_keys
+        self.queue = EpisodeQueue(settings.episode_queue, settings.episodes_per_update, kept,
                                   device=device) if settings.episode_queue else None
 
     def _rollout(self, env: EnvBase) -> TensorDictBase:
@@ -89,6 +92,17 @@ class Trainer:
         """``N`` fresh exploratory episodes per run, ``[runs, N, T]``."""
         return self._rollout(self.env)
 
+    def collect_scored(self) -> TensorDictBase:
+        """:meth:`collect`'s episodes with their scores under the parameters that collected
+        them (:meth:`~sde_torchrl.objectives.estimators.EpisodicEstimator.collected_scores`),
+        ``{"episodes": [runs, N, T], "scores": ...}`` shaped ``[runs, N]``: what the queue keeps
+        under ``queue_scores=as_collected``."""
+        episodes = self.collect()
+        with nonfinite_policy("guarded"):  # a non-finite score is the guard's to name, at the update
+            scores = self.estimator.collected_scores(episodes)
+        kept = episodes.select(*self.estimator.in_keys)
+        return TensorDict({"episodes": kept, "scores": scores}, batch_size=episodes.batch_size[:-1])
+
     def evaluate(self) -> torch.Tensor:
         """Mean return of deterministic episodes (no exploration noise) per run, ``[runs]``, in
         the estimator's return definition, on the CPU."""
@@ -99,10 +113,13 @@ class Trainer:
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             return self._rollout(self.eval_env)
 
-    def update(self, episodes: TensorDictBase, update: int) -> dict[str, torch.Tensor]:
+    def update(self, episodes: TensorDictBase, update: int,
+               scores: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
         """One estimator pass and one optimiser step (eq. 1 with ``SGD``) at update ``update``'s
         learning rate, guarded against non-finite values; the statistics it returns (per-run
         mean return, gradient norm, exploration state) are on the CPU, whatever the device.
+        ``scores``: the episodes' scores as collected (:meth:`collect_scored`); ``None``: the
+        estimator scores them under the current parameters.
 
         The estimator runs under the non-finite policy ``"guarded"``
         (:mod:`sde_torchrl.utils.nonfinite`), as the rollouts do: its own checks step aside and
@@ -114,8 +131,8 @@ class Trainer:
         """
         with nonfinite_policy("guarded"):
             self.guard.check_returns(update, self.estimator.returns(episodes))
-            out = self.estimator(episodes)
-            self.guard.check_estimate(update, out, episodes)
+            out = self.estimator(episodes) if scores is None else self.estimator(episodes, scores=scores)
+            self.guard.check_estimate(update, out, episodes, scores)
         self.optimizer.zero_grad(set_to_none=True)
         out["loss_objective"].backward()
         if self.lr_schedule is not None:
@@ -196,8 +213,11 @@ class Trainer:
             notice.start()
             try:
                 for k in range(state.update, s.updates):
-                    episodes = self.queue.next_batch(self.collect) if self.queue else self.collect()
-                    stats = self.update(episodes, k)
+                    if self.keeps_scores:
+                        batch = self.queue.next_batch(self.collect_scored)
+                        stats = self.update(batch["episodes"], k, batch["scores"])
+                    else:
+                        stats = self.update(self.queue.next_batch(self.collect) if self.queue else self.collect(), k)
                     notice.cancel()
                     state.add(stats)
                     if s.r_lim is not None:
@@ -256,7 +276,11 @@ class Trainer:
             run_dir.summary.unlink(missing_ok=True)
         if self.queue is not None:
             s = self.settings
-            self.queue.load_state_dict(state.queue, [self.runs, s.episode_queue, s.episode_length])
+            episodes = [self.runs, s.episode_queue, s.episode_length]
+            if self.keeps_scores:
+                self.queue.load_state_dict(state.queue, episodes[:2], {"episodes": episodes, "scores.step": episodes})
+            else:
+                self.queue.load_state_dict(state.queue, episodes)
         run_dir.clear_error()
         if not state.finished:
             run_dir.truncate_logger_csv(self.episodes_after(state.update - 1) if state.update else 0)

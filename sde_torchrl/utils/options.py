@@ -35,6 +35,10 @@ LR_SCHEDULES = ("constant", "linear", "cosine")
 #: How REINFORCE, ENAC and GPOMDP compute the policy's scores: autograd through the policy, or
 #: eqs. 16, 21 and 24 for a linear controller (:mod:`sde_torchrl.objectives.linear_scores`).
 SCORE_METHODS = ("autograd", "closed_form")
+#: When the scores of a queued episode are taken (``queue_scores``): at every update under the
+#: current parameters, or once when the episode is collected, under the parameters that acted (the
+#: authors' PyBrain learners).
+QUEUE_SCORES = ("rescored", "as_collected")
 #: What a NaN or an infinity does (:mod:`sde_torchrl.utils.nonfinite`): raise where it is found
 #: (the default), or pass, for a guard that checks the results itself (the trainer's).
 NONFINITE_POLICIES = ("raise", "guarded")

@@ -81,6 +81,10 @@ class TrainConf(Frozen):
             distribution in closed form whatever this says, does not read it.
         episode_queue: ``Q > 0``: each update uses the last ``Q`` episodes per run (the
             ball-catching schedule); a multiple of ``episodes_per_update``.
+        queue_scores: when a queued episode is scored: ``rescored``, again at every update
+            under the current parameters, or ``as_collected``, once under the parameters that
+            collected it (the authors' PyBrain learners); needs ``episode_queue > 0``. PGPE's
+            estimator rescores its parameter draws and refuses ``as_collected``.
         checkpoint_period: write ``checkpoint.pt`` every this many updates (0: only at the end).
         progress: progress bar; ``null``: only on a terminal and outside a multirun.
         threads: torch intra-op threads per job (a job is a sequence of small ops; the jobs of a
@@ -120,6 +124,7 @@ class TrainConf(Frozen):
     tensor_rollout: bool = True
     scores: str = "autograd"
     episode_queue: int = 0
+    queue_scores: str = "rescored"
     checkpoint_period: int = 25
     progress: Optional[bool] = None
     threads: int = 1
@@ -151,6 +156,7 @@ class TrainConf(Frozen):
         _check_can_learn(self)
         _check_pgpe(self)
         _check_scores(self)
+        _check_queue_scores(self)
         if self.env is not None and self.estimator is not None:
             check_memory(self)
 
@@ -256,6 +262,13 @@ def _check_pgpe(conf: TrainConf) -> None:
         raise ArgumentError("episodes_per_update", conf.episodes_per_update,
                             "at least 2 parameter draws per update with estimator=pgpe (4 episodes with "
                             "symmetric sampling): the batch-mean baseline of one draw cancels its return")
+
+
+def _check_queue_scores(conf: TrainConf) -> None:
+    """``queue_scores=as_collected`` for the estimators that keep scores (REINFORCE, ENAC, GPOMDP)."""
+    if conf.queue_scores == "as_collected" and isinstance(conf.estimator, PGPEEstimatorConf):
+        raise ArgumentError("queue_scores", "as_collected", "rescored with estimator=pgpe (its scores are "
+                                                            "recomputed from the queued parameter draws)")
 
 
 def _check_scores(conf: TrainConf) -> None:
