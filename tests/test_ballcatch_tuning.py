@@ -106,6 +106,20 @@ def test_round_six_adds_c10_and_c1_with_queued_episodes_scored_as_collected(meth
     assert tuning.ROUNDS[6] == [*tuning.ROUNDS[5], "C15", "C16"]  # they win only by beating round 5's choice
 
 
+@pytest.mark.parametrize("method", list(tuning.METHODS))
+def test_round_seven_adds_c10_at_a_larger_step(method):
+    """Round 7 (learner_selection.md, 2026-12-06): C17 is C10's job at Adam α = 1e-2, on round 3's
+    seed and runs, for every method."""
+    c10 = validate(compose_config(*tuning.job_overrides(method, "C10", round_=3)))
+    c17 = validate(compose_config(*tuning.job_overrides(method, "C17", round_=7)))
+    assert (c10.lr, c17.lr) == (0.003, 0.01)
+    assert (c17.seed, c17.runs, c17.updates) == (3000, 16, 500)
+    assert (c17.explorer, c17.estimator, c17.env, c17.optimizer, c17.queue_scores) == \
+        (c10.explorer, c10.estimator, c10.env, c10.optimizer, c10.queue_scores)
+    assert [job.name for job in tuning.jobs(Path("t"), [method], ["C17"], round_=7)] == [f"{method}/C17"]
+    assert tuning.ROUNDS[7] == [*tuning.ROUNDS[6], "C17"]  # C17 wins only by beating round 6's choice
+
+
 def test_round_six_cannot_run_pgpe_until_its_estimator_keeps_scores():
     with pytest.raises(ArgumentError, match="queue_scores=as_collected: rescored with estimator=pgpe"):
         validate(compose_config(*tuning.job_overrides("pgpe", "C15", round_=6)))
