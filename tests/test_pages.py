@@ -15,7 +15,7 @@ import pytest
 from _helpers import REPO
 
 from analysis.benchmarks.gsde_table import cli as gsde_table
-from analysis.paper import fig5, fig6, table1
+from analysis.paper import ballcatch_controllers, fig5, fig6, table1
 from analysis.selection import ballcatch_tuning, learner_search
 
 BALLCATCH = REPO / "docs" / "ballcatch"
@@ -51,6 +51,9 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                       BALLCATCH / "held_training", ("fig5.md", "fig5.json")),
     "selected/fig5": (fig5, [str(RECORDS / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
+    "controllers": (ballcatch_controllers, [f"{label}={RECORDS / 'runs' / path}" for label, path in (
+        ("REINFORCE + SDE, Fig. 5", "fig5_seed3/sde"), ("REINFORCE + REX, Fig. 5", "fig5_seed3/rex"),
+        ("ENAC + SDE, Fig. 6", "fig6_seed3/sde"))], BALLCATCH, ("controllers.md", "controllers.json")),
     "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
     "ppo": (gsde_table, ["report", str(REPO / "results" / "ppo" / "f025")], REPO / "docs" / "ppo",
             ("gsde_table.md", "gsde_table.json")),
