@@ -39,6 +39,7 @@ from sde_torchrl.utils.files import write_json_atomic
     ("explorer=sde",), ("explorer=rex", "estimator=enac"), ("explorer=sde_gauss", "tensor_rollout=false"),
     ("episode_queue=8",), ("episode_queue=8", "queue_scores=as_collected"),
     ("episode_queue=8", "queue_scores=as_collected", "estimator=gpomdp", "scores=closed_form"),
+    ("episode_queue=8", "queue_scores=as_collected", "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=false"),
 ])
 def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
     budget = ("runs=2", "updates=12", "episodes_per_update=4", "eval_period=5", *overrides)

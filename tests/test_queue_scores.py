@@ -8,10 +8,9 @@ import copy
 
 import pytest
 import torch
-from _helpers import build, compose_config
+from _helpers import build
 from tensordict import TensorDict
 
-from sde_torchrl.config.build import build_trainer
 from sde_torchrl.objectives.base import EpisodesError
 from sde_torchrl.objectives.estimators import (
     enac_gradient,
@@ -113,11 +112,33 @@ def test_scores_that_do_not_fit_the_episodes_are_refused():
         gpomdp(episodes, scores=scores)
 
 
-def test_the_config_refuses_kept_scores_without_a_queue_or_with_pgpe():
+def test_pgpe_scores_each_queued_draw_under_the_distribution_that_drew_it(tmp_path):
+    trainer = build(*BUDGET, "lr=0.02", "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=false",
+                    "queue_scores=as_collected")
+    snapshots, updates = _recorded(trainer)
+    trainer.train(tmp_path)
+    explorer, estimator = trainer.estimator.explorer, trainer.estimator
+    for k, (episodes, kept, rescored) in enumerate(updates):
+        theta = episodes.get(explorer.parameters_key)[..., 0, :]
+        drawn = [snapshots[c] for c in range(k, k + 3) for _ in range(2)]  # two episodes per collection
+        mu = torch.stack([torch.cat([d[f"actor.module.{n}"].flatten(1) for n in explorer.parameter_names], -1)
+                          for d in drawn], 1)
+        sigma = torch.stack([d["explorer.sigma"] for d in drawn], 1)
+        returns = estimator.returns(episodes)
+        advantage = (returns - returns.mean(-1, keepdim=True)).unsqueeze(-1)
+        g_mu = (advantage * (theta - mu) / sigma**2).mean(1)
+        g_sigma = (advantage * ((theta - mu) ** 2 - sigma**2) / sigma**3).mean(1)
+        expected = estimator.surrogate(torch.cat([g_mu, g_sigma], -1), returns, 1)["gradient"]
+        torch.testing.assert_close(kept, expected, rtol=1e-4, atol=1e-6)
+        if k == 0:
+            torch.testing.assert_close(kept, rescored)
+    assert not torch.allclose(updates[-1][1], updates[-1][2], rtol=1e-4, atol=1e-6)
+
+
+def test_the_config_refuses_kept_scores_without_a_queue_or_with_symmetric_pgpe():
     with pytest.raises(ArgumentError, match="queue_scores=as_collected: rescored without an episode queue"):
         build("queue_scores=as_collected")
-    with pytest.raises(ArgumentError, match="queue_scores=as_collected: rescored with estimator=pgpe"):
-        build_trainer(compose_config("+experiment=ballcatch_pgpe", "logger=none", "runs=1",
-                                     "queue_scores=as_collected"))
+    with pytest.raises(ArgumentError, match="queue_scores=as_collected: rescored with explorer.symmetric=true"):
+        build(*BUDGET, "explorer=pgpe", "estimator=pgpe", "explorer.symmetric=true", "queue_scores=as_collected")
     with pytest.raises(ArgumentError, match="queue_scores=kept: one of"):
         build(*BUDGET, "queue_scores=kept")

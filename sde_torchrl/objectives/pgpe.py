@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from functools import partial
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from tensordict.utils import NestedKey
 from torch import nn
@@ -114,6 +114,39 @@ def symmetric_pgpe_gradient(
     g_mu = (perturbations * ((plus - minus) / 2).unsqueeze(-1)).mean(-2) / variance
     g_sigma = ((mid - baseline.unsqueeze(-1)).unsqueeze(-1) * (perturbations.square() - variance.unsqueeze(-2))
                ).mean(-2) / sigma.pow(3)
+    return _weighted(g_mu, g_sigma, sigma, variance_weighted) + (baseline,)
+
+
+def kept_pgpe_gradient(
+    perturbations: torch.Tensor, sigmas: torch.Tensor, returns: torch.Tensor, sigma: torch.Tensor,
+    variance_weighted: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`pgpe_gradient` with each episode scored under the distribution that drew it:
+    ``g_μ = (1/N) Σ_n (R_n − b) (θ_n − μ_n) / σ_n²`` and ``g_σ = (1/N) Σ_n (R_n − b) ((θ_n −
+    μ_n)² − σ_n²) / σ_n³``, ``μ_n, σ_n`` those of episode ``n``'s draw; with ``variance_weighted``
+    both times the current ``σ²`` (the step sizes ``α_i = α σ_i²`` of the update).
+
+    Args:
+        perturbations: ``θ_n − μ_n``, ``[*runs, N, K]``.
+        sigmas: ``σ_n``, ``[*runs, N, K]``.
+        returns: ``R_n``, ``[*runs, N]``.
+        sigma: the current ``σ``, ``[*runs, K]``.
+        variance_weighted: the paper's step sizes.
+
+    Returns:
+        ``(g_μ, g_σ, b)``: ``[*runs, K]``, ``[*runs, K]``, ``[*runs]``.
+
+    Examples:
+        >>> eps, sigma = torch.tensor([[1.0], [-1.0]]), torch.tensor([0.5])
+        >>> kept = kept_pgpe_gradient(eps, sigma.expand(2, 1), torch.tensor([3.0, 1.0]), sigma)
+        >>> all(torch.allclose(a, b) for a, b in zip(kept, pgpe_gradient(eps, torch.tensor([3.0, 1.0]), sigma)))
+        True
+    """
+    baseline = batch_mean_baseline(returns)
+    advantage = (returns - baseline.unsqueeze(-1)).unsqueeze(-1)
+    variance = sigmas.square()
+    g_mu = (advantage * perturbations / variance).mean(-2)
+    g_sigma = (advantage * (perturbations.square() - variance) / sigmas.pow(3)).mean(-2)
     return _weighted(g_mu, g_sigma, sigma, variance_weighted) + (baseline,)
 
 
@@ -290,8 +323,54 @@ class PGPEEstimator(GradientEstimator):
                                 "whole episode of one parameter draw; collect them with "
                                 "sde_torchrl.collectors.rollout.collect_episodes(env, policy, T)", key)
 
-    def forward(self, episodes: TensorDictBase) -> TensorDictBase:
-        """Estimates one gradient per run from the episodes.
+    def collected_scores(self, episodes: TensorDictBase) -> TensorDict:
+        """What scores each episode under the distribution that drew it, to be kept with it while
+        it waits in an episode queue and handed back to :meth:`forward` (``scores=``): its
+        ``perturbations`` ``θ_n − μ`` and ``sigma`` ``σ``, both ``[*runs, N, K]``, now.
+
+        Raises:
+            ValueError: the explorer samples symmetrically (kept scores are for plain
+                sampling; a symmetric pair is scored by the difference of its draws).
+
+        Examples:
+            >>> from tensordict.nn import TensorDictSequential
+            >>> from sde_torchrl import LinearActor, make_minimize_env
+            >>> from sde_torchrl.modules.pgpe import ParameterExplorer
+            >>> from sde_torchrl.collectors.rollout import collect_episodes
+            >>> actor = LinearActor(1, 1, init=-2.0)
+            >>> explorer = ParameterExplorer(actor, symmetric=False)
+            >>> env = make_minimize_env(5, episodes=8).append_transform(explorer.make_tensordict_primer())
+            >>> policy = TensorDictSequential(actor, explorer)
+            >>> estimator = PGPEEstimator(policy, episode_return="sum")
+            >>> episodes = collect_episodes(env, policy, 5)
+            >>> kept = estimator.collected_scores(episodes)
+            >>> kept.batch_size, kept["sigma"].shape
+            (torch.Size([8]), torch.Size([8, 1]))
+            >>> bool(torch.allclose(estimator(episodes, scores=kept)["gradient"], estimator(episodes)["gradient"]))
+            True
+        """
+        if self.explorer.symmetric:
+            raise ValueError("collected_scores is for plain sampling: this explorer samples symmetrically, and scores "
+                             "each pair of episodes by the difference of its draws (use queue_scores=rescored, or "
+                             "ParameterExplorer(..., symmetric=False))")
+        perturbations = self.perturbations(episodes)
+        sigma = torch.broadcast_to(self.explorer.sigma.detach().unsqueeze(-2), perturbations.shape).clone()
+        return TensorDict({"perturbations": perturbations, "sigma": sigma}, batch_size=perturbations.shape[:-1])
+
+    def _kept_scores(self, scores: TensorDictBase, episodes: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(θ_n − μ_n, σ_n)`` from :meth:`collected_scores`, checked against the episodes."""
+        expected = (*episodes.batch_size[:-1], self.explorer.num_parameters)
+        if not isinstance(scores, TensorDictBase) or any(
+                scores.get(name, None) is None or tuple(scores.get(name).shape) != expected
+                for name in ("perturbations", "sigma")):
+            raise EpisodesError(f"scores: expected the TensorDict of collected_scores(episodes): perturbations "
+                                f"and sigma, each shaped {expected} for episodes shaped {tuple(episodes.batch_size)}")
+        return scores["perturbations"], scores["sigma"]
+
+    def forward(self, episodes: TensorDictBase, scores: TensorDictBase | None = None) -> TensorDictBase:
+        """Estimates one gradient per run from the episodes: with ``scores`` (from
+        :meth:`collected_scores`) each episode scored under the distribution that drew it
+        (:func:`kept_pgpe_gradient`), else under the current one.
 
         Returns:
             TensorDict with ``loss_objective``, ``return_mean``, ``gradient``, ``gradient_norm``,
@@ -300,6 +379,15 @@ class PGPEEstimator(GradientEstimator):
         self.check_episodes(episodes)
         returns = self.returns(episodes)
         sigma = self.explorer.sigma.detach()
+        if scores is not None:
+            perturbations, sigmas = self._kept_scores(scores, episodes)
+            g_mu, g_sigma, baseline = kept_pgpe_gradient(perturbations, sigmas, returns, sigma, self.variance_weighted)
+            gradient = torch.cat([g_mu, g_sigma], -1) if self._learns_sigma() else g_mu
+            mu_score, sigma_score = perturbations / sigmas.square(), (perturbations.square() - sigmas.square()) / \
+                sigmas.pow(3)
+            flat = torch.cat([mu_score, sigma_score], -1) if self._learns_sigma() else mu_score
+            return self.surrogate(gradient, returns, self.explorer.run_dims, score_norm=flat.norm(dim=-1).mean(-1),
+                                  baseline=baseline)
         perturbations = self.perturbations(episodes)
         if self.explorer.symmetric:
             theta = episodes.get(self.tensor_keys.parameters)[..., 0, :]

@@ -86,7 +86,10 @@ class FiniteGuard:
         """The estimator's output: per-run score norms and the gradient ``[runs, K]``; ``scores``:
         the episodes' scores as collected, where the estimator was given them."""
         if not _finite(out["score_norm"]):
-            named = self.estimator.scores(episodes) if scores is None else dict(scores["episode"].items())
+            if scores is None:
+                named = self.estimator.scores(episodes)
+            else:  # the episodic estimators' per-parameter scores, or PGPE's draws
+                named = dict((scores["episode"] if "episode" in scores.keys() else scores).items())
             self._raise_named(update, "score", named, out["score_norm"])
         if not _finite(out["gradient"]):
             self._raise_named(update, "gradient", self._split(out["gradient"]))

@@ -94,7 +94,9 @@ class Trainer:
 
     def collect_scored(self) -> TensorDictBase:
         """:meth:`collect`'s episodes with their scores under the parameters that collected
-        them (:meth:`~sde_torchrl.objectives.estimators.EpisodicEstimator.collected_scores`),
+        them (the estimator's ``collected_scores``:
+        :meth:`~sde_torchrl.objectives.estimators.EpisodicEstimator.collected_scores`,
+        :meth:`~sde_torchrl.objectives.pgpe.PGPEEstimator.collected_scores`),
         ``{"episodes": [runs, N, T], "scores": ...}`` shaped ``[runs, N]``: what the queue keeps
         under ``queue_scores=as_collected``."""
         episodes = self.collect()

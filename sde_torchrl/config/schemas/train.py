@@ -83,8 +83,8 @@ class TrainConf(Frozen):
             ball-catching schedule); a multiple of ``episodes_per_update``.
         queue_scores: when a queued episode is scored: ``rescored``, again at every update
             under the current parameters, or ``as_collected``, once under the parameters that
-            collected it (the authors' PyBrain learners); needs ``episode_queue > 0``. PGPE's
-            estimator rescores its parameter draws and refuses ``as_collected``.
+            collected it (the authors' PyBrain learners; PGPE: the distribution that drew the
+            parameters); needs ``episode_queue > 0``, and for PGPE plain sampling.
         checkpoint_period: write ``checkpoint.pt`` every this many updates (0: only at the end).
         progress: progress bar; ``null``: only on a terminal and outside a multirun.
         threads: torch intra-op threads per job (a job is a sequence of small ops; the jobs of a
@@ -265,10 +265,11 @@ def _check_pgpe(conf: TrainConf) -> None:
 
 
 def _check_queue_scores(conf: TrainConf) -> None:
-    """``queue_scores=as_collected`` for the estimators that keep scores (REINFORCE, ENAC, GPOMDP)."""
-    if conf.queue_scores == "as_collected" and isinstance(conf.estimator, PGPEEstimatorConf):
-        raise ArgumentError("queue_scores", "as_collected", "rescored with estimator=pgpe (its scores are "
-                                                            "recomputed from the queued parameter draws)")
+    """``queue_scores=as_collected`` but for symmetric PGPE (kept scores are for plain sampling)."""
+    if conf.queue_scores == "as_collected" and getattr(conf.explorer, "symmetric", False):
+        raise ArgumentError("queue_scores", "as_collected", "rescored with explorer.symmetric=true (kept scores "
+                                                            "are for plain sampling; a symmetric pair is scored by "
+                                                            "the difference of its draws), or explorer.symmetric=false")
 
 
 def _check_scores(conf: TrainConf) -> None:
