@@ -5,7 +5,7 @@ and ``<!-- results:end -->``: one row per measure, one measure per cell (each me
 interval in their own columns, the paper's where it states one), and a one-line legend under it
 saying what each column is. This script writes that block from
 ``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
-(``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed3/fig6.json``,
+(``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed6/fig6.json``,
 ``methods_selected/methods.json``, ``methods_seed4/methods.json``, ``selected/fig5.json``), the
 quick start's run (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/gsde_table.json``,
 ``docs/sac/gsde_table.json``, ``docs/gsde_table/gsde_table.json`` and the speed tables the
@@ -102,7 +102,7 @@ def summary() -> str:
     methods = _load("ballcatch/methods.json")["explorers"]
     selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
     fig5_selected = _load("ballcatch/fig5_seed3/fig5.json")["explorers"]
-    fig6_selected = _load("ballcatch/fig6_seed3/fig6.json")["explorers"]
+    fig6_selected = _load("ballcatch/fig6_seed6/fig6.json")["explorers"]
     reevaluation = _load("ballcatch/reevaluation.json")["explorers"]
     held = {explorer: arms["pybrain_held"] for explorer, arms in reevaluation.items()}
     methods_selected = _load("ballcatch/methods_selected/methods.json")["explorers"]

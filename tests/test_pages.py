@@ -34,6 +34,9 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
     "fig6_seed3": (fig6, [str(RECORDS / "runs" / "fig6_seed3" / "sde"),
                           str(RECORDS / "runs" / "fig6_selected" / "rex")],
                    BALLCATCH / "fig6_seed3", ("fig6.md", "fig6.json")),
+    "fig6_seed6": (fig6, [str(RECORDS / "runs" / "fig6_seed6" / "sde"),
+                          str(RECORDS / "runs" / "fig6_selected" / "rex")],
+                   BALLCATCH / "fig6_seed6", ("fig6.md", "fig6.json")),
     "methods_selected": (fig5, [*(str(RECORDS / "runs" / folder) for folder in
                                     ("fig5_selected/sde", "fig5_selected/rex", "methods_selected/gpomdp",
                                      "methods_selected/pgpe")),
@@ -53,7 +56,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                       ("fig5.md", "fig5.json")),
     "controllers": (ballcatch_controllers, [f"{label}={RECORDS / 'runs' / path}" for label, path in (
         ("REINFORCE + SDE, Fig. 5", "fig5_seed3/sde"), ("REINFORCE + REX, Fig. 5", "fig5_seed3/rex"),
-        ("ENAC + SDE, Fig. 6", "fig6_seed3/sde"))], BALLCATCH, ("controllers.md", "controllers.json")),
+        ("ENAC + SDE, Fig. 6, earlier learner", "fig6_seed3/sde"), ("ENAC + SDE, Fig. 6", "fig6_seed6/sde"))],
+        BALLCATCH, ("controllers.md", "controllers.json")),
     "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
     "ppo": (gsde_table, ["report", str(REPO / "results" / "ppo" / "f025")], REPO / "docs" / "ppo",
             ("gsde_table.md", "gsde_table.json")),
