@@ -284,18 +284,20 @@ def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path,
     is the trainer's final evaluation, to the bit, however the runs are split into chunks; on
     another seed the balls differ; a job the config tree no longer rebuilds is refused."""
     from analysis.paper import ballcatch_final as final
+    from sde_torchrl.trainers.summary import mean_reward_factor
     job = [*experiment, "runs=3", "updates=2", "eval_period=2", "env.episode_length=60", "logger=none"]
     assert run_cli(*job, run_dir=tmp_path / "job", timeout=600).returncode == 0
     summary = json.loads((tmp_path / "job" / "summary.json").read_text())
     assert final.main(["--episodes", "3", "--seed", "0", "--chunk", "2", str(tmp_path)]) == 0
     found = json.loads((tmp_path / "job" / "final_policy.json").read_text())
-    assert found["final_policy_return"] == summary["final_eval_return"]  # means: no scale
+    factor = mean_reward_factor(summary)  # 1 for mean returns, 1/T for ENAC's summed ones
+    assert found["final_policy_return"] == [factor * r for r in summary["final_eval_return"]]
     assert (found["explorer"], found["first_run"]) == ("sde", 0)
     with pytest.raises(SystemExit):  # the file holds another evaluation
         final.main(["--episodes", "3", "--seed", "7", str(tmp_path)])
     assert final.main(["--episodes", "3", "--seed", "7", "--chunk", "3", "--force", str(tmp_path)]) == 0
     other = json.loads((tmp_path / "job" / "final_policy.json").read_text())["final_policy_return"]
-    assert other != summary["final_eval_return"]
+    assert other != [factor * r for r in summary["final_eval_return"]]
     overrides = tmp_path / "job" / ".hydra" / "overrides.yaml"
     overrides.write_text(overrides.read_text() + "- env.jitter=0.1\n")
     with pytest.raises(SystemExit, match="env.jitter: 0.05 -> 0.1"):
