@@ -155,13 +155,13 @@ def test_selection_counts_catches_then_mean_then_order():
 
 @pytest.mark.parametrize("method, experiment, round_", [
     ("reinforce_sde", "ballcatch", 3), ("reinforce_rex", "ballcatch_rex", 3),
-    ("enac_sde", "ballcatch_enac", 6), ("enac_rex", "ballcatch_enac_rex", 3), ("gpomdp_sde", "ballcatch_gpomdp", 3),
+    ("enac_sde", "ballcatch_enac", 6), ("enac_rex", "ballcatch_enac_rex", 3), ("gpomdp_sde", "ballcatch_gpomdp", 6),
     ("pgpe", "ballcatch_pgpe", 4),
 ])
 def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, round_):
     """+experiment=ballcatch (ballcatch_rex, ...) is the candidate docs/ballcatch/tuning.json chose
-    in the round whose rerun sweep is committed (REINFORCE with SDE and REX, ENAC + REX and
-    GPOMDP + SDE: round 3's, which the later rounds kept; PGPE: round 4's; ENAC + SDE: round 6's),
+    in the round whose rerun sweep is committed (REINFORCE with SDE and REX and ENAC + REX: round
+    3's, which the later rounds kept; PGPE: round 4's; ENAC + SDE and GPOMDP + SDE: round 6's),
     but for the tuning job's own seed, runs and bookkeeping."""
     from _helpers import REPO
     from omegaconf import OmegaConf
