@@ -148,6 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "controllers.json").write_text(json.dumps(numbers, indent=1) + "\n")
     (args.out / "controllers.md").write_text(markdown(numbers))
+    for label, levels in numbers["sweeps"].items():
+        caught = [n for level, n in levels.items() if level in ("good catch", "catch")]
+        runs, lifting = sum(n["runs"] for n in caught), sum(n[REST[1]]["lifting"] for n in caught)
+        print(f"{label}: the hand closes on a resting ball in {lifting} of the {runs} runs ending with a catch")
+    print(f"wrote {args.out / 'controllers.md'}")
     return 0
 
 

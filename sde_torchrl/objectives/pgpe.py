@@ -144,9 +144,8 @@ def kept_pgpe_gradient(
     """
     baseline = batch_mean_baseline(returns)
     advantage = (returns - baseline.unsqueeze(-1)).unsqueeze(-1)
-    variance = sigmas.square()
-    g_mu = (advantage * perturbations / variance).mean(-2)
-    g_sigma = (advantage * (perturbations.square() - variance) / sigmas.pow(3)).mean(-2)
+    mu_score, sigma_score = parameter_scores(perturbations, sigmas)
+    g_mu, g_sigma = (advantage * mu_score).mean(-2), (advantage * sigma_score).mean(-2)
     return _weighted(g_mu, g_sigma, sigma, variance_weighted) + (baseline,)
 
 
@@ -161,9 +160,12 @@ def _weighted(g_mu: torch.Tensor, g_sigma: torch.Tensor, sigma: torch.Tensor,
 
 def parameter_scores(perturbations: torch.Tensor, sigma: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``∂ log p(θ | μ, σ) / ∂μ = (θ − μ)/σ²`` and ``∂/∂σ = ((θ − μ)² − σ²)/σ³``, from
-    ``θ − μ`` ``[*runs, N, K]`` and ``σ`` ``[*runs, K]`` (Sehnke et al. 2010, section 2.2)."""
-    variance = sigma.unsqueeze(-2).square()
-    return perturbations / variance, (perturbations.square() - variance) / sigma.unsqueeze(-2).pow(3)
+    ``θ − μ`` ``[*runs, N, K]`` and ``σ`` ``[*runs, K]``, or ``[*runs, N, K]`` for each episode's
+    own ``σ`` (Sehnke et al. 2010, section 2.2)."""
+    if sigma.dim() < perturbations.dim():
+        sigma = sigma.unsqueeze(-2)
+    variance = sigma.square()
+    return perturbations / variance, (perturbations.square() - variance) / sigma.pow(3)
 
 
 #: The expected policy, as the errors name it.
@@ -383,11 +385,8 @@ class PGPEEstimator(GradientEstimator):
             perturbations, sigmas = self._kept_scores(scores, episodes)
             g_mu, g_sigma, baseline = kept_pgpe_gradient(perturbations, sigmas, returns, sigma, self.variance_weighted)
             gradient = torch.cat([g_mu, g_sigma], -1) if self._learns_sigma() else g_mu
-            mu_score, sigma_score = perturbations / sigmas.square(), (perturbations.square() - sigmas.square()) / \
-                sigmas.pow(3)
-            flat = torch.cat([mu_score, sigma_score], -1) if self._learns_sigma() else mu_score
-            return self.surrogate(gradient, returns, self.explorer.run_dims, score_norm=flat.norm(dim=-1).mean(-1),
-                                  baseline=baseline)
+            score_norm = self._flat_scores(perturbations, sigmas).norm(dim=-1).mean(-1)
+            return self.surrogate(gradient, returns, self.explorer.run_dims, score_norm=score_norm, baseline=baseline)
         perturbations = self.perturbations(episodes)
         if self.explorer.symmetric:
             theta = episodes.get(self.tensor_keys.parameters)[..., 0, :]
