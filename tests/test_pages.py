@@ -15,7 +15,7 @@ import pytest
 from _helpers import REPO
 
 from analysis.benchmarks.gsde_table import cli as gsde_table
-from analysis.paper import ballcatch_controllers, fig5, fig6, table1
+from analysis.paper import ballcatch_controllers, ballcatch_finger_probe, fig5, fig6, table1
 from analysis.selection import ballcatch_tuning, learner_search
 
 BALLCATCH = REPO / "docs" / "ballcatch"
@@ -61,6 +61,9 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
         ("REINFORCE + SDE, Fig. 5", "fig5_seed3/sde"), ("REINFORCE + REX, Fig. 5", "fig5_seed3/rex"),
         ("ENAC + SDE, Fig. 6, earlier learner", "fig6_seed3/sde"), ("ENAC + SDE, Fig. 6", "fig6_seed6/sde"))],
         BALLCATCH, ("controllers.md", "controllers.json")),
+    # each job's finger_probe.json is its record (the simulation is not run again)
+    "finger_probe": (ballcatch_finger_probe, [str(RECORDS / "runs" / "fig5_seed3" / "sde")], BALLCATCH,
+                     ("finger_probe.md", "finger_probe.json")),
     "tuning": (ballcatch_tuning, ["report", str(RECORDS / "tuning")], BALLCATCH, ("tuning.md", "tuning.json")),
     "ppo": (gsde_table, ["report", str(REPO / "results" / "ppo" / "f025")], REPO / "docs" / "ppo",
             ("gsde_table.md", "gsde_table.json")),
