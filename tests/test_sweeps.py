@@ -95,7 +95,9 @@ def test_sigterm_to_a_joblib_sweep_checkpoints_its_jobs_and_leaves_no_orphan(tmp
 
     from sde_torchrl.jobs.lock import held_by
 
-    sweep = ("+experiment=minimize", "seed=0,1,2", "updates=120", "runs=2", "eval_period=20", "checkpoint_period=0",
+    # 1000 updates keep a job training for seconds (120 took 0.3 s: under CI's load the second job
+    # could finish between the test seeing its first metrics row and the signal reaching it)
+    sweep = ("+experiment=minimize", "seed=0,1,2", "updates=1000", "runs=2", "eval_period=20", "checkpoint_period=0",
              "logger=none", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
     command = train_command(*sweep, run_dir=tmp_path / "sweep", multirun=True)
     log = tmp_path / "stderr.txt"
