@@ -65,3 +65,16 @@ def test_raises_fingers_reads_the_step_of_a_known_finger_gradient():
 def test_docstring_examples_run():
     result = doctest.testmod(probe, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_a_sweep_the_probe_cannot_read_is_refused_by_name(tmp_path, capsys):
+    from _helpers import REPO
+
+    from sde_torchrl.jobs.run_dir import finished_runs
+
+    rex = finished_runs(REPO / "results" / "ballcatch" / "runs" / "fig5_seed3" / "rex")[0]
+    with pytest.raises(SystemExit, match="not a linear ball-catching job with SDE"):
+        probe.probe_job(rex)
+    with pytest.raises(SystemExit) as stop:
+        probe.main([str(tmp_path), "--out", str(tmp_path / "out")])
+    assert stop.value.code == 2 and "no finished jobs under" in capsys.readouterr().err
