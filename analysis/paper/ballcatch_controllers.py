@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 from sde_torchrl.envs.ballcatch.models import ARM_MODELS, PYBRAIN_MAX_TORQUES
-from sde_torchrl.envs.ballcatch.outcomes import LEVELS, catch_level
+from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES, catch_level
 from sde_torchrl.jobs.run_dir import finished_runs
 from sde_torchrl.trainers.summary import mean_reward_factor
 
@@ -100,9 +100,8 @@ def group_numbers(runs: list[dict]) -> dict:
 def sweep_numbers(runs: list[dict]) -> dict:
     """:func:`group_numbers` per level of the final evaluation, best level first (levels no run
     reached are left out)."""
-    levels = [name for _, name in LEVELS] + ["dropped"]
     return {level: group_numbers([r for r in runs if r["level"] == level])
-            for level in levels if any(r["level"] == level for r in runs)}
+            for level in LEVEL_NAMES if any(r["level"] == level for r in runs)}
 
 
 def markdown(numbers: dict) -> str:

@@ -72,24 +72,32 @@ CANDIDATES = {
 }
 #: the candidates that switch whether σ̂ is learned (fixed where the method's command learns it).
 SIGMA_SWITCHED = ("C9",)
-#: the candidates each round chooses among, in the order that breaks its last tie
-#: (learner_selection.md; rounds 2 and 3 added on 2026-12-03, round 4 on 2026-12-04, round 5 on
-#: 2026-12-05, rounds 6 and 7 on 2026-12-06, round 8 on 2026-12-07).
-ROUNDS = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)[:9], 3: ["C7", "C1", "C10", "C11", "C12"],
-          4: ["C7", "C1", "C10", "C11", "C12", "C13"], 5: ["C7", "C1", "C10", "C11", "C12", "C13", "C14"],
-          6: ["C7", "C1", "C10", "C11", "C12", "C13", "C14", "C15", "C16"],
-          7: ["C7", "C1", "C10", "C11", "C12", "C13", "C14", "C15", "C16", "C17"],
-          8: ["C7", "C1", "C10", "C11", "C12", "C13", "C14", "C15", "C16", "C17", "C18"]}
-#: round → (tuning seed, runs per job, folder under the tuning directory); rounds 4 to 8 add
-#: their candidates to round 3's jobs on the same seed.
-ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), 3: (3000, 16, "round3"), 4: (3000, 16, "round3"),
-              5: (3000, 16, "round3"), 6: (3000, 16, "round3"), 7: (3000, 16, "round3"), 8: (3000, 16, "round3")}
+#: the candidates each round from round 4 on adds to the round before it (learner_selection.md;
+#: round 4 added on 2026-12-04, round 5 on 2026-12-05, rounds 6 and 7 on 2026-12-06, round 8 on
+#: 2026-12-07).
+ADDED = {4: ("C13",), 5: ("C14",), 6: ("C15", "C16"), 7: ("C17",), 8: ("C18",)}
+
+
+def _rounds() -> dict[int, list[str]]:
+    """The candidates each round chooses among, in the order that breaks its last tie: rounds 1
+    and 2 (C1–C8, then C9) and round 3 (added on 2026-12-03), then round 3's grid with every later
+    round's additions (:data:`ADDED`)."""
+    rounds = {1: list(CANDIDATES)[:8], 2: list(CANDIDATES)[:9], 3: ["C7", "C1", "C10", "C11", "C12"]}
+    for round_, added in ADDED.items():
+        rounds[round_] = [*rounds[round_ - 1], *added]
+    return rounds
+
+
+ROUNDS = _rounds()
+#: round → (tuning seed, runs per job, folder under the tuning directory); rounds 4 on add their
+#: candidates to round 3's jobs on the same seed.
+ROUND_JOBS = {1: (SEED, RUNS, ""), 2: (SEED, RUNS, ""), **{r: (3000, 16, "round3") for r in ROUNDS if r >= 3}}
 #: candidates that are another candidate's job for the methods whose command fixes σ̂ (ENAC):
 #: C13 fixes σ̂ at e⁻³, which C10 already does there, and C14 steps a σ̂ that is not learned.
 SAME_WHERE_SIGMA_FIXED = {"C13": "C10", "C14": "C10"}
-#: rounds 3 to 8: the key of a method's choice in each round's numbers, and its mark in the table.
-LATER_ROUNDS = {3: ("chosen", "‡"), 4: ("chosen_round4", "§"), 5: ("chosen_round5", "¶"), 6: ("chosen_round6", "◊"),
-                7: ("chosen_round7", "※"), 8: ("chosen_round8", "⁂")}
+#: rounds 3 on: the key of a method's choice in each round's numbers, and its mark in the table.
+LATER_ROUNDS = {r: ("chosen" if r == 3 else f"chosen_round{r}", mark)
+                for r, mark in zip(range(3, max(ROUNDS) + 1), "‡§¶◊※⁂", strict=True)}
 
 
 def job_overrides(method: str, candidate: str, round_: int = 1) -> list[str]:
@@ -213,7 +221,7 @@ def candidate_numbers(finals: list[float] | None) -> dict | None:
 
 
 def round3_numbers(folder: Path) -> dict:
-    """Rounds 3 to 8's jobs under ``folder`` (``<method>/<candidate>``, one seed) and each method's
+    """The jobs of rounds 3 on under ``folder`` (``<method>/<candidate>``, one seed) and each method's
     choice in each round, made once all its candidates of that round have finished or failed
     (more catches, then good catches, then the mean; a failed job counts as no catch)."""
     seed, runs, _ = ROUND_JOBS[3]
@@ -243,15 +251,15 @@ def round_choice(folder: Path, method: str, results: dict[str, list[float] | Non
 
 
 def round3_markdown(numbers: dict) -> list[str]:
-    """Rounds 3 to 8's table: one row per candidate, one column per method that ran any of its jobs."""
+    """The table of rounds 3 on: one row per candidate, one column per method that ran any of its jobs."""
     methods = numbers["methods"]
     if not methods:
         return []
-    lines = ["", f"## Rounds 3 to 8 (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
-             "The same cells; ‡: the method's choice in round 3 (C7, C1, C10, C11, C12: most final catches, then "
-             "good catches, then the mean), §: its choice in round 4 (the same with C13), ¶: its choice in round "
-             "5 (the same with C14), ◊: its choice in round 6 (the same with C15 and C16), ※: its choice in round 7 "
-             "(the same with C17), ⁂: its choice in round 8 (the same with C18), each made once all of "
+    later = "".join(f", {LATER_ROUNDS[r][1]}: its choice in round {r} (the same with {' and '.join(added)})"
+                    for r, added in ADDED.items())
+    lines = ["", f"## Rounds 3 to {max(ROUNDS)} (seed {numbers['seed']}, {numbers['runs']} runs per job)", "",
+             f"The same cells; {LATER_ROUNDS[3][1]}: the method's choice in round 3 ({', '.join(ROUNDS[3])}: most "
+             f"final catches, then good catches, then the mean){later}, each made once all of "
              "that round's candidates have run; = C10: the same job "
              "(the method fixes σ̂ already); failed: the job stopped with an error (its `error.txt`), its runs "
              "counted as not catching.", "",

@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["BEHAVIOURS", "LEVELS", "catch_level", "catch_outcomes"]
+__all__ = ["BEHAVIOURS", "LEVELS", "LEVEL_NAMES", "catch_level", "catch_outcomes"]
 
 #: The paper's levels of the mean reward per step, best first, and their names.
 LEVELS = ((-1.0, "good catch"), (-1.1, "catch"), (-1.5, "on the hand"), (-2.0, "slowed"))
+#: Every name :func:`catch_level` gives, best first: the levels, then "dropped" below them all.
+LEVEL_NAMES = (*(name for _, name in LEVELS), "dropped")
 #: The behaviours, by the code :func:`catch_outcomes` gives them.
 BEHAVIOURS = ("dropped", "kept on the hand", "held")
 
@@ -34,7 +36,7 @@ def catch_level(mean_reward: float) -> str:
         >>> [catch_level(r) for r in (-0.95, -1.05, -1.3, -1.8, -2.5)]
         ['good catch', 'catch', 'on the hand', 'slowed', 'dropped']
     """
-    return next((name for bound, name in LEVELS if mean_reward >= bound), "dropped")
+    return next((name for bound, name in LEVELS if mean_reward >= bound), LEVEL_NAMES[-1])
 
 
 def catch_outcomes(
