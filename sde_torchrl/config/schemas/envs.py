@@ -20,7 +20,7 @@ from sde_torchrl.utils.options import NORMALIZATIONS, REWARD_STATES
 
 #: ``env.model``'s names. The arms are kept beside the models' data, which imports pybullet on use:
 #: a test checks the two agree.
-ARM_MODELS = ("pybrain", "cup", "pybrain_held")
+ARM_MODELS = ("pybrain", "cup", "pybrain_held", "pybrain_strong_fingers")
 
 
 @dataclass
@@ -70,8 +70,9 @@ class BallCatchEnvConf(Frozen):
     Attributes:
         episode_length: steps of 0.01 s per episode.
         jitter: half-width of the uniform horizontal release offset, in ``[0, 0.4]``.
-        model: the arm, ``pybrain`` (after PyBrain's ``arm.xode``, the authors' arm), ``cup``, or the
-            diagnostic ``pybrain_held`` (the pybrain arm with shoulder, elbow and wrist held).
+        model: the arm, ``pybrain`` (after PyBrain's ``arm.xode``, the authors' arm), ``cup``, or a
+            diagnostic: ``pybrain_held`` (the pybrain arm with shoulder, elbow and wrist held) or
+            ``pybrain_strong_fingers`` (the pybrain arm with its finger actuator doubled).
         observation: ``raw`` (the ball position, the paper's) or ``scaled`` (mapped onto
             [-1, 1] over the arm's workspace, a constant feature 1 appended).
 

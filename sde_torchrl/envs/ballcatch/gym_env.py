@@ -50,7 +50,7 @@ class BallCatchEnv(gym.Env):
         render_mode: ``None`` or ``"rgb_array"`` (software renderer, no display needed).
         config: physical parameters; ``BallCatchConfig(jitter=0.0)`` makes every episode identical.
         render_size: ``(width, height)`` of rendered frames.
-        model: the arm (``"pybrain"``, the default, ``"cup"`` or ``"pybrain_held"``,
+        model: the arm (``"pybrain"``, the default, ``"cup"`` or a diagnostic,
             :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`) when no ``config`` is
             given, e.g. ``gymnasium.make("sde_torchrl/BallCatch-v0", model="cup")``; with a
             ``config`` it must be ``None`` or the config's model.

@@ -45,6 +45,11 @@ Two models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`):
   height 0.5 whatever the controller does. A diagnostic (how a policy's hand does on a level
   palm), not the paper's task.
 
+* ``"pybrain_strong_fingers"``: model ``"pybrain"`` with twice the finger actuator's maximum
+  torque (:data:`STRONG_FINGER_TORQUES`), so a finger starts to lift at a command of about 0.29
+  instead of 0.58. A diagnostic (does the finger actuator's dead zone hold learners back?), not
+  the paper's task.
+
 Plain data (no pybullet): the physics that reads it is :mod:`~sde_torchrl.envs.ballcatch.world`.
 """
 
@@ -65,6 +70,7 @@ __all__ = [
     "PYBRAIN_MAX_TORQUES",
     "PYBRAIN_SCRIPTED_WEIGHTS",
     "SCRIPTED_WEIGHTS",
+    "STRONG_FINGER_TORQUES",
     "ArmModel",
     "scripted_action",
     "scripted_weights",
@@ -100,6 +106,11 @@ the static torques that hold the arm in its start pose with the ball resting on 
 ball's weight) and, for the fingers, 1.5 times what lifts a straight finger off the palm (gravity
 2.42 plus joint friction 0.5 at the first hinge), rounded up: 600, 600, 90 and 5. A
 saturated controller can then lift the loaded arm and close the hand against gravity and friction."""
+
+STRONG_FINGER_TORQUES = PYBRAIN_MAX_TORQUES[:3] + (2.0 * PYBRAIN_MAX_TORQUES[3],)
+"""Maximum torques of the diagnostic model "pybrain_strong_fingers": those of model "pybrain" with
+the finger actuator doubled (10). A straight finger needs 2.92 at its first hinge (gravity 2.42
+plus joint friction 0.5) to lift, 0.58 of the shipped actuator's range and 0.29 of this one's."""
 
 
 @dataclass(frozen=True)
@@ -216,10 +227,14 @@ _PORTED_ARMS = {
         workspace=((-0.05, 5.95), (-3.0, 3.0), (0.0, 10.0)),  # palm centre (2.95, 0, 3.92), release at z 8.92
     ),
 }
-ARM_MODELS = {**_PORTED_ARMS, "pybrain_held": replace(_PORTED_ARMS["pybrain"], hold_arm=True)}
+ARM_MODELS = {
+    **_PORTED_ARMS,
+    "pybrain_held": replace(_PORTED_ARMS["pybrain"], hold_arm=True),
+    "pybrain_strong_fingers": replace(_PORTED_ARMS["pybrain"], max_torques=STRONG_FINGER_TORQUES),
+}
 """The arm models: ``"cup"`` (``assets/ballcatch.urdf``), ``"pybrain"`` (after PyBrain's
-``arm.xode``, ``assets/arm_pybrain.urdf``) and ``"pybrain_held"`` (the diagnostic: its arm
-joints held at the start angles). Every finger joint of model "pybrain" gets the whole finger
+``arm.xode``, ``assets/arm_pybrain.urdf``) and two diagnostics: ``"pybrain_held"`` (its arm
+joints held at the start angles) and ``"pybrain_strong_fingers"`` (its finger actuator doubled). Every finger joint of model "pybrain" gets the whole finger
 torque, as PyBrain's one-value actuator for several joints applies its value to each."""
 
 SCRIPTED_WEIGHTS = np.array(
@@ -263,7 +278,7 @@ does a hand closed from the start; an always-open hand gives the zero-torque reg
 
 def scripted_weights(model: str = DEFAULT_MODEL) -> np.ndarray:
     """The hand-written catching controller's weights for an arm model: :data:`SCRIPTED_WEIGHTS`
-    (``"cup"``) or :data:`PYBRAIN_SCRIPTED_WEIGHTS` (``"pybrain"``, ``"pybrain_held"``).
+    (``"cup"``) or :data:`PYBRAIN_SCRIPTED_WEIGHTS` (``"pybrain"`` and its diagnostics).
 
     Examples:
         >>> scripted_weights("pybrain")[3].tolist()  # only the fingers act

@@ -43,8 +43,9 @@ class BallCatchConfig:
         jitter: half-width of the uniform horizontal offset (x and y, units) of the ball's release
             point around the spot above the palm centre. Default 0.05.
         model: the arm, a key of :data:`~sde_torchrl.envs.ballcatch.models.ARM_MODELS`:
-            ``"pybrain"`` (the default, after the authors' ``arm.xode``), ``"cup"`` or the
-            diagnostic ``"pybrain_held"`` (the pybrain arm with its arm joints held).
+            ``"pybrain"`` (the default, after the authors' ``arm.xode``), ``"cup"`` or a
+            diagnostic: ``"pybrain_held"`` (the pybrain arm with its arm joints held) or
+            ``"pybrain_strong_fingers"`` (its finger actuator doubled).
         ball_mass: ball mass in kg.
         ball_friction: lateral friction of every body (ball, robot, ground).
         drop_height: release height of the ball centre above the palm centre.
