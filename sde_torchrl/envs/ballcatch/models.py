@@ -46,9 +46,8 @@ Two models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`):
   palm), not the paper's task.
 
 * ``"pybrain_strong_fingers"``: model ``"pybrain"`` with twice the finger actuator's maximum
-  torque (:data:`STRONG_FINGER_TORQUES`), so a finger starts to lift at a command of about 0.29
-  instead of 0.58. A diagnostic (does the finger actuator's dead zone hold learners back?), not
-  the paper's task.
+  torque (:data:`STRONG_FINGER_TORQUES`), so the same command closes the hand twice as hard. A
+  diagnostic (does the finger actuator's size hold learners back?), not the paper's task.
 
 Plain data (no pybullet): the physics that reads it is :mod:`~sde_torchrl.envs.ballcatch.world`.
 """
@@ -105,12 +104,14 @@ the static torques that hold the arm in its start pose with the ball resting on 
 (shoulder and elbow 307.8 + 92.0, wrist 46.6 + 13.2, from pybullet's inverse dynamics and the
 ball's weight) and, for the fingers, 1.5 times what lifts a straight finger off the palm (gravity
 2.42 plus joint friction 0.5 at the first hinge), rounded up: 600, 600, 90 and 5. A
-saturated controller can then lift the loaded arm and close the hand against gravity and friction."""
+saturated controller can then lift the loaded arm and close the hand against gravity and friction.
+A smaller command closes the hand too: the distal hinges, which carry less, curl first, and the
+folded finger's weight then acts closer to its first hinge (with the palm level, the first hinge
+lifts from a command of about 0.2)."""
 
 STRONG_FINGER_TORQUES = PYBRAIN_MAX_TORQUES[:3] + (2.0 * PYBRAIN_MAX_TORQUES[3],)
 """Maximum torques of the diagnostic model "pybrain_strong_fingers": those of model "pybrain" with
-the finger actuator doubled (10). A straight finger needs 2.92 at its first hinge (gravity 2.42
-plus joint friction 0.5) to lift, 0.58 of the shipped actuator's range and 0.29 of this one's."""
+the finger actuator doubled (10)."""
 
 
 @dataclass(frozen=True)
