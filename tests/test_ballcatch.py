@@ -432,6 +432,23 @@ def test_pybrain_pull_back_drops_the_ball(pybrain_env):
     assert max(returns) <= -2.8
 
 
+def test_strong_fingers_keep_the_regimes_and_close_a_settled_hand_sooner():
+    """The diagnostic arm with the finger actuator doubled: the scripted controller still catches,
+    zero torques and pulling back do as in the shipped arm, and once the arm has sunk and its
+    fingers rest on the ground a command of 0.6 closes its hand but not the shipped one."""
+    from analysis.paper.ballcatch_controllers import closes
+
+    env = BallCatchEnv(model="pybrain_strong_fingers")
+    try:
+        assert min(episode_return(env, "scripted", seed) for seed in PYBRAIN_SEEDS) >= -1.1
+        assert all(-2.5 <= episode_return(env, "zero", seed) <= -1.5 for seed in PYBRAIN_SEEDS)
+        assert max(episode_return(env, linear_policy(PULL_BACK_WEIGHTS), seed) for seed in PYBRAIN_SEEDS) <= -2.8
+    finally:
+        env.close()
+    assert BallCatchConfig(model="pybrain_strong_fingers").max_torques[3] == 2 * BallCatchConfig().max_torques[3]
+    assert closes("pybrain_strong_fingers", 150, 0.6) and not closes("pybrain", 150, 0.6)
+
+
 def test_pybrain_same_seed_same_episode(pybrain_env):
     a, b, c = (seeded_observations(pybrain_env, seed, 5) for seed in (4, 4, 9))
     np.testing.assert_array_equal(a, b)

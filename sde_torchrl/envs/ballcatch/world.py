@@ -281,6 +281,22 @@ class BallCatchWorld:
         except pybullet.error as err:
             raise RuntimeError(f"BallCatch {self.name}: pybullet client {self.client} is not usable: {err}") from err
 
+    def joint_angles(self) -> dict[str, float]:
+        """Angle (rad) of every actuated joint, by name (:attr:`ArmModel.joints`).
+
+        Examples:
+            >>> world = BallCatchWorld()
+            >>> world.reset((0.0, 0.0))
+            >>> world.joint_angles()["index_0"], len(world.joint_angles())
+            (0.0, 15)
+            >>> world.close()
+        """
+        try:
+            states = pybullet.getJointStates(self.robot, list(self.joints), physicsClientId=self.client)
+        except pybullet.error as err:
+            raise RuntimeError(f"BallCatch {self.name}: pybullet client {self.client} is not usable: {err}") from err
+        return {name: state[0] for name, state in zip(self.config.arm.joints, states, strict=True)}
+
     def ball_touches_hand(self) -> bool:
         """Whether the ball is in contact with the palm or a finger."""
         contacts = pybullet.getContactPoints(self.ball, self.robot, physicsClientId=self.client)
