@@ -578,7 +578,8 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
                      "env.episode_length=20", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     bad = run_cli("+experiment=ballcatch", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
-    assert bad.returncode != 0 and "env.model=ode: one of pybrain, cup, pybrain_held, pybrain_strong_fingers" in bad.stderr
+    assert bad.returncode != 0
+    assert "env.model=ode: one of pybrain, cup, pybrain_held, pybrain_strong_fingers" in bad.stderr
 
 
 def test_reset_after_close_names_the_problem():

@@ -235,8 +235,9 @@ ARM_MODELS = {
 }
 """The arm models: ``"cup"`` (``assets/ballcatch.urdf``), ``"pybrain"`` (after PyBrain's
 ``arm.xode``, ``assets/arm_pybrain.urdf``) and two diagnostics: ``"pybrain_held"`` (its arm
-joints held at the start angles) and ``"pybrain_strong_fingers"`` (its finger actuator doubled). Every finger joint of model "pybrain" gets the whole finger
-torque, as PyBrain's one-value actuator for several joints applies its value to each."""
+joints held at the start angles) and ``"pybrain_strong_fingers"`` (its finger actuator doubled).
+Every finger joint of model "pybrain" gets the whole finger torque, as PyBrain's one-value
+actuator for several joints applies its value to each."""
 
 SCRIPTED_WEIGHTS = np.array(
     [
