@@ -55,6 +55,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                              "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
     "held_training": (fig5, [str(RECORDS / "runs" / "held_training" / explorer) for explorer in ("sde", "rex")],
                       BALLCATCH / "held_training", ("fig5.md", "fig5.json")),
+    "strong_fingers": (fig5, [str(RECORDS / "runs" / "strong_fingers" / explorer) for explorer in ("sde", "rex")],
+                       BALLCATCH / "strong_fingers", ("fig5.md", "fig5.json")),
     "selected/fig5": (fig5, [str(RECORDS / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
     "controllers": (ballcatch_controllers, [f"{label}={RECORDS / 'runs' / path}" for label, path in (
