@@ -152,8 +152,8 @@ def markdown(numbers: dict) -> str:
         "# Ball catching: what the final controllers command",
         "",
         "Written by `analysis/paper/ballcatch_controllers.py` from the committed sweeps' final controllers "
-        f"`u = tanh(Θ x)`, read from their parameters (no simulation). A caught ball rests {on_palm} "
-        f"above the palm centre, or {against}, rolled against the fingers of the sunk, tilted palm. "
+        f"`u = tanh(Θ x)`, read from their parameters (the controllers are not simulated). A caught ball "
+        f"rests {on_palm} above the palm centre, or {against}, rolled against the fingers of the sunk, tilted palm. "
         f"**Runs closing**: runs whose finger command there is at least {closing['from the start']:.2f}, the "
         "smallest constant command from which every larger one closes an empty hand of the shipped arm from the "
         f"episode's start, while its palm sinks (every finger's first hinge past half its range within "

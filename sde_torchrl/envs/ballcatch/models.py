@@ -105,9 +105,8 @@ the static torques that hold the arm in its start pose with the ball resting on 
 ball's weight) and, for the fingers, 1.5 times what lifts a straight finger off the palm (gravity
 2.42 plus joint friction 0.5 at the first hinge), rounded up: 600, 600, 90 and 5. A
 saturated controller can then lift the loaded arm and close the hand against gravity and friction.
-A smaller command closes the hand too: the distal hinges, which carry less, curl first, and the
-folded finger's weight then acts closer to its first hinge (with the palm level, the first hinge
-lifts from a command of about 0.2)."""
+On a level palm a smaller command closes the hand too: the distal hinges, which carry less, curl
+first, and the folded finger's weight then acts closer to its first hinge."""
 
 STRONG_FINGER_TORQUES = PYBRAIN_MAX_TORQUES[:3] + (2.0 * PYBRAIN_MAX_TORQUES[3],)
 """Maximum torques of the diagnostic model "pybrain_strong_fingers": those of model "pybrain" with
