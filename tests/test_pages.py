@@ -20,17 +20,24 @@ from analysis.selection import ballcatch_tuning, learner_search
 
 BALLCATCH = REPO / "docs" / "ballcatch"
 RECORDS = REPO / "results" / "ballcatch"  # the committed run records the pages are written from
+
+
+def sde_against_rex(script, name: str) -> tuple:
+    """The page ``script`` (fig5 or fig6) writes into ``docs/ballcatch/<name>`` from the sweep pair
+    ``runs/<name>/{sde,rex}``."""
+    page = script.__name__.rsplit(".", 1)[-1]
+    return (script, [str(RECORDS / "runs" / name / explorer) for explorer in ("sde", "rex")], BALLCATCH / name,
+            (f"{page}.md", f"{page}.json"))
+
+
 PAGES = {  # page → (script, its arguments before --out, the folder the page is in, the files it writes)
     "fig5": (fig5, [str(RECORDS / "runs" / "fig5")], BALLCATCH, ("fig5.md", "fig5.json")),
     "fig6": (fig6, [str(RECORDS / "runs" / "fig6")], BALLCATCH, ("fig6.md", "fig6.json")),
     "methods": (fig5, [str(RECORDS / "runs" / "fig5"), str(RECORDS / "runs" / "methods"), "--estimator", "all"],
                 BALLCATCH, ("methods.md", "methods.json")),
-    "fig5_selected": (fig5, [str(RECORDS / "runs" / "fig5_selected" / explorer) for explorer in ("sde", "rex")],
-                      BALLCATCH / "fig5_selected", ("fig5.md", "fig5.json")),
-    "fig5_seed3": (fig5, [str(RECORDS / "runs" / "fig5_seed3" / explorer) for explorer in ("sde", "rex")],
-                   BALLCATCH / "fig5_seed3", ("fig5.md", "fig5.json")),
-    "fig6_selected": (fig6, [str(RECORDS / "runs" / "fig6_selected" / explorer) for explorer in ("sde", "rex")],
-                      BALLCATCH / "fig6_selected", ("fig6.md", "fig6.json")),
+    "fig5_selected": sde_against_rex(fig5, "fig5_selected"),
+    "fig5_seed3": sde_against_rex(fig5, "fig5_seed3"),
+    "fig6_selected": sde_against_rex(fig6, "fig6_selected"),
     "fig6_seed3": (fig6, [str(RECORDS / "runs" / "fig6_seed3" / "sde"),
                           str(RECORDS / "runs" / "fig6_selected" / "rex")],
                    BALLCATCH / "fig6_seed3", ("fig6.md", "fig6.json")),
@@ -53,10 +60,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                       BALLCATCH / "methods_seed4", ("methods.md", "methods.json")),
     "score_probe": (fig5, [*(str(RECORDS / "runs" / "score_probe" / m) for m in ("sde", "pgpe")), "--estimator",
                              "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
-    "held_training": (fig5, [str(RECORDS / "runs" / "held_training" / explorer) for explorer in ("sde", "rex")],
-                      BALLCATCH / "held_training", ("fig5.md", "fig5.json")),
-    "strong_fingers": (fig5, [str(RECORDS / "runs" / "strong_fingers" / explorer) for explorer in ("sde", "rex")],
-                       BALLCATCH / "strong_fingers", ("fig5.md", "fig5.json")),
+    "held_training": sde_against_rex(fig5, "held_training"),
+    "strong_fingers": sde_against_rex(fig5, "strong_fingers"),
     "selected/fig5": (fig5, [str(RECORDS / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
     "controllers": (ballcatch_controllers, [f"{label}={RECORDS / 'runs' / path}" for label, path in (
