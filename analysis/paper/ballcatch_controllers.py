@@ -195,12 +195,14 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "controllers.json").write_text(json.dumps(numbers, indent=1) + "\n")
     (args.out / "controllers.md").write_text(markdown(numbers))
+    print(f"wrote {args.out / 'controllers.md'}")
+    print(f"an empty hand closes from a finger command of {closing['from the start']:.2f} in the shipped arm "
+          f"({closing['level']:.2f} with the palm level, {closing['settled']:.2f} once its fingers rest on the ground)")
     for label, levels in numbers["sweeps"].items():
         caught = [n for level, n in levels.items() if level in ("good catch", "catch")]
-        runs, closing = sum(n["runs"] for n in caught), sum(n[REST[1]]["closing"] for n in caught)
-        print(f"{label}: the finger command closes the hand on a resting ball in {closing} of the {runs} runs "
+        runs, closing_runs = sum(n["runs"] for n in caught), sum(n[REST[1]]["closing"] for n in caught)
+        print(f"{label}: the finger command closes the hand on a resting ball in {closing_runs} of the {runs} runs "
               "ending with a catch")
-    print(f"wrote {args.out / 'controllers.md'}")
     return 0
 
 
