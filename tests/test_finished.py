@@ -1,15 +1,18 @@
 """A finished run is final: rerunning its command on its directory, with or without
-its checkpoint, changes nothing; the reader checks what the job checks; sweep readers find jobs by
-their job record and refuse a sweep with a job that is not finished; and the smaller
+its checkpoint, whatever was done to that checkpoint, changes nothing; the reader checks what the
+job checks; sweep readers find jobs by their job record and by the sweep's job list, and refuse a
+sweep with a job that is not finished or never started; and the smaller
 cases around it (run directories that cannot be made, a full disk while closing ``metrics.csv``)."""
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,7 +21,7 @@ from _helpers import REPO, compose_config, own_stderr_lines, run_cli
 
 from sde_torchrl.config.build import run_job
 from sde_torchrl.config.schemas.train import validate
-from sde_torchrl.jobs.checkpoint import CheckpointMismatchError
+from sde_torchrl.jobs.checkpoint import load_checkpoint
 from sde_torchrl.jobs.lock import hold_run_directory
 from sde_torchrl.jobs.run_dir import (
     FinishedRunError,
@@ -28,6 +31,7 @@ from sde_torchrl.jobs.run_dir import (
     job_directories,
     read_finished_run,
 )
+from sde_torchrl.jobs.sweeps import listed_jobs
 from sde_torchrl.utils.files import DamagedFileError
 
 BUDGET = ("+experiment=minimize", "logger=none", "runs=2", "updates=12", "episodes_per_update=4", "eval_period=5",
@@ -67,9 +71,10 @@ def test_a_committed_run_directory_survives_its_documented_command(tmp_path):
     (the overrides it recorded, as its page documents them): one line, exit 0, no file changed."""
     run_dir = Path(shutil.copytree(COMMITTED, tmp_path / "copy"))
     overrides = yaml.safe_load((run_dir / ".hydra" / "overrides.yaml").read_text())
-    assert overrides == ["+experiment=ballcatch", "explorer.learn_sigma=false", "seed=2000", "runs=16", "logger=none"]
+    assert overrides == ["+experiment=ballcatch_reinforce", "final_episodes=0", "explorer.learn_sigma=false",
+                         "seed=2000", "runs=16", "logger=none"]
     before = snapshot(run_dir)
-    # +experiment=ballcatch has since started σ̂ at e⁻³: the documented command names the job's e⁻²
+    # its experiment has since started σ̂ at e⁻³: the documented command names the job's e⁻²
     result = run_cli(*overrides, "explorer.init_param=-2", run_dir=run_dir)
     assert result.returncode == 0, result.stderr[-2000:]
     assert own_stderr_lines(result.stderr) == []
@@ -175,16 +180,71 @@ def test_the_reader_refuses_an_edited_summary_and_the_job_too_without_a_checkpoi
     assert snapshot(finished) == before
 
 
-def test_the_reader_refuses_a_finished_checkpoint_of_another_seed(finished, tmp_path):
+def _flip_a_byte(run_dir: Path, tmp_path: Path) -> None:
+    path = run_dir / "checkpoint.pt"
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(DamagedFileError, match="does not match its checksum"):  # the damage reaches its content
+        load_checkpoint(path)
+
+
+def _follow_the_old_advice(run_dir: Path, tmp_path: Path) -> None:
+    """A byte flipped, then ``mv checkpoint.prev.pt checkpoint.pt``, as a damaged checkpoint's
+    remedy advises for a job that has not finished."""
+    _flip_a_byte(run_dir, tmp_path)
+    os.replace(run_dir / "checkpoint.prev.pt", run_dir / "checkpoint.pt")
+
+
+def _another_seeds_checkpoint(run_dir: Path, tmp_path: Path) -> None:
     train(tmp_path / "seed1", "seed=1")
-    shutil.copy(tmp_path / "seed1" / "checkpoint.pt", finished / "checkpoint.pt")
-    with pytest.raises(UnfinishedRunError, match=r"its checkpoint.pt was written by another config than "
-                                                 r"summary.json's \(seed: 1 -> 0\)"):
-        read_finished_run(finished)
+    shutil.copy(tmp_path / "seed1" / "checkpoint.pt", run_dir / "checkpoint.pt")
+
+
+#: What can be done to a finished job's checkpoint, and the problem its one line names.
+CHECKPOINT_CHANGES = {
+    "a byte flipped": (_flip_a_byte, "it is damaged (its content does not match its checksum)"),
+    "mv checkpoint.prev.pt checkpoint.pt": (_follow_the_old_advice, "it is at update 8 (unfinished), summary.json "
+                                                                    "says 12"),
+    "cp checkpoint.prev.pt checkpoint.pt": (lambda run_dir, _: shutil.copy(run_dir / "checkpoint.prev.pt",
+                                                                           run_dir / "checkpoint.pt"),
+                                            "it is at update 8 (unfinished), summary.json says 12"),
+    "another seed's checkpoint": (_another_seeds_checkpoint, "it was written by another config than summary.json's "
+                                                             "(seed: 1 -> 0)"),
+}
+
+
+@pytest.mark.parametrize("change", sorted(CHECKPOINT_CHANGES))
+def test_a_finished_job_never_trains_again_whatever_is_done_to_its_checkpoint(finished, tmp_path, change, caplog):
+    """Its summary and rows, which agree with their digests, are its result: the job reports it
+    finished and names the checkpoint's problem in one line, the reader reads it, nothing changes."""
+    summary = json.loads((finished / "summary.json").read_text())
+    change_checkpoint, problem = CHECKPOINT_CHANGES[change]
+    change_checkpoint(finished, tmp_path)
     before = snapshot(finished)
-    with pytest.raises(CheckpointMismatchError, match=r"seed: 1 -> 0"):  # the job: exit 2
-        train(finished)
+    with caplog.at_level(logging.WARNING, logger="sde_torchrl.jobs.run_dir"):
+        assert train(finished) == summary
     assert snapshot(finished) == before
+    lines = [record.getMessage() for record in caplog.records if record.levelno >= logging.WARNING]
+    assert len(lines) == 1 and lines[0].startswith(f"{finished / 'checkpoint.pt'} was left as it is and is not used: "
+                                                   f"{problem}; the job finished"), lines
+    assert "mv " not in lines[0]
+    assert read_finished_run(finished).summary == summary
+
+
+def test_a_damaged_checkpoint_of_a_finished_job_on_the_command_line(made, tmp_path):
+    """Exit 0 with the finished line and the checkpoint's line, no advice to move the previous
+    checkpoint in, and no file changed."""
+    run_dir = Path(shutil.copytree(made, tmp_path / "job"))
+    _flip_a_byte(run_dir, tmp_path)
+    before = snapshot(run_dir)
+    result = run_cli(*BUDGET, run_dir=run_dir)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "checkpoint.prev.pt" not in result.stdout + result.stderr
+    said = [line for line in result.stdout.splitlines() if line.strip()]
+    assert len(said) == 2 and said[1].startswith(f"{run_dir} holds a finished job (12 updates of 2 runs)"), said
+    assert f"{run_dir / 'checkpoint.pt'} was left as it is and is not used: it is damaged" in said[0]
+    assert snapshot(run_dir) == before
 
 
 @pytest.mark.parametrize("damage", ["a row overwritten by its neighbour", "an extra column", "other line endings"])
@@ -224,6 +284,67 @@ def test_sweep_readers_find_jobs_by_their_record_and_refuse_one_not_finished(mad
     left_out = [record.getMessage() for record in caplog.records]
     assert len(left_out) == 3 and all(message.startswith("left out (finished_only): ") for message in left_out)
     assert "a job is running in it" in left_out[1]
+
+
+#: A committed joblib sweep, its multirun.yaml as Hydra wrote it: explorer=sde,rex, jobs 0 and 1.
+FIG5 = REPO / "results" / "ballcatch" / "runs" / "fig5"
+
+
+@pytest.mark.parametrize("state", ["missing", "empty"])
+def test_sweep_readers_refuse_a_job_the_sweep_lists_that_never_started(tmp_path, state, caplog):
+    """A sweep stopped before a job started leaves its directory empty (or none): the sweep's
+    record still lists it, and the readers name it instead of reading the sweep as complete."""
+    sweep = Path(shutil.copytree(FIG5, tmp_path / "fig5"))
+    shutil.rmtree(sweep / "1")
+    if state == "empty":
+        (sweep / "1").mkdir()
+    directory = "is missing" if state == "missing" else "holds none of a job's files"
+    says = re.escape(f"{sweep / '1'} is not a finished run: job 1 of the 2 its sweep lists (explorer=rex) never "
+                     f"started: its directory {directory}; run the sweep's command again with hydra.sweep.dir={sweep}")
+    for read in (finished_runs, job_directories):
+        with pytest.raises(UnfinishedRunError, match=says):
+            read(sweep)
+    with pytest.raises(UnfinishedRunError, match=says):
+        finished_runs(tmp_path)  # a sweep below the directory given
+    with caplog.at_level(logging.WARNING, logger="sde_torchrl.jobs.run_dir"):
+        assert [job.path for job in finished_runs(sweep, finished_only=True)] == [sweep / "0"]
+    left_out = [record.getMessage() for record in caplog.records]
+    assert len(left_out) == 1 and re.match(f"left out \\(finished_only\\): {says}", left_out[0]), left_out
+
+
+def test_an_analysis_script_refuses_a_sweep_with_a_job_missing_in_one_line(tmp_path):
+    sweep = Path(shutil.copytree(FIG5, tmp_path / "fig5"))
+    shutil.rmtree(sweep / "1")
+    result = subprocess.run([sys.executable, "-m", "analysis.paper.fig5", str(sweep), "--out", str(tmp_path / "out")],
+                            cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert own_stderr_lines(result.stderr) == [
+        f"error: {sweep / '1'} is not a finished run: job 1 of the 2 its sweep lists (explorer=rex) never started: "
+        f"its directory is missing; run the sweep's command again with hydra.sweep.dir={sweep} to run it (its "
+        "finished jobs are left as they are)"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_every_analysis_script_reads_sweeps_through_the_refusing_reader():
+    """``analysis.sweeps.finished_jobs`` turns a refusal into one line and exit 2; a script
+    calling ``finished_runs`` itself would end in a traceback."""
+    callers = [path.relative_to(REPO) for path in sorted((REPO / "analysis").rglob("*.py"))
+               if "finished_runs(" in path.read_text()]
+    assert callers == [Path("analysis/sweeps.py")]
+
+
+def test_every_committed_sweep_holds_the_jobs_its_record_lists():
+    """Committed sweeps read as before: those with a multirun.yaml hold every job it lists; those
+    laid out by hand, or copied without it, are read by the job directories they hold."""
+    files = subprocess.run(["git", "ls-files", "results"], cwd=REPO, capture_output=True, text=True,
+                           check=True).stdout.split()
+    sweeps = sorted((REPO / name).parent for name in files if name.endswith("/multirun.yaml"))
+    assert len(sweeps) >= 14
+    for sweep in sweeps:
+        jobs = listed_jobs(sweep)
+        assert jobs and {job.path for job in jobs} <= set(job_directories(sweep)), sweep
+    for hand_laid in ("ballcatch/tuning", "ppo/f025", "gsde_table/f002", "ballcatch/runs/score_probe/sde"):
+        assert listed_jobs(REPO / "results" / hand_laid) is None and job_directories(REPO / "results" / hand_laid)
 
 
 @pytest.mark.e2e  # every committed run directory (about 80) through the strict reader

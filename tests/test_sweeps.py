@@ -37,6 +37,28 @@ def test_joblib_shards_equal_one_process(tmp_path):
     assert shards == one  # bitwise the same numbers
 
 
+def test_a_sweep_with_a_job_that_never_started_is_refused_until_it_runs(tmp_path):
+    """A sweep stopped before its third job started leaves that job's directory empty: the
+    sweep's own record (Hydra's multirun.yaml) lists the job, so the readers refuse the sweep,
+    naming it; the same command then runs that job alone."""
+    import shutil
+
+    from sde_torchrl.jobs.run_dir import UnfinishedRunError
+
+    sweep = tmp_path / "sweep"
+    command = ("runs=2", "seed=0,1,2", f"hydra.sweep.dir={sweep}")
+    _train(*command, multirun=True)
+    finished = {job: (sweep / job / "summary.json").read_bytes() for job in "01"}
+    shutil.rmtree(sweep / "2")
+    (sweep / "2").mkdir()
+    with pytest.raises(UnfinishedRunError, match=f"{sweep / '2'} is not a finished run: job 2 of the 3 its sweep "
+                                                 r"lists \(seed=2\) never started"):
+        finished_runs(sweep)
+    _train(*command, multirun=True)
+    assert [job.summary["seed"] for job in finished_runs(sweep)] == [0, 1, 2]
+    assert {job: (sweep / job / "summary.json").read_bytes() for job in "01"} == finished
+
+
 def test_a_joblib_sweep_reports_each_job_s_failure_and_exits_non_zero(tmp_path):
     """Jobs run in joblib's worker processes report back to the sweep's parent:
     a non-finite job (exit 1), a job whose directory is in use (exit 3), a finished job (its line)."""

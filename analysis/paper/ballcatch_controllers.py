@@ -20,17 +20,17 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 from pathlib import Path
 
 import torch
 
+from analysis.figures import write_page_json
+from analysis.sweeps import finished_jobs
 from sde_torchrl.envs.ballcatch import BallCatchConfig, BallCatchWorld
 from sde_torchrl.envs.ballcatch.models import ARM_MODELS, PYBRAIN_FINGERS
 from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES, catch_level
-from sde_torchrl.jobs.run_dir import finished_runs
 from sde_torchrl.trainers.summary import mean_reward_factor
 
 #: Ball positions the commands are read at: the release above the palm centre, and two rest
@@ -105,7 +105,7 @@ def load(sweep: Path) -> list[dict]:
     """Every run of the sweep's jobs: its final evaluation (mean reward per step), its level and
     its commands at :data:`POSITIONS`."""
     runs = []
-    for job in finished_runs(sweep):
+    for job in finished_jobs(sweep):
         summary = job.summary
         if summary["env"] != "ballcatch" or summary["actor"] != "linear":
             raise SystemExit(f"error: {job.path} is not a linear ball-catching job")
@@ -193,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
                "sweeps": {label: sweep_numbers(load(REPO / path), closing["from the start"])
                           for label, path in paths.items()}}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "controllers.json").write_text(json.dumps(numbers, indent=1) + "\n")
+    write_page_json(args.out / "controllers.json", numbers)
     (args.out / "controllers.md").write_text(markdown(numbers))
     print(f"wrote {args.out / 'controllers.md'}")
     print(f"an empty hand closes from a finger command of {closing['from the start']:.2f} in the shipped arm "

@@ -39,13 +39,14 @@ import torch
 import yaml
 from omegaconf import OmegaConf
 
+from analysis.sweeps import finished_jobs
 from sde_torchrl.config.build import build_trainer
 from sde_torchrl.config.compose import compose
 from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.envs.ballcatch.models import ARM_MODELS
 from sde_torchrl.envs.ballcatch.outcomes import catch_outcomes
 from sde_torchrl.jobs.checkpoint import config_differences, result_config
-from sde_torchrl.jobs.run_dir import FinishedRun, finished_runs
+from sde_torchrl.jobs.run_dir import FinishedRun
 from sde_torchrl.trainers.summary import mean_reward_factor
 
 log = logging.getLogger("ballcatch_final")
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1 or args.chunk < 1:
         parser.error("--episodes and --chunk must be at least 1")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    jobs = finished_runs(*args.sweeps)
+    jobs = finished_jobs(*args.sweeps)
     if not jobs:
         parser.error(f"no finished jobs under {[str(s) for s in args.sweeps]}")
     for job in jobs:

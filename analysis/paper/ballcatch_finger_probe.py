@@ -34,10 +34,12 @@ from pathlib import Path
 
 import torch
 
+from analysis.figures import write_page_json
+from analysis.sweeps import finished_jobs
 from sde_torchrl.envs.ballcatch.batched import BatchedBallCatchEnv
 from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES, catch_level
 from sde_torchrl.envs.ballcatch.world import BallCatchConfig
-from sde_torchrl.jobs.run_dir import FinishedRun, finished_runs
+from sde_torchrl.jobs.run_dir import FinishedRun
 from sde_torchrl.modules.sde import sigma_from_param
 from sde_torchrl.objectives.estimators import enac_gradient, reinforce_gradient
 from sde_torchrl.trainers.summary import mean_reward_factor
@@ -303,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="where finger_probe.md and .json go")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    jobs = finished_runs(args.sweep)
+    jobs = finished_jobs(args.sweep)
     if not jobs:
         parser.error(f"no finished jobs under {args.sweep}")
     runs = []
@@ -320,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
                "levels": {level: level_numbers(group) for level, group in grouped.items() if group}}
     numbers["verdict"] = verdict(numbers["levels"]["catch"])
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "finger_probe.json").write_text(json.dumps(numbers, indent=1) + "\n")
+    write_page_json(args.out / "finger_probe.json", numbers)
     (args.out / "finger_probe.md").write_text(markdown(numbers))
     catch = numbers["levels"]["catch"]
     shares = [catch[f"{name}_paying"] or 0.0 for name in ("reinforce", "enac")]

@@ -20,6 +20,7 @@ import math
 import sys
 from pathlib import Path
 
+from analysis.figures import write_page_json
 from sde_torchrl.envs.ballcatch.outcomes import BEHAVIOURS, catch_level
 from sde_torchrl.utils.intervals import binomial_interval
 
@@ -176,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
                "differing_from_final_policy": {e: {str(r): d for r, d in sorted(runs_.items())}
                                                for e, runs_ in sorted(differing.items())}}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "reevaluation.json").write_text(json.dumps(numbers, indent=1) + "\n")
+    write_page_json(args.out / "reevaluation.json", numbers)
     (args.out / "reevaluation.md").write_text(markdown(numbers))
     v, held = numbers["verdict"], numbers["explorers"]["sde"]["pybrain_held"]
     print(f"tilted-palm lead {v['verdict']}: {v['good_when_held']} of {v['group']} SDE policies in "

@@ -22,9 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from analysis.sweeps import finished_jobs
 from sde_torchrl.envs.ballcatch import BallCatchEnv, episode_return
 from sde_torchrl.envs.ballcatch.demo import write_gif
-from sde_torchrl.jobs.run_dir import finished_runs
 from sde_torchrl.trainers.summary import mean_reward_factor
 
 WEIGHTS = ("module.0.module.0.module.weight", "module.0.module.weight")
@@ -45,7 +45,7 @@ class Run(NamedTuple):
 def find_runs(directories: list[Path], explorer: str, estimator: str) -> list[Run]:
     """The runs of ``explorer`` with ``estimator`` under ``directories``."""
     runs = []
-    for job in finished_runs(*directories):
+    for job in finished_jobs(*directories):
         summary = job.summary
         if [summary.get(key) for key in ("explorer", "estimator", "env")] != [explorer, estimator, "ballcatch"]:
             continue

@@ -35,7 +35,8 @@ import json
 import sys
 from pathlib import Path
 
-from analysis.figures import bounds, difference_of_means, saved_figure, style
+from analysis.figures import bounds, difference_of_means, saved_figure, style, write_page_json
+from analysis.sweeps import finished_jobs
 
 #: Levels of the paper's right-hand plots: "slowed down", "kept on the fingers", "catch",
 #: "good catch".
@@ -83,11 +84,10 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
     ``collapse`` is ``None`` for runs written before ``metrics.csv`` recorded the exploration
     state, else the first update (0-based, or ``None``) at which ``any`` / ``all`` of the run's
     exploration scales were below :data:`COLLAPSE`."""
-    from sde_torchrl.jobs.run_dir import finished_runs  # refuses a run directory mid-run, by name
     from sde_torchrl.trainers.summary import mean_reward_factor
 
     runs: dict[str, dict[int, dict]] = {}
-    for job in finished_runs(*directories):
+    for job in finished_jobs(*directories):  # refuses a job not finished or not started, by name
         summary = job.summary
         explorer = method_label(summary["explorer"], summary.get("estimator"), estimator)
         if explorer is None:
@@ -492,7 +492,7 @@ def main(argv: list[str] | None = None, estimator: str = "reinforce",
     behaviours = behaviour_counts(args.sweeps, args.estimator)
     if behaviours:
         result["behaviours"] = behaviours
-    (args.out / f"{name}.json").write_text(json.dumps(result, indent=2))
+    write_page_json(args.out / f"{name}.json", result, indent=2)
     write_markdown(result, args.out / f"{name}.md")
     method = "REINFORCE settings" if args.estimator == "all" else args.estimator.upper()
     plot(runs, result, args.out / f"{name}.png", f"ball catching, {method}")

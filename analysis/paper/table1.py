@@ -61,6 +61,7 @@ from pathlib import Path
 
 from analysis.figures import bounds, ratio_of_means, saved_figure, style
 from analysis.runner import TrainJob, run_train_jobs
+from analysis.sweeps import finished_jobs
 
 EXPERIMENTS = ("noise_sweep", "episode_length_sweep", "minimize2d_mlp")
 #: Methods of the 1-D table: the paper's two, then the added GPOMDP + SDE and PGPE.
@@ -137,10 +138,8 @@ def _expected_cost(experiment: str, overrides: list[str]) -> float:
 
 def load_runs(directory: Path) -> list[dict]:
     """Every finished run under ``directory``: its summary and per-update mean returns."""
-    from sde_torchrl.jobs.run_dir import finished_runs  # refuses a run directory mid-run, by name
-
     runs = []
-    for job in finished_runs(directory):
+    for job in finished_jobs(directory):  # refuses a job not finished or not started, by name
         if job.summary.get("experiment") not in EXPERIMENTS:
             continue
         curves = job.values("return_mean")

@@ -17,11 +17,11 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
 
+from analysis.figures import write_page_json
 from analysis.runner import TrainJob, run_train_jobs
 
 SEED, RUNS = 1000, 8
@@ -207,7 +207,7 @@ def report(tuning: Path, out: Path) -> dict:
         }
     numbers["round3"] = round3_numbers(tuning / ROUND_JOBS[3][2])
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tuning.json").write_text(json.dumps(numbers, indent=1) + "\n")
+    write_page_json(out / "tuning.json", numbers)
     (out / "tuning.md").write_text(markdown(numbers))
     return numbers
 

@@ -54,6 +54,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from analysis.figures import write_page_json
 from analysis.runner import JobPool
 
 BUDGET = 15_000  # episodes per run
@@ -253,9 +254,10 @@ def write_outputs(tried: list[dict], passing: dict, chosen: dict | None, out: Pa
         lines += ["", f"Search wall time: {wall_s:.0f} s."]
     out.mkdir(parents=True, exist_ok=True)
     (out / "learner_search.md").write_text("\n".join(lines) + "\n")
-    (out / "learner_search.json").write_text(json.dumps(
-        {"rule": __doc__.split("Selection rule")[1].split("Usage:")[0].strip(), "runs": RUNS, "seed": SEED,
-         "budget_episodes": BUDGET, "chosen": chosen, "tried": tried, "wall_s": wall_s}, indent=1))
+    # also the search's record, read back by --resume (a candidate's α and counts are exact at 6 digits)
+    write_page_json(out / "learner_search.json", {
+        "rule": __doc__.split("Selection rule")[1].split("Usage:")[0].strip(), "runs": RUNS, "seed": SEED,
+        "budget_episodes": BUDGET, "chosen": chosen, "tried": tried, "wall_s": wall_s})
 
 
 def main(argv: list[str] | None = None) -> int:

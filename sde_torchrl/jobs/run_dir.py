@@ -5,17 +5,21 @@
   resume, its rows up to the checkpoint must be exactly those the checkpoint recorded
   (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
 - ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
-- ``job_config.json``: the config the rows were written under, so that a rerun with another
-  config is refused before the first checkpoint as after it (:meth:`RunDirectory.check_job`, the
-  one check that a directory holds this job);
+- ``job_config.json``: the config the rows were written under, with its digest, so that a rerun
+  with another config is refused before the first checkpoint as after it (:meth:`RunDirectory.check_job`,
+  the one check that a directory holds this job); it is checked wherever it is read
+  (:func:`read_job_config`), and rows without it are refused, never overwritten;
 - ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.jobs.checkpoint`;
 - ``error.txt``: only for a failed job (written by ``train.py``);
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
 
 A finished job is final: ``summary.json`` records the SHA-256 of ``metrics.csv`` and of its own
 entries, and :func:`check_finished` is the one check that its files agree (the job runs it
-before doing anything in a directory that holds a summary, the reader before reading one). A
-rerun of the same config finds it finished and changes nothing; another config is refused; a
+before doing anything in a directory that holds a summary, the reader before reading one). Those
+two files are its result; its checkpoint decides nothing: one that is damaged, unfinished or of
+another job is named in one line and left alone, and the job is never trained again from it
+(only when the summary and the rows disagree does a finished checkpoint rebuild them). A rerun
+of the same config finds it finished and changes nothing; another config is refused; a
 finished job is never removed or trained again by a job (:meth:`RunDirectory.start_new_job`
 refuses to): starting over means removing the directory. A directory without a summary or a
 checkpoint starts a new job: :meth:`RunDirectory.start_new_job` removes the outputs of an
@@ -27,7 +31,8 @@ beside the writer: :func:`read_metrics` is the one parser of ``metrics.csv`` (ty
 :func:`finished_runs` the one reader of a finished job (summary, config and rows), which refuses
 a directory a live job holds or whose files disagree; :func:`finished_runs` finds a sweep's jobs
 by the files a job writes (:data:`JOB_FILES`), so that a job killed before its first row is
-named, not skipped. The analysis scripts read run directories through them only.
+named, not skipped, and by the sweep's own job list (:mod:`sde_torchrl.jobs.sweeps`), so that a
+job that never started is named too. The analysis scripts read run directories through them only.
 """
 
 from __future__ import annotations
@@ -67,6 +72,7 @@ from sde_torchrl.jobs.metrics import (  # noqa: F401 - the metrics names this mo
     recorded_rows,
     update_statistics,
 )
+from sde_torchrl.jobs.sweeps import listed_jobs, sweeps_under
 from sde_torchrl.utils.files import DamagedFileError, as_disk_full, write_atomically, write_json_atomic
 
 log = logging.getLogger(__name__)
@@ -172,10 +178,13 @@ class RunDirectory:
         made before anything is built or changed. What the directory holds decides which record
         counts and how a refusal reads:
 
-        - a finished job whose files agree (:func:`check_finished`): the config its checkpoint,
-          its ``job_config.json`` or its summary records;
-        - else a ``checkpoint.pt`` (the job resumes from it): the config it stores;
-        - else rows in ``metrics.csv``: the config ``job_config.json`` records.
+        - a finished job (:meth:`_finished_job`): the config its ``job_config.json`` or its
+          summary records; its checkpoint, whatever state it is in, decides nothing;
+        - else a ``checkpoint.pt`` (the job resumes from it): the config it stores, which
+          ``job_config.json`` must record too (a missing one is written again from it, with a
+          warning);
+        - else rows in ``metrics.csv``: the config ``job_config.json`` records (rows without it
+          are refused, for a job with a config).
 
         Returns:
             The finished job, which is final (nothing is to be done); ``None``: the job starts, or
@@ -184,9 +193,11 @@ class RunDirectory:
         Raises:
             CheckpointMismatchError: the directory holds a job of another config (nothing is
                 changed), or a checkpoint of another format.
-            UnfinishedRunError: it holds a summary and no checkpoint, and its files disagree.
-            DamagedFileError: ``summary.json`` is not valid JSON (and there is no checkpoint), or
-                ``checkpoint.pt`` is damaged.
+            UnfinishedRunError: it holds a summary, its files disagree, and there is no finished
+                checkpoint to rebuild them from.
+            DamagedFileError: ``summary.json`` is not valid JSON (and there is no finished
+                checkpoint), ``checkpoint.pt`` is damaged, or ``job_config.json`` is damaged,
+                disagrees with the checkpoint or, beside rows, is missing.
 
         Examples:
             >>> import tempfile
@@ -204,15 +215,57 @@ class RunDirectory:
             recorded, refusal = self.recorded_config(done), self._finished_refusal
         elif self.has_checkpoint():
             recorded, refusal = read_checkpoint(self.checkpoint).get("config"), self._checkpoint_refusal
-        elif self.job_config.exists() and self.metrics.exists() and len(self.metrics.read_bytes().splitlines()) > 1:
-            recorded, refusal = json.loads(self.job_config.read_text()), self._rows_refusal
+        elif self._holds_rows():
+            recorded, refusal = self._rows_config(), self._rows_refusal
         else:
             recorded, refusal = None, self._rows_refusal
         if self.config is not None and recorded is not None:
             diff = config_differences(recorded, self.config)
             if diff:
                 raise CheckpointMismatchError(refusal(diff))
+        if done is None and self.has_checkpoint():
+            self._match_job_config(recorded)
         return done
+
+    def _holds_rows(self) -> bool:
+        """Whether ``metrics.csv`` holds a row (a line after its header)."""
+        return self.metrics.exists() and len(self.metrics.read_bytes().splitlines()) > 1
+
+    def _rows_config(self) -> dict[str, Any] | None:
+        """The config ``metrics.csv``'s rows were written under (``job_config.json``), checked.
+
+        Raises:
+            DamagedFileError: ``job_config.json`` is damaged, or missing while this job has a
+                config to hold the rows against (they are kept, not overwritten).
+        """
+        if self.job_config.exists():
+            return read_job_config(self.job_config)
+        if self.config is None:
+            return None
+        rows = len(self.metrics.read_bytes().splitlines()) - 1
+        raise DamagedFileError(self.job_config, (
+            f"it is missing, and {self.metrics.name} holds {rows} row{'s' if rows > 1 else ''} written under the "
+            "config it recorded, which cannot be told from another config's"), (
+            f"the rows were left unchanged: restore {self.job_config.name} from where the directory was copied, or "
+            f"move {self.metrics.name} elsewhere (mv {self.metrics} ...) to start this job over in this directory"))
+
+    def _match_job_config(self, saved: dict[str, Any] | None) -> None:
+        """Holds ``job_config.json`` against the config a checkpoint stores (``saved``): a missing
+        one is written again from it, with a warning.
+
+        Raises:
+            DamagedFileError: ``job_config.json`` is damaged, or records another config.
+        """
+        if saved is None:
+            return
+        if not self.job_config.exists():
+            log.warning("%s was missing: written again from the config %s records", self.job_config, CHECKPOINT)
+            write_job_config(self.job_config, saved)
+            return
+        diff = config_differences(read_job_config(self.job_config), saved)
+        if diff:
+            raise DamagedFileError(self.job_config, f"it records another config than {CHECKPOINT} "
+                                                    f"({'; '.join(diff[:3])})", _job_config_remedy(self.path))
 
     def _finished_refusal(self, diff: list[str]) -> str:
         more = ("; a finished job is not trained further in its directory: to train for other updates, "
@@ -247,7 +300,7 @@ class RunDirectory:
         for stale in (self.metrics, self.summary, self.error, previous, *self._logger_csv_files()):
             stale.unlink(missing_ok=True)
         if self.config is not None:
-            write_json_atomic(self.job_config, self.config)
+            write_job_config(self.job_config, self.config)
 
     def clear_error(self) -> None:
         """Removes the error file of a failed session (the job is resumed)."""
@@ -276,33 +329,38 @@ class RunDirectory:
     def _finished_job(self) -> FinishedRun | None:
         """The finished job this directory holds, its files checked (:func:`check_finished`), if any.
 
+        A directory with a summary held a finished job: its summary and ``metrics.csv``, which
+        agree with their digests, are its result, and nothing makes it train again. Only when
+        they do not agree may a finished ``checkpoint.pt`` rebuild them.
+
         Returns:
             The finished job, when its files agree; ``None`` when there is no ``summary.json``,
-            or when a ``checkpoint.pt`` decides (an unfinished one is resumed, a finished one
-            rewrites a summary that disagrees with it).
+            or when they disagree and a finished ``checkpoint.pt`` decides (``metrics.csv`` is
+            checked against it, the summary rewritten from it).
 
         Raises:
-            UnfinishedRunError: there is no checkpoint and its files disagree (nothing can rebuild them).
-            DamagedFileError: there is no checkpoint and ``summary.json`` is not valid JSON.
+            UnfinishedRunError: its files disagree, and no finished checkpoint can rebuild them.
+            DamagedFileError: ``summary.json`` is not valid JSON and no finished checkpoint can
+                rebuild it, or ``job_config.json`` is damaged or records another config.
         """
         if not self.summary.exists():
             return None
         try:
             return check_finished(self.path, live=False)
-        except (DamagedFileError, CheckpointMismatchError, FileNotFoundError):
-            if self.has_checkpoint():
+        except DamagedFileError as error:  # UnfinishedRunError too
+            if error.path != self.job_config and _checkpoint_is_finished(self.checkpoint):
                 return None
             raise
 
     def recorded_config(self, job: FinishedRun) -> dict[str, Any] | None:
-        """The result config the directory's job ran with: its checkpoint's, else its
-        ``job_config.json``, else its summary's ``config`` label; ``None`` if none is recorded."""
-        if self.has_checkpoint():
-            saved = load_checkpoint(self.checkpoint).get("config")
-            if saved is not None:
-                return saved
+        """The result config a finished job ran with: its ``job_config.json``, else its summary's
+        ``config`` label; ``None`` if neither records one.
+
+        Raises:
+            DamagedFileError: ``job_config.json`` is damaged.
+        """
         if self.job_config.exists():
-            return json.loads(self.job_config.read_text())
+            return read_job_config(self.job_config)
         return result_config(job.summary.get("config"))
 
     def check_metrics(self, rows: Sequence[MetricRow], finished: bool) -> None:
@@ -424,8 +482,8 @@ class FinishedRun:
 
 
 def summary_digest(summary: Mapping[str, Any]) -> str:
-    """SHA-256 of ``summary.json``'s entries but :data:`UNDIGESTED`, as canonical JSON (sorted
-    keys): what its ``sha256`` entry records, so that an edited summary is found.
+    """SHA-256 of ``summary.json``'s entries but :data:`UNDIGESTED` (:func:`record_digest`):
+    what its ``sha256`` entry records, so that an edited summary is found.
 
     Examples:
         >>> summary_digest({"runs": 2, "wall_s": 1.5}) == summary_digest({"wall_s": 9.0, "runs": 2})
@@ -433,9 +491,78 @@ def summary_digest(summary: Mapping[str, Any]) -> str:
         >>> summary_digest({"runs": 2}) == summary_digest({"runs": 3})
         False
     """
-    entries = {key: value for key, value in summary.items() if key not in UNDIGESTED}
-    text = json.dumps(entries, sort_keys=True, allow_nan=False, separators=(",", ":"))
+    return record_digest(summary, UNDIGESTED)
+
+
+def record_digest(entries: Mapping[str, Any], left_out: Sequence[str] = ("sha256",)) -> str:
+    """SHA-256 of a JSON record's entries but ``left_out``, as canonical JSON (sorted keys): the
+    digest ``summary.json`` and ``job_config.json`` carry under ``sha256``.
+
+    Examples:
+        >>> record_digest({"seed": 1, "lr": 0.1}) == record_digest({"lr": 0.1, "seed": 1, "sha256": "x"})
+        True
+    """
+    kept = {key: value for key, value in entries.items() if key not in left_out}
+    text = json.dumps(kept, sort_keys=True, allow_nan=False, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def write_job_config(path: str | os.PathLike, config: Mapping[str, Any]) -> None:
+    """Writes ``job_config.json``: the result config and its digest (``sha256``,
+    :func:`record_digest`), atomically."""
+    write_json_atomic(path, {**config, "sha256": record_digest(config)})
+
+
+def read_job_config(path: str | os.PathLike) -> dict[str, Any]:
+    """Reads ``job_config.json``, its digest checked; one without a digest is read as it is
+    (the checkpoint or the summary it is held against then tells).
+
+    Returns:
+        The result config it records (its digest left out).
+
+    Raises:
+        DamagedFileError: it is not a JSON object, or does not match its digest; the remedy
+            depends on what else the directory holds (:func:`_job_config_remedy`).
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "job_config.json"
+        >>> write_job_config(path, {"seed": 1})
+        >>> read_job_config(path)
+        {'seed': 1}
+        >>> _ = path.write_text(path.read_text().replace('"seed": 1', '"seed": 2'))
+        >>> read_job_config(path)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.files.DamagedFileError: ...job_config.json is damaged: it does not match its digest ...
+    """
+    path = Path(path)
+    remedy = _job_config_remedy(path.parent)
+    try:
+        record = json.loads(path.read_bytes(), parse_constant=_not_json)
+    except ValueError as error:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise DamagedFileError(path, f"it is not valid JSON ({error})", remedy) from None
+    if not isinstance(record, dict):
+        raise DamagedFileError(path, f"it holds a JSON {type(record).__name__}, not an object", remedy)
+    digest = record.pop("sha256", None)
+    if digest is not None and digest != record_digest(record):
+        raise DamagedFileError(path, "it does not match its digest (sha256): an entry was changed", remedy)
+    return record
+
+
+def _job_config_remedy(directory: Path) -> str:
+    """The way out of a damaged ``job_config.json``, by what else the directory holds."""
+    if (directory / "summary.json").exists():
+        return ("restore it from where the directory was copied, or delete it: summary.json records the finished "
+                "job's config too")
+    if (directory / CHECKPOINT).exists():
+        return f"delete it and run the job again: it is written again from the config its {CHECKPOINT} records"
+    return ("restore it from where the directory was copied, or move metrics.csv elsewhere to start this job over "
+            "in this directory: without it, its rows cannot be told from another config's")
+
+
+def _not_json(constant: str) -> None:
+    raise ValueError(f"{constant} is not JSON")
 
 
 def check_finished(path: str | os.PathLike, *, live: bool = True) -> FinishedRun:
@@ -451,11 +578,13 @@ def check_finished(path: str | os.PathLike, *, live: bool = True) -> FinishedRun
       and compared), holds one row per
       run for each of the summary's ``updates_done`` updates in the job's order, and agrees with
       the summary's per-run returns, evaluations, episodes and env steps;
-    - a kept ``checkpoint.pt`` is the finished job's: at that update, of the config the summary
-      records, and ``metrics.csv`` holds exactly the rows it recorded (what a rerun checks);
-    - a ``job_config.json`` records the config the summary records.
+    - a ``job_config.json`` matches its digest and records the config the summary records.
 
-    Summaries written before the digests were recorded are checked without them.
+    Those files are the finished job's result, and final. A kept ``checkpoint.pt`` is not part
+    of it: one that is not the finished job's (damaged, of another format, at another update,
+    of another config, or with other rows than ``metrics.csv``) is reported in one warning
+    line and left as it is. Summaries written before the digests were recorded are checked
+    without them.
 
     Args:
         path: the run directory.
@@ -466,7 +595,8 @@ def check_finished(path: str | os.PathLike, *, live: bool = True) -> FinishedRun
 
     Raises:
         UnfinishedRunError: the job is running, did not finish, or its files disagree.
-        DamagedFileError: ``summary.json`` is not valid JSON, or ``checkpoint.pt`` is damaged.
+        DamagedFileError: ``summary.json`` is not valid JSON, or ``job_config.json`` is damaged
+            or records another config.
 
     Examples:
         >>> import tempfile
@@ -476,38 +606,61 @@ def check_finished(path: str | os.PathLike, *, live: bool = True) -> FinishedRun
         sde_torchrl.jobs.run_dir.UnfinishedRunError: ... is not a finished run: it has no summary.json; ...
     """
     path = Path(path)
-    again = "run the job's command again to finish it (it resumes from its checkpoint)"
     if live:
         holder = held_by(path)
         if holder is not None:
             raise UnfinishedRunError(path, f"a job is running in it (pid {holder})", "read it once that job has ended")
     if not (path / "summary.json").exists():
-        raise UnfinishedRunError(path, "it has no summary.json", again)
+        raise UnfinishedRunError(path, "it has no summary.json",
+                                 "run the job's command again to finish it (it resumes from its checkpoint)")
     checkpoint = path / CHECKPOINT
-    remedy = (f"run the job's command again: it checks metrics.csv against its {CHECKPOINT} and rewrites "
-              f"summary.json from it" if checkpoint.exists() else
-              f"without a {CHECKPOINT} nothing can rebuild them: restore the directory from where it was copied "
-              "(a committed one: git checkout -- DIRECTORY), or remove it to train the job again from the start")
     try:
         summary = read_summary(path / "summary.json")
     except DamagedFileError as error:
-        raise DamagedFileError(error.path, error.problem, remedy) from None
+        raise DamagedFileError(error.path, error.problem, _rebuild_remedy(checkpoint)) from None
     if not (path / "metrics.csv").exists():
-        raise UnfinishedRunError(path, "it has no metrics.csv", remedy)
+        raise UnfinishedRunError(path, "it has no metrics.csv", _rebuild_remedy(checkpoint))
     data = (path / "metrics.csv").read_bytes()
     written = summary.get("metrics_sha256") == hashlib.sha256(data).hexdigest()  # the bytes the job wrote
     rows, problem = _parse_rows(data, rewrite=not written)
     for check in (_rows_problem, _summary_problem, _digest_problem):
         problem = problem or check(summary, data, rows)
-    if problem is None and checkpoint.exists():
-        problem = _checkpoint_problem(checkpoint, summary, data)
-    if problem is None and (path / "job_config.json").exists() and "config" in summary:
-        diff = config_differences(json.loads((path / "job_config.json").read_text()), result_config(summary["config"]))
-        problem = f"job_config.json records another config than summary.json ({'; '.join(diff[:3])})" if diff else None
     if problem is not None:
-        resumable = checkpoint.exists() and not _checkpoint_is_finished(checkpoint)
-        raise UnfinishedRunError(path, problem, again if resumable else remedy)
+        raise UnfinishedRunError(path, problem, _rebuild_remedy(checkpoint))
+    _check_job_config(path, summary)
+    problem = _kept_checkpoint_problem(checkpoint, summary, data)
+    if problem is not None:
+        log.warning("%s was left as it is and is not used: %s; the job finished (its summary.json and metrics.csv "
+                    "agree) and is final, so no checkpoint trains it again; remove this one to silence this line",
+                    checkpoint, problem)
     return FinishedRun(path, summary, rows)
+
+
+def _rebuild_remedy(checkpoint: Path) -> str:
+    """The way out of a finished job's files that disagree: a finished checkpoint rebuilds them."""
+    if _checkpoint_is_finished(checkpoint):
+        return (f"run the job's command again: it checks metrics.csv against its {CHECKPOINT} and rewrites "
+                "summary.json from it")
+    without = f"without a {CHECKPOINT}" if not checkpoint.exists() else f"its {CHECKPOINT} is not the finished one:"
+    return (f"{without} nothing can rebuild them: restore the directory from where it was copied (a committed one: "
+            "git checkout -- DIRECTORY), or remove it to train the job again from the start")
+
+
+def _check_job_config(path: Path, summary: dict[str, Any]) -> None:
+    """A finished job's ``job_config.json``, if any, intact and of the config its summary records.
+
+    Raises:
+        DamagedFileError: it is damaged, or records another config.
+    """
+    record = path / "job_config.json"
+    if not record.exists():
+        return
+    config = read_job_config(record)
+    if "config" in summary:
+        diff = config_differences(config, result_config(summary["config"]))
+        if diff:
+            raise DamagedFileError(record, f"it records another config than summary.json ({'; '.join(diff[:3])})",
+                                   _job_config_remedy(path))
 
 
 def read_finished_run(path: str | os.PathLike) -> FinishedRun:
@@ -541,6 +694,14 @@ def job_directories(directory: str | os.PathLike) -> list[Path]:
     holding a file only a job writes (:data:`JOB_FILES`: its job record, its lock, ...), so that a
     job killed before its first row, or live, or with its ``metrics.csv`` deleted, is found.
 
+    A sweep's own record (``multirun.yaml``, :func:`~sde_torchrl.jobs.sweeps.listed_jobs`) lists
+    its jobs: one that never started (its directory missing, or holding no job's file) is
+    refused by name. A directory without that record is read by the job directories it holds.
+
+    Raises:
+        UnfinishedRunError: a sweep under ``directory`` lists a job that never started.
+        DamagedFileError: a sweep's ``multirun.yaml`` cannot be read.
+
     Examples:
         >>> import tempfile
         >>> sweep = Path(tempfile.mkdtemp())
@@ -550,15 +711,35 @@ def job_directories(directory: str | os.PathLike) -> list[Path]:
         >>> [p.name for p in job_directories(sweep)]
         ['1']
     """
-    directory = Path(directory)
-    return sorted({found.parent for name in JOB_FILES for found in directory.rglob(name) if found.is_file()})
+    found, not_started = _jobs_under(Path(directory))
+    if not_started:
+        raise not_started[0]
+    return found
+
+
+def _jobs_under(directory: Path) -> tuple[list[Path], list[UnfinishedRunError]]:
+    """The run directories under ``directory`` (:func:`job_directories`), and a refusal for each
+    job a sweep's record lists that never started."""
+    found = {path.parent for name in JOB_FILES for path in directory.rglob(name) if path.is_file()}
+    not_started = []
+    for sweep in sweeps_under(directory):
+        jobs = listed_jobs(sweep) or []
+        for job in jobs:
+            if job.path not in found:
+                state = "holds none of a job's files" if job.path.is_dir() else "is missing"
+                not_started.append(UnfinishedRunError(job.path, (
+                    f"job {job.num} of the {len(jobs)} its sweep lists ({' '.join(job.swept)}) never started: its "
+                    f"directory {state}"), f"run the sweep's command again with hydra.sweep.dir={sweep} to run it "
+                                           "(its finished jobs are left as they are)"))
+    return sorted(found), not_started
 
 
 def finished_runs(*directories: str | os.PathLike, finished_only: bool = False) -> list[FinishedRun]:
     """Every run directory under ``directories`` (:func:`job_directories`), read by
-    :func:`read_finished_run`, directory by directory in path order: one that is not finished
-    (killed, live, failed, or with files that disagree) refuses the whole set, naming it, rather
-    than giving results with a run missing or cut short, unless ``finished_only``.
+    :func:`read_finished_run`, directory by directory in path order: a job that is not finished
+    (killed, live, failed, with files that disagree, or, listed by its sweep's record, never
+    started) refuses the whole set, naming it, rather than giving results with a run missing
+    or cut short, unless ``finished_only``.
 
     Args:
         directories: sweep or run directories (shards of one sweep may be given together).
@@ -566,8 +747,9 @@ def finished_runs(*directories: str | os.PathLike, finished_only: bool = False) 
             instead of refusing the set (an explicit choice: the results then miss those jobs).
 
     Raises:
-        UnfinishedRunError: a run directory under ``directories`` is not finished.
-        DamagedFileError: one holds a damaged ``summary.json`` or ``checkpoint.pt``.
+        UnfinishedRunError: a job under ``directories`` is not finished, or never started.
+        DamagedFileError: one holds a damaged ``summary.json`` or ``job_config.json``, or a
+            sweep's ``multirun.yaml`` cannot be read.
 
     Examples:
         >>> import tempfile
@@ -575,13 +757,19 @@ def finished_runs(*directories: str | os.PathLike, finished_only: bool = False) 
         []
     """
     found = []
-    for run_dir in (job for directory in directories for job in job_directories(directory)):
-        try:
-            found.append(read_finished_run(run_dir))
-        except (DamagedFileError, CheckpointMismatchError) as error:
+    for directory in map(Path, directories):
+        run_dirs, not_started = _jobs_under(directory)
+        for error in not_started:
             if not finished_only:
-                raise
+                raise error
             log.warning("left out (finished_only): %s", error)
+        for run_dir in run_dirs:
+            try:
+                found.append(read_finished_run(run_dir))
+            except DamagedFileError as error:  # UnfinishedRunError too
+                if not finished_only:
+                    raise
+                log.warning("left out (finished_only): %s", error)
     return found
 
 
@@ -658,17 +846,32 @@ def _summary_problem(summary: dict[str, Any], data: bytes, rows: list[MetricRow]
     return None
 
 
+def _kept_checkpoint_problem(checkpoint: Path, summary: dict[str, Any], data: bytes) -> str | None:
+    """What makes a kept checkpoint not the finished job's (:func:`_checkpoint_problem`), a
+    damaged one included; ``None`` without one."""
+    if not checkpoint.exists():
+        return None
+    try:
+        return _checkpoint_problem(checkpoint, summary, data)
+    except DamagedFileError as error:
+        return f"it is damaged ({error.problem})"
+    except CheckpointMismatchError:
+        return "it has a checkpoint format this version does not read"
+
+
 def _checkpoint_problem(checkpoint: Path, summary: dict[str, Any], data: bytes) -> str | None:
-    """A kept checkpoint against the summary and the rows: the finished job's, of its config."""
+    """A checkpoint against the summary and the rows: the finished job's, of its config."""
     saved = load_checkpoint(checkpoint)
-    loop, updates = saved["loop"], summary["updates_done"]
+    loop, updates = saved.get("loop"), summary["updates_done"]
+    if not isinstance(loop, dict):
+        return "it holds no training loop record"
     if loop.get("update") != updates or not loop.get("finished"):
-        return (f"its {CHECKPOINT} is at update {loop.get('update')}{'' if loop.get('finished') else ' (unfinished)'}, "
+        return (f"it is at update {loop.get('update')}{'' if loop.get('finished') else ' (unfinished)'}, "
                 f"summary.json says {updates}")
     if saved.get("config") is not None and "config" in summary:
         diff = config_differences(saved["config"], result_config(summary["config"]))
         if diff:
-            return f"its {CHECKPOINT} was written by another config than summary.json's ({'; '.join(diff[:3])})"
+            return f"it was written by another config than summary.json's ({'; '.join(diff[:3])})"
     episodes = _episodes(summary)
     if episodes is None:
         return None
@@ -676,14 +879,15 @@ def _checkpoint_problem(checkpoint: Path, summary: dict[str, Any], data: bytes) 
     lines = data.splitlines(keepends=True)
     problem = _first_difference(lines, expected, recorded_rows(loop, summary.get("first_run", 0), episodes))
     if problem is None and len(lines) != len(expected):
-        problem = f"it holds {len(lines) - 1} rows, {CHECKPOINT} recorded {len(expected) - 1}"
-    return None if problem is None else f"metrics.csv disagrees with its {CHECKPOINT}: {problem}"
+        problem = f"metrics.csv holds {len(lines) - 1} rows, it recorded {len(expected) - 1}"
+    return None if problem is None else f"metrics.csv disagrees with it: {problem}"
 
 
 def _checkpoint_is_finished(checkpoint: Path) -> bool:
+    """Whether ``checkpoint`` is an intact checkpoint of a finished job (``False`` without one)."""
     try:
         return bool(load_checkpoint(checkpoint)["loop"].get("finished"))
-    except (OSError, DamagedFileError, CheckpointMismatchError, KeyError):
+    except (OSError, DamagedFileError, CheckpointMismatchError, KeyError, AttributeError):
         return False
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from analysis.benchmarks.gsde_table.cells import ALGORITHMS, ALL_ENVS, ENV_IDS, NOISES, Cell
 from analysis.benchmarks.gsde_table.paper import PAPER, PAPER_SEEDS, paper_text
 from analysis.benchmarks.gsde_table.run import MANIFEST, ours_dir, sb3_record
-from analysis.figures import difference_of_means, ratio_of_means, saved_figure
+from analysis.figures import difference_of_means, ratio_of_means, saved_figure, write_page_json
 from sde_torchrl.utils.intervals import Interval, bootstrap_interval
 
 #: The sides of a cell.
@@ -246,7 +246,7 @@ def report(folder: Path, out: Path | None = None) -> str:
     text = page(manifest, stats)
     out.mkdir(parents=True, exist_ok=True)
     (out / "gsde_table.md").write_text(text)
-    (out / "gsde_table.json").write_text(json.dumps({**manifest, **stats}, indent=1) + "\n")
+    write_page_json(out / "gsde_table.json", {**manifest, **stats})
     for env in ALL_ENVS:
         if any(key[1] == env for key in runs):
             plot(runs, env, out / f"gsde_table_{env}.png")
