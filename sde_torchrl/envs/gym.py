@@ -7,7 +7,9 @@ them side by side and gives the trainer the ``[runs, episodes]`` batch it expect
 Per-run randomness: every reset reseeds each episode's env with a seed drawn from its run's
 stream (:class:`~sde_torchrl.utils.rng.RunStreams`, like :class:`~sde_torchrl.envs.MinimizeEnv`), so
 run ``r`` of a batched job sees the start states a single job with ``first_run=r`` sees, and a
-checkpoint of the streams resumes the env exactly.
+checkpoint of the streams resumes the env exactly: each env is reset once when it is made
+(:func:`~sde_torchrl.envs.vector.first_reset`), so that an episode depends on its seed and
+actions alone, not on the env's past (a PyBullet env's first reset is unlike its later ones).
 
 Fixed horizon: the episodic estimators want ``T`` steps per episode. An episode that ends
 earlier (the task terminates, or gymnasium's time limit truncates it) is held in an absorbing
@@ -38,6 +40,7 @@ from torchrl.envs import Compose, EnvBase, InitTracker, ObservationNorm, StepCou
 from torchrl.envs.libs.gym import GymEnv
 
 from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
+from sde_torchrl.envs.vector import first_reset
 from sde_torchrl.utils.checks import positive_int
 from sde_torchrl.utils.options import NORMALIZATIONS
 from sde_torchrl.utils.rng import RunStreams
@@ -93,6 +96,7 @@ class GymRunsEnv(EnvBase):
         self.envs = make_envs(env_id, runs * episodes, gym_kwargs or {}, f"{runs} runs × {episodes} {use} episodes")
         proto = self.envs[0]
         check_spaces(env_id, proto._env.action_space, proto._env.observation_space)
+        first_reset((env._env for env in self.envs), self.reset_options)
         self.max_episode_steps = getattr(proto._env.spec, "max_episode_steps", None)
         self.observation_spec = proto.observation_spec.expand(batch).clone().to(self.device)
         self.action_spec = proto.action_spec.expand(*batch, *proto.action_spec.shape).clone().to(self.device)

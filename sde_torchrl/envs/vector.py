@@ -19,10 +19,14 @@ again, then checks that they arrive at the recorded observations, bit for bit. T
 envs whose ``reset(seed=...)`` fixes their whole state (the classic-control envs and the PyBullet
 locomotion envs, checked on ``HalfCheetahBulletEnv-v0``); an env for which it does not is
 refused on resume, by name, instead of resumed to other numbers.
+
+That an episode depends on its seed and actions alone also needs each env reset once when it is
+made (:func:`first_reset`): a PyBullet env's first reset is unlike its later ones.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import gymnasium
@@ -34,6 +38,7 @@ from torchrl.envs import EnvBase
 
 from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
 from sde_torchrl.utils.checks import positive_int
+from sde_torchrl.utils.native_output import native_stdout_silenced
 from sde_torchrl.utils.rng import RunStreams
 
 
@@ -87,6 +92,7 @@ class GymVectorEnv(EnvBase):
             check_time_limit(env_id, self.episode_length, limit)
         if time_feature and self.episode_length is None:
             raise ValueError(f"{env_id}: time_feature needs an episode_length (the env has no time limit)")
+        first_reset(self.envs, self.reset_options)
         self.time_feature = time_feature
         self.low, self.high = proto.action_space.low, proto.action_space.high
         obs_dim, act_dim = proto.observation_space.shape[0] + int(time_feature), proto.action_space.shape[0]
@@ -201,4 +207,33 @@ class GymVectorEnv(EnvBase):
         super().close(raise_if_closed=raise_if_closed)
 
 
-__all__ = ["GymVectorEnv", "ReplayMismatchError"]
+#: The seed of the reset that :func:`first_reset` gives every env before its first episode.
+FIRST_RESET_SEED = 0
+
+
+def first_reset(envs: Iterable[gymnasium.Env], options: dict[str, Any] | None = None) -> None:
+    """Resets newly made envs once each (seed :data:`FIRST_RESET_SEED`), so that no episode
+    starts from an env's first reset; what a simulator prints as it connects there is dropped.
+
+    A PyBullet locomotion env connects its simulator and builds its world at its first reset,
+    and completes it only after computing the robot's state: the floor joins the parts whose
+    mean position gives the potential that the first step's progress reward is measured from. So
+    an env's first episode gets another first reward than any later episode with the same seed
+    and actions, though the same observations. Later resets restore the world saved at the first
+    one and are alike whatever came before: after this reset, an episode depends on its seed and
+    actions alone, not on the env's past, and a resumed job's fresh envs continue where an
+    uninterrupted job's envs were. For an env whose ``reset(seed=...)`` sets its whole state (the
+    classic-control envs) this reset changes nothing: every episode starts with such a reset.
+
+    Examples:
+        >>> env = gymnasium.make("Pendulum-v1")
+        >>> first_reset([env])
+        >>> env.step(env.action_space.low)[0].shape
+        (3,)
+    """
+    with native_stdout_silenced():
+        for env in envs:
+            env.reset(seed=FIRST_RESET_SEED, options=options)
+
+
+__all__ = ["FIRST_RESET_SEED", "GymVectorEnv", "ReplayMismatchError", "first_reset"]
