@@ -87,6 +87,8 @@ RESUME: dict[str, str] = {}
 #: This process's jobs found finished in their directories: one line each, reported at the end
 #: (not logged: the log file is in the run directory, which is left as it was).
 FINISHED: list[str] = []
+#: What each finished job of a multirun reports for the lines comparing its methods.
+RESULTS: list[dict[str, Any]] = []
 #: Jobs of this process stopped by a signal with a checkpoint (in a sweep's worker: reported to the parent).
 INTERRUPTED: list[dict[str, Any]] = []
 #: Full tracebacks wanted: read once at start-up (``cli`` then sets ``HYDRA_FULL_ERROR`` itself).
@@ -204,14 +206,14 @@ def main(cfg: DictConfig) -> dict[str, Any] | None:
         What the sweep's parent process reports for the job (:func:`job_report`): a launcher
         that runs the job in another process (joblib, submitit, Ray) hands it back to the parent.
     """
-    failures, finished, interrupted = len(FAILURES), len(FINISHED), len(INTERRUPTED)
+    failures, finished, interrupted, results = len(FAILURES), len(FINISHED), len(INTERRUPTED), len(RESULTS)
     try:
         job(cfg)
     except TrainingInterrupted as stop:
         if not in_worker():  # this process reports it (train.py's cli)
             raise
         INTERRUPTED.append(interrupted_job(stop))  # a sweep's worker: reported to the parent
-    return job_report(FAILURES[failures:], FINISHED[finished:], INTERRUPTED[interrupted:])
+    return job_report(FAILURES[failures:], FINISHED[finished:], INTERRUPTED[interrupted:], RESULTS[results:])
 
 
 def resume_override(directory: str, multirun: bool) -> str:
@@ -227,18 +229,18 @@ def resume_override(directory: str, multirun: bool) -> str:
     return shlex.quote(f"hydra.{'sweep' if multirun else 'run'}.dir={directory}")
 
 
-def job_report(failures: list[JobFailure], finished: list[str],
-               interrupted: list[dict[str, Any]] | None = None) -> dict[str, Any] | None:
+def job_report(failures: list[JobFailure], finished: list[str], interrupted: list[dict[str, Any]] | None = None,
+               results: list[dict[str, Any]] | None = None) -> dict[str, Any] | None:
     """A job's failure, finished line and interruption as plain data, sent between processes.
 
     Examples:
         >>> job_report([JobFailure("runs/0", ["lr=1e38"], "NonFiniteError: ...", 1, True)], [])["failures"][0]["code"]
         1
     """
-    if not failures and not finished and not interrupted:
+    if not failures and not finished and not interrupted and not results:
         return None
     return {"failures": [asdict(failure) for failure in failures], "finished": list(finished),
-            "interrupted": list(interrupted or [])}
+            "interrupted": list(interrupted or []), "results": list(results or [])}
 
 
 def interrupted_job(stop: TrainingInterrupted) -> dict[str, Any]:
@@ -281,6 +283,7 @@ def gather_job_reports(sweep_returns: list[Any]) -> None:
                     FAILURES.append(failure)
             FINISHED.extend(line for line in report.get("finished", []) if line not in FINISHED)
             INTERRUPTED.extend(entry for entry in report.get("interrupted", []) if entry not in INTERRUPTED)
+            RESULTS.extend(entry for entry in report.get("results", []) if entry not in RESULTS)
 
 
 @contextmanager
@@ -353,10 +356,13 @@ def job(cfg: DictConfig) -> None:
             if DEBUG and not multirun:
                 raise
             return
+    from sde_torchrl.trainers.comparison import job_result
     from sde_torchrl.trainers.summary import final_lines
 
     for line in final_lines(summary):
         log.info(line)
+    if multirun:
+        RESULTS.append(job_result(overrides, summary))
 
 
 def cli() -> int:
@@ -391,6 +397,11 @@ def cli() -> int:
     gather_job_reports(sweep_returns)
     for line in FINISHED:
         sys.stdout.write(f"{line}\n")
+    if len(RESULTS) > 1:
+        from sde_torchrl.trainers.comparison import comparison_lines
+
+        for line in comparison_lines(RESULTS):
+            sys.stdout.write(f"{line}\n")
     stopped = stop_requested()
     if INTERRUPTED or stopped is not None:
         return report_stopped(stopped)

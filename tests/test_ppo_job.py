@@ -287,7 +287,8 @@ def test_summary_records_what_the_job_did(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["settings"] == {"algorithm": "ppo", "updates": 2, "n_envs": 2, "n_steps": 32, "eval_period": 7,
-                                   "eval_episodes": 2, "episode_length": 50, "first_run": 0}
+                                   "eval_episodes": 2, "episode_length": 50, "first_run": 0,
+                                   "final_episodes": 0}
     assert summary["explorer"] == "gaussian" and summary["config"]["algorithm"]["n_steps"] == 32
 
 

@@ -126,8 +126,13 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     logger = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
+    def check_env(episodes: int) -> Any:  # the final check's env: the runs' own fresh episodes
+        made = build_env(conf, episodes, "final_eval")
+        made.append_transform(explorer.make_tensordict_primer())
+        return made
+
     return Trainer(env, eval_env, policy, estimator, optimizer, loop_settings(conf), logger,
-                   lr_schedule=lr_schedule)
+                   lr_schedule=lr_schedule, check_env=check_env)
 
 
 def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:

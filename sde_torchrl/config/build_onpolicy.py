@@ -133,14 +133,21 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
                            updates=conf.updates, compile=alg.compile)
     settings = OnPolicySettings("a2c" if a2c else "ppo", updates=conf.updates, n_envs=alg.n_envs, n_steps=alg.n_steps,
                                 eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
-                                episode_length=base.episode_length, first_run=conf.first_run)
+                                episode_length=base.episode_length, first_run=conf.first_run,
+                                final_episodes=conf.final_episodes)
     logger: Any = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
     keep = [*RECORDED_KEYS, *advantage.in_keys, *update.in_keys]
+
+    def check_env(episodes: int) -> tuple[Any, RunningNormalize | None]:  # the final check's fresh episodes
+        frozen = normalizer.frozen(episodes) if normalizer is not None else None
+        transforms = [t for t in (frozen, sde.make_tensordict_primer() if sde else None) if t is not None]
+        return TransformedEnv(make_env(conf, episodes, "final_eval"), Compose(*transforms)), frozen
+
     return OnPolicyTrainer(StepCollector(env, policy, alg.n_steps, primer, keep), eval_env, policy, critic, advantage,
                            update, optimizer, settings, normalizer=normalizer, eval_normalizer=eval_normalizer,
-                           logger=logger, lr_schedule=lr_schedule)
+                           logger=logger, lr_schedule=lr_schedule, check_env=check_env)
 
 
 __all__ = ["build_onpolicy_trainer", "make_critic", "make_env", "make_policy"]

@@ -83,13 +83,19 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
                        rounds=conf.updates * alg.rounds_per_update, compile=alg.compile)
     settings = OnPolicySettings("sac", updates=conf.updates, n_envs=1, n_steps=alg.train_freq * alg.rounds_per_update,
                                 eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
-                                episode_length=base.episode_length, first_run=conf.first_run)
+                                episode_length=base.episode_length, first_run=conf.first_run,
+                                final_episodes=conf.final_episodes)
     logger: Any = None
     if conf.logger and out_dir is not None:
         logger = instantiate(conf.logger, log_dir=out_dir)
     collector = StepCollector(env, policy, alg.train_freq, primer, keep=[*RECORDED_KEYS, *TRANSITION_KEYS])
+
+    def check_env(episodes: int) -> tuple[Any, None]:  # the final check's fresh episodes
+        primers = [sde.make_tensordict_primer()] if sde is not None else []
+        return TransformedEnv(make_env(conf, episodes, "final_eval"), Compose(*primers)), None
+
     return SACTrainer(collector, eval_env, policy, loss, update, settings,
-                      schedule, UniformActions(*action_bounds(action_spec)), logger=logger)
+                      schedule, UniformActions(*action_bounds(action_spec)), logger=logger, check_env=check_env)
 
 
 __all__ = ["build_sac_trainer", "sde_options"]

@@ -61,7 +61,7 @@ NON_RESULT_KEYS = ("logger", "checkpoint_period", "progress", "max_memory_gb")
 #: it counts (``device=cuda`` rounds otherwise than the CPU: not the same job). A dotted key names
 #: an option inside a config group.
 LATER_KEYS = {"device": "cpu", "env.observation": "raw", "algorithm": None, "optimizer.sigma_lr_factor": 1.0,
-              "scores": "autograd", "queue_scores": "rescored"}
+              "scores": "autograd", "queue_scores": "rescored", "final_episodes": 0}
 
 
 class CheckpointMismatchError(ValueError):

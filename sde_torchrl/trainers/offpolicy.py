@@ -101,15 +101,17 @@ class SACTrainer(OnPolicyTrainer):
         schedule: the job's :class:`OffPolicySchedule`.
         warmup: acts until ``learning_starts`` (:class:`UniformActions`).
         logger: optional TorchRL logger (``log_scalar``).
+        check_env: makes the final check's env (:class:`~sde_torchrl.trainers.onpolicy.OnPolicyTrainer`).
 
     Examples:
         See :func:`sde_torchrl.config.build_sac.build_sac_trainer`.
     """
 
     def __init__(self, collector: Any, eval_env: Any, policy: nn.Module, loss: nn.Module, update: SACUpdate,
-                 settings: Any, schedule: OffPolicySchedule, warmup: UniformActions, logger: Any = None) -> None:
+                 settings: Any, schedule: OffPolicySchedule, warmup: UniformActions, logger: Any = None,
+                 check_env: Any = None) -> None:
         super().__init__(collector, eval_env, policy, loss, advantage=None, update=update, optimizer=update,
-                         settings=settings, logger=logger)
+                         settings=settings, logger=logger, check_env=check_env)
         #: Everything a checkpoint saves of the learner: the policy, the critics and their targets, α.
         self.modules = nn.ModuleDict({"policy": policy, "loss": loss})
         self.schedule, self.warmup = schedule, warmup

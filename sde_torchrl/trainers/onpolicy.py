@@ -47,6 +47,8 @@ from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.jobs.checkpoint import job_streams, restore_job, save_job
 from sde_torchrl.jobs.metrics import MetricRow, metric_rows, recorded_rows, update_statistics
 from sde_torchrl.jobs.run_dir import RunDirectory
+from sde_torchrl.trainers.best import BestPolicy
+from sde_torchrl.trainers.final_check import run_final_check
 from sde_torchrl.trainers.guard import NonFiniteError
 from sde_torchrl.trainers.interrupt import DeferredInterrupt
 from sde_torchrl.trainers.optim import LearningRateSchedule
@@ -75,6 +77,8 @@ class OnPolicySettings:
         eval_episodes: deterministic episodes per evaluation.
         episode_length: the longest episode (the evaluation's rollout length).
         first_run: the run's global index (the ``run`` column).
+        final_episodes: fresh deterministic episodes on which the final and the best policies
+            are checked at the job's end (0: none).
 
     Examples:
         >>> OnPolicySettings("ppo", updates=3, n_envs=2, n_steps=8, eval_period=0, eval_episodes=1,
@@ -90,6 +94,7 @@ class OnPolicySettings:
     eval_episodes: int
     episode_length: int
     first_run: int = 0
+    final_episodes: int = 0
 
     @property
     def steps_per_update(self) -> int:
@@ -142,6 +147,9 @@ class OnPolicyTrainer:
         eval_normalizer: the evaluation env's frozen copy, refreshed before each evaluation.
         logger: optional TorchRL logger (``log_scalar``); its curves' step is the env steps.
         lr_schedule: sets the learning rate before each update (``None``: constant).
+        check_env: makes the final check's env for a number of episodes, on the ``final_eval``
+            stream, with its frozen normalisation (``None``: none); needed when
+            ``final_episodes > 0``.
 
     Examples:
         See :func:`sde_torchrl.config.build_onpolicy.build_onpolicy_trainer`.
@@ -153,6 +161,7 @@ class OnPolicyTrainer:
         optimizer: torch.optim.Optimizer, settings: OnPolicySettings, *, normalizer: RunningNormalize | None = None,
         eval_normalizer: RunningNormalize | None = None, logger: Any = None,
         lr_schedule: LearningRateSchedule | None = None,
+        check_env: Callable[[int], tuple[EnvBase, RunningNormalize | None]] | None = None,
     ) -> None:
         self.collector, self.eval_env, self.policy, self.critic = collector, eval_env, policy, critic
         self.advantage, self.update_step, self.optimizer, self.settings = advantage, update, optimizer, settings
@@ -163,6 +172,9 @@ class OnPolicyTrainer:
         self.modules = nn.ModuleDict(parts)
         self.returns = EpisodeReturns()
         self.episodes: list[int] = []
+        self.check_env = check_env
+        #: The best policy by evaluation, with the observation statistics it acts on.
+        self.best = BestPolicy(nn.ModuleDict({name: parts[name] for name in parts if name != "critic"}), 1)
 
     @property
     def env(self) -> EnvBase:
@@ -203,14 +215,34 @@ class OnPolicyTrainer:
 
     def evaluate(self) -> torch.Tensor:
         """Mean raw return of ``eval_episodes`` deterministic episodes, one per env, ``[1]``."""
-        if self.eval_normalizer is not None:
+        episodes = self.deterministic_episodes(self.eval_env, self.eval_normalizer)
+        return first_episode_returns(episodes).mean().reshape(1)
+
+    def deterministic_episodes(self, env: EnvBase, frozen: RunningNormalize | None) -> TensorDictBase:
+        """One deterministic episode per env of ``env`` (``[envs, T]``, steps past its end
+        included), its normalisation ``frozen`` at the training statistics."""
+        if frozen is not None:
             stats = {k: v for k, v in self.normalizer.state_dict().items() if k != "returns"}
-            self.eval_normalizer.load_state_dict(stats, strict=False)
+            frozen.load_state_dict(stats, strict=False)
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            td = self.eval_env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False)
-        reward, done = td["next", "reward"].squeeze(-1), td["next", "done"].squeeze(-1).long()
-        first_episode = (done.cumsum(-1) - done) == 0  # up to and including the first done
-        return (reward * first_episode).sum(-1).mean().reshape(1)
+            return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False)
+
+    def final_check(self) -> dict[str, Any]:
+        """The final and the best policies on the same ``final_episodes`` fresh episodes
+        (:func:`~sde_torchrl.trainers.final_check.run_final_check`)."""
+        frozen: dict[int, RunningNormalize | None] = {}
+
+        def make(episodes: int) -> EnvBase:
+            env, frozen_stats = self.check_env(episodes)
+            frozen[id(env)] = frozen_stats
+            return env
+
+        def rollout(env: EnvBase) -> TensorDictBase:
+            return self.deterministic_episodes(env, frozen[id(env)]).unsqueeze(0)  # one run
+
+        log.info("checking the final and the best policies on %d fresh episodes", self.settings.final_episodes)
+        return run_final_check(make, self.settings.final_episodes, self.settings.eval_episodes, self.best, rollout,
+                               first_episode_returns)
 
     def close(self) -> None:
         for env in (self.env, self.eval_env):
@@ -244,6 +276,7 @@ class OnPolicyTrainer:
                     if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
                         eval_return = state.evals[k] = self.evaluate()
                         self._check(k, "evaluation return", eval_return)
+                        self.best.observe(k, eval_return)
                     statistics = update_statistics(s.first_run, k, self.returns.count, stats, eval_return)
                     metrics.write(metric_rows(statistics))
                     state.update, state.finished = k + 1, is_last
@@ -259,6 +292,8 @@ class OnPolicyTrainer:
             finally:
                 reporter.close()
             metrics.sync()
+            if s.final_episodes and state.finished:
+                state.final_check = self.final_check()
         self._save(run_dir, state)
 
     def _rows(self, state: LoopState) -> list[MetricRow]:
@@ -269,6 +304,7 @@ class OnPolicyTrainer:
         return job_streams(self.modules, self.env, self.eval_env)
 
     def _save(self, run_dir: RunDirectory, state: LoopState) -> None:
+        state.best = self.best.state_dict()
         loop = {**state.state_dict(), "episodes": torch.tensor(self.episodes, dtype=torch.int64),
                 "rollout": self._rollout_state()}
         save_job(run_dir.checkpoint, config=run_dir.config, loop=loop, policy=self.modules, optimizer=self.optimizer,
@@ -295,6 +331,8 @@ class OnPolicyTrainer:
         rollout, self.episodes = loop.pop("rollout"), loop.pop("episodes").tolist()
         state = LoopState.from_state_dict(loop)
         run_dir.check_metrics(self._rows(state), state.finished)
+        if state.best is not None:
+            self.best.load_state_dict(state.best)
         if not state.finished:
             run_dir.summary.unlink(missing_ok=True)
             self._restore_rollout(rollout)
@@ -315,6 +353,14 @@ class OnPolicyTrainer:
             "episodes": self.episodes[updates - 1], "env_steps": updates * self.settings.steps_per_update,
             "wall_s": state.wall_s, "episode_return": "sum",
         }
+
+
+def first_episode_returns(episodes: TensorDictBase) -> torch.Tensor:
+    """Each env's return of its first episode in a rollout ``[..., T]`` that runs past episode
+    ends (rewards up to and including the first ``done``), ``[...]``."""
+    reward, done = episodes["next", "reward"].squeeze(-1), episodes["next", "done"].squeeze(-1).long()
+    first_episode = (done.cumsum(-1) - done) == 0  # up to and including the first done
+    return (reward * first_episode).sum(-1)
 
 
 __all__ = ["RECORDED_KEYS", "EpisodeReturns", "OnPolicySettings", "OnPolicyTrainer", "RETURN_WINDOW"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -10,6 +11,9 @@ from sde_torchrl.jobs.metrics import logged_values
 from sde_torchrl.trainers.progress import Progress, RateMeter
 
 log = logging.getLogger("sde_torchrl.trainers.trainer")
+#: Between evaluations the log still says how far the job is: at least every this many seconds in
+#: a session's first minute, then at least every :data:`LATER_LINE_S`.
+FIRST_MINUTE_LINE_S, LATER_LINE_S = 10.0, 60.0
 
 
 class Reporter:
@@ -40,6 +44,7 @@ class Reporter:
         self.per_step = per_step
         self.bar = Progress(updates, done, enabled=progress)
         self.rate = RateMeter()
+        self.started = self.last_line = time.monotonic()
 
     def update(self, k: int, step: int, statistics: Mapping[str, Any]) -> None:
         """Update ``k`` (0-based) is done.
@@ -60,7 +65,17 @@ class Reporter:
                 f"  (per step: return {mean * self.per_step:.3f}  eval {evaluation * self.per_step:.3f})"
             log.info("update %d/%d  return %.3f  eval %.3f%s  %.0f env steps/s", k + 1, self.updates, mean,
                      evaluation, per_step, speed)
+            self.last_line = time.monotonic()
+        elif self._line_due():
+            per_step = "" if self.per_step == 1.0 else f"  (per step: return {mean * self.per_step:.3f})"
+            log.info("update %d/%d  return %.3f%s  %.0f env steps/s", k + 1, self.updates, mean, per_step, speed)
+            self.last_line = time.monotonic()
         self.bar.step(mean, speed)
+
+    def _line_due(self) -> bool:
+        now = time.monotonic()
+        interval = FIRST_MINUTE_LINE_S if now - self.started < 60.0 else LATER_LINE_S
+        return now - self.last_line >= interval
 
     def close(self) -> None:
         """Ends the progress bar."""

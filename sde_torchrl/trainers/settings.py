@@ -27,6 +27,8 @@ class TrainingSettings:
         eval_period: evaluate every this many updates (and after the last); 0 disables
             intermediate evaluation.
         eval_episodes: deterministic episodes per evaluation and run.
+        final_episodes: fresh deterministic episodes per run on which the final and the best
+            policy are evaluated at the job's end (0: none).
         r_lim: convergence threshold: a run has converged at the first update whose mean
             exploratory return exceeds it (``None``: not tracked).
         first_run: global index of the first run (for labelling shards of a sweep).
@@ -57,6 +59,7 @@ class TrainingSettings:
     episode_length: int
     eval_period: int = 20
     eval_episodes: int = 5
+    final_episodes: int = 0
     r_lim: float | None = None
     first_run: int = 0
     stop_at_threshold: bool = False
@@ -67,7 +70,7 @@ class TrainingSettings:
     def __post_init__(self) -> None:
         for name in ("updates", "episodes_per_update", "episode_length", "eval_episodes"):
             positive_int(name, getattr(self, name))
-        for name in ("eval_period", "episode_queue", "first_run"):
+        for name in ("eval_period", "episode_queue", "first_run", "final_episodes"):
             non_negative_int(name, getattr(self, name))
         multiple_of("episode_queue", self.episode_queue, "episodes_per_update", self.episodes_per_update)
         one_of("queue_scores", self.queue_scores, QUEUE_SCORES)

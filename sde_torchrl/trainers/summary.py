@@ -29,6 +29,10 @@ class LoopState:
         wall_s: training time of earlier sessions of this job (resumed jobs).
         finished: the job ran to its end.
         queue: with an episode queue, its episodes ``[runs, Q, T]`` as a nested dict of tensors.
+        best: each run's best policy so far (:meth:`~sde_torchrl.trainers.best.BestPolicy.state_dict`).
+        final_check: the final and the best policies' returns on the job's fresh episodes
+            (``final_episodes``), once the job has ended: ``{"final": [runs, E], "best": [runs, E]}``
+            and, where the env reports them, the episodes' outcomes under ``"outcomes"``.
 
     Examples:
         >>> state = LoopState(update=0, reached=torch.zeros(2, dtype=torch.bool))
@@ -47,6 +51,8 @@ class LoopState:
     wall_s: float = 0.0
     finished: bool = False
     queue: dict[str, Any] | None = None
+    best: dict[str, Any] | None = None
+    final_check: dict[str, Any] | None = None
 
     @property
     def returns(self) -> list[torch.Tensor]:
@@ -72,7 +78,8 @@ class LoopState:
                            else self.reached.new_zeros((0, *r.shape, runs), dtype=torch.float32)) for r in RECORDS}
         return {"update": self.update, "reached": self.reached.clone(), **records,
                 "evals": {k: v.clone() for k, v in self.evals.items()},
-                "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue}
+                "wall_s": self.wall_s, "finished": self.finished, "queue": self.queue, "best": self.best,
+                "final_check": self.final_check}
 
     @classmethod
     def from_state_dict(cls, state: dict[str, Any]) -> LoopState:
@@ -150,6 +157,30 @@ def summarize(
     }
 
 
+def best_and_checked(state: LoopState) -> dict[str, Any]:
+    """What ``summary.json`` records of the runs' best policies and the final check: per run,
+    the update of the best policy (0-based, as ``metrics.csv`` counts) and the evaluation that
+    chose it; with a final check, the mean return of the final and the best policies over the
+    fresh episodes (``final_check_return``, ``best_check_return``) and those episodes' count.
+
+    Examples:
+        >>> state = LoopState(update=2, reached=torch.zeros(1, dtype=torch.bool))
+        >>> state.best = {"update": torch.tensor([1]), "score": torch.tensor([-1.5], dtype=torch.float64)}
+        >>> state.final_check = {"episodes": 2, "final": [[-2.0, -1.0]], "best": [[-1.0, -1.0]]}
+        >>> best_and_checked(state)  # doctest: +NORMALIZE_WHITESPACE
+        {'best_update': [1], 'best_eval_return': [-1.5], 'check_episodes': 2, 'final_check_return': [-1.5],
+         'best_check_return': [-1.0]}
+    """
+    out: dict[str, Any] = {}
+    if state.best is not None:
+        out.update(best_update=state.best["update"].tolist(), best_eval_return=state.best["score"].tolist())
+    if state.final_check is not None:
+        out["check_episodes"] = state.final_check["episodes"]
+        for name in ("final", "best"):
+            out[f"{name}_check_return"] = [sum(run) / len(run) for run in state.final_check[name]]
+    return out
+
+
 def per_step_factor(episode_return: str, episode_length: int) -> float:
     """What turns a return in the ``episode_return`` definition into the paper's mean reward per
     step: ``1 / episode_length`` for summed rewards (the authors' learner), else 1.
@@ -180,10 +211,14 @@ def mean_reward_factor(summary: dict[str, Any]) -> float:
     return per_step_factor("sum", summary["settings"]["episode_length"])
 
 
-def final_levels(summary: dict[str, Any]) -> dict[str, Any]:
-    """What a ball-catching job reached, for ``summary.json``: each run's final deterministic
-    evaluation as the paper's mean reward per step and its level (section 4.2,
-    :func:`~sde_torchrl.envs.ballcatch.outcomes.catch_level`); nothing for other tasks.
+def final_levels(summary: dict[str, Any], state: LoopState | None = None) -> dict[str, Any]:
+    """What a ball-catching job reached, for ``summary.json``, in the paper's mean reward per
+    step and its levels (section 4.2, :func:`~sde_torchrl.envs.ballcatch.outcomes.catch_level`);
+    nothing for other tasks. Per run: the final evaluation and its level; with the loop's
+    ``state``, each level's first update among the periodic evaluations (``null``: never
+    reached); with a final check, the level of the final and the best policies over the fresh
+    episodes and how many of those episodes each policy dropped, kept on the hand or held
+    (:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`).
 
     Examples:
         >>> final_levels({"env": "ballcatch", "final_eval_return": [-1.05, -2.5]})
@@ -193,18 +228,36 @@ def final_levels(summary: dict[str, Any]) -> dict[str, Any]:
     """
     if summary.get("env") != "ballcatch":
         return {}
-    from sde_torchrl.envs.ballcatch.outcomes import catch_level
+    from sde_torchrl.envs.ballcatch.outcomes import BEHAVIOURS, LEVELS, catch_level
 
-    evals = [mean_reward_factor(summary) * value for value in summary["final_eval_return"]]
-    return {"final_eval_mean_reward": evals, "final_eval_level": [catch_level(value) for value in evals]}
+    scale = mean_reward_factor(summary)
+    evals = [scale * value for value in summary["final_eval_return"]]
+    out: dict[str, Any] = {"final_eval_mean_reward": evals, "final_eval_level": [catch_level(value) for value in evals]}
+    if state is not None and state.evals:
+        updates = sorted(state.evals)
+        history = torch.stack([state.evals[k].cpu().double() for k in updates]) * scale  # [evaluations, runs]
+        out["level_first_update"] = [
+            {name: next((updates[i] for i in range(len(updates)) if history[i, r] >= bound), None)
+             for bound, name in LEVELS} for r in range(history.shape[1])]
+    for name in ("final", "best"):
+        if f"{name}_check_return" in summary:
+            values = [scale * value for value in summary[f"{name}_check_return"]]
+            out[f"{name}_check_mean_reward"] = values
+            out[f"{name}_check_level"] = [catch_level(value) for value in values]
+        outcomes = ((state.final_check or {}).get("outcomes") or {}).get(name) if state is not None else None
+        if outcomes is not None:
+            out[f"{name}_check_behaviours"] = [{label: codes.count(i) for i, label in enumerate(BEHAVIOURS)}
+                                               for codes in outcomes["behaviour"]]
+    return out
 
 
 def final_lines(summary: dict[str, Any]) -> list[str]:
     """The lines that end a job's log: the last training return (exploratory episodes, which a
     learner that explores widely keeps below its evaluation), then each run's final deterministic
-    evaluation, the result, last; both in the estimator's return definition. Ball catching gives
-    the evaluation as the paper's mean reward per step, with each run's level and the count of
-    runs per level (:func:`final_levels`).
+    evaluation, the result, last; both in the estimator's return definition. Ball catching says,
+    per run, in the paper's mean reward per step and levels, the best level its evaluations
+    reached and when, and with a final check what the best and the final policies did on the
+    fresh balls; then one line of counts (:func:`final_levels`).
 
     Examples:
         >>> final_lines({"env": "minimize", "final_eval_return": [-1.23456], "final_return": [-2.0]})
@@ -219,14 +272,81 @@ def final_lines(summary: dict[str, Any]) -> list[str]:
     reached = final_levels(summary)
     if not reached:
         evals = [round(value, 3) for value in summary["final_eval_return"]]
-        return [training, f"final evaluation per run (no exploration): {evals}"]
-    from sde_torchrl.envs.ballcatch.outcomes import LEVELS
+        lines = [training, f"final evaluation per run (no exploration): {evals}"]
+        if "best_check_return" in summary:
+            best = [round(value, 3) for value in summary["best_check_return"]]
+            final = [round(value, 3) for value in summary["final_check_return"]]
+            lines.append(f"on {summary['check_episodes']} fresh episodes per run: best policy (update "
+                         f"{summary['best_update']}) {best}, final policy {final}")
+        return lines
+    if "best_check_return" in summary:
+        return [training, *checked_lines(summary)]
+    from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES
 
     evals, levels = reached["final_eval_mean_reward"], reached["final_eval_level"]
     first = summary.get("first_run", 0)
     runs = ", ".join(f"run {first + i} {value:.3f} {level}"
                      for i, (value, level) in enumerate(zip(evals, levels, strict=True)))
-    names = [name for _, name in LEVELS] + ["dropped"]
-    counts = ", ".join(f"{levels.count(name)} {name}" for name in names)
+    counts = ", ".join(f"{levels.count(name)} {name}" for name in LEVEL_NAMES)
     return [training, f"final evaluation per run (mean reward per step, no exploration): {runs}",
             f"levels of the final evaluations: {counts} (of {len(evals)} run{'s' if len(evals) > 1 else ''})"]
+
+
+def checked_lines(summary: dict[str, Any]) -> list[str]:
+    """Per ball-catching run, the best level its evaluations reached and when, and what its
+    best and final policies did on the final check's fresh balls; then the counts.
+
+    Examples:
+        >>> summary = {"env": "ballcatch", "first_run": 0, "final_eval_return": [-1.5], "best_eval_return": [-0.94],
+        ...            "best_update": [379], "check_episodes": 20, "best_check_return": [-1.02],
+        ...            "final_check_return": [-1.49], "level_first_update": [{"good catch": 379, "catch": 259}],
+        ...            "best_check_behaviours": [{"dropped": 2, "kept on the hand": 0, "held": 18}]}
+        >>> for line in checked_lines(summary):  # doctest: +NORMALIZE_WHITESPACE
+        ...     print(line)
+        run 0: reached a good catch at update 379 (a catch at 259); best policy (update 379, evaluated
+        -0.940) on 20 fresh balls: -1.020, a catch (18 held, 0 kept on the hand, 2 dropped); final policy:
+        -1.490, on the hand
+        of 1 run, on 20 fresh balls each: the best policy catches in 1, the final policy in 0; a catch was
+        reached in training by 1
+    """
+    from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES, catch_level
+
+    scale = mean_reward_factor(summary)
+    first, episodes = summary.get("first_run", 0), summary["check_episodes"]
+    lines = []
+    reached_catch = 0
+    for r, (best, final) in enumerate(zip(summary["best_check_return"], summary["final_check_return"], strict=True)):
+        firsts = (summary.get("level_first_update") or [{}] * (r + 1))[r]
+        top = next((name for name in LEVEL_NAMES if firsts.get(name) is not None), None)
+        reached_catch += any(firsts.get(name) is not None for name in CATCHES)
+        if top is None:
+            reached = "reached none of the paper's levels"
+        else:
+            reached = f"reached {_a(top)} at update {firsts[top]}"
+            if top == "good catch" and firsts.get("catch") not in (None, firsts[top]):
+                reached += f" (a catch at {firsts['catch']})"
+        behaviours = (summary.get("best_check_behaviours") or [None] * (r + 1))[r]
+        held = ("" if behaviours is None else
+                f" ({behaviours['held']} held, {behaviours['kept on the hand']} kept on the hand, "
+                f"{behaviours['dropped']} dropped)")
+        best_value, final_value = scale * best, scale * final
+        lines.append(
+            f"run {first + r}: {reached}; best policy (update {summary['best_update'][r]}, evaluated "
+            f"{scale * summary['best_eval_return'][r]:.3f}) on {episodes} fresh balls: {best_value:.3f}, "
+            f"{_a(catch_level(best_value))}{held}; final policy: {final_value:.3f}, {_a(catch_level(final_value))}")
+    runs = len(summary["best_check_return"])
+    catches = {name: sum(catch_level(scale * value) in CATCHES for value in summary[f"{name}_check_return"])
+               for name in ("best", "final")}
+    lines.append(f"of {runs} run{'s' if runs > 1 else ''}, on {episodes} fresh balls each: the best policy catches "
+                 f"in {catches['best']}, the final policy in {catches['final']}; a catch was reached in training by "
+                 f"{reached_catch}")
+    return lines
+
+
+#: The levels that count as catching the ball (section 4.2: R >= -1.1).
+CATCHES = ("good catch", "catch")
+
+
+def _a(level: str) -> str:
+    """A level's name as the lines say it: "a catch", "on the hand", "dropped"."""
+    return f"a {level}" if level in ("good catch", "catch") else level

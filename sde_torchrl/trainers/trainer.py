@@ -18,6 +18,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -33,12 +34,21 @@ from sde_torchrl.jobs.metrics import MetricRow, metric_rows, recorded_rows, upda
 from sde_torchrl.jobs.run_dir import FinishedRun, RunDirectory, episodes_after
 from sde_torchrl.objectives.estimators import EpisodicEstimator
 from sde_torchrl.objectives.pgpe import PGPEEstimator
+from sde_torchrl.trainers.best import BEST_POLICY, BEST_POLICY_GIF, BestPolicy, write_best_policy
+from sde_torchrl.trainers.final_check import run_final_check
 from sde_torchrl.trainers.guard import FiniteGuard
 from sde_torchrl.trainers.interrupt import DeferredInterrupt
 from sde_torchrl.trainers.optim import LearningRateSchedule
 from sde_torchrl.trainers.report import Reporter, close_logger
 from sde_torchrl.trainers.settings import TrainingSettings
-from sde_torchrl.trainers.summary import LoopState, exploration_state, final_levels, per_step_factor, summarize
+from sde_torchrl.trainers.summary import (
+    LoopState,
+    best_and_checked,
+    exploration_state,
+    final_levels,
+    per_step_factor,
+    summarize,
+)
 from sde_torchrl.utils.nonfinite import nonfinite_policy
 
 log = logging.getLogger(__name__)
@@ -61,6 +71,8 @@ class Trainer:
         settings: the job's :class:`TrainingSettings`.
         logger: optional TorchRL logger (``log_scalar``) for run-averaged curves.
         lr_schedule: sets the optimiser's learning rate before each update (``None``: constant).
+        check_env: makes the env of the job's final check, batch ``[runs, episodes]`` for the
+            episodes asked, on the runs' ``final_eval`` streams (needed when ``final_episodes > 0``).
 
     Examples:
         See ``train.py`` and :func:`sde_torchrl.config.build.build_trainer`.
@@ -70,8 +82,11 @@ class Trainer:
         self, env: EnvBase, eval_env: EnvBase, policy: TensorDictSequential,
         estimator: EpisodicEstimator | PGPEEstimator, optimizer: torch.optim.Optimizer,
         settings: TrainingSettings, logger: Any = None, lr_schedule: LearningRateSchedule | None = None,
+        check_env: Callable[[int], EnvBase] | None = None,
     ) -> None:
         self.env, self.eval_env, self.policy, self.lr_schedule = env, eval_env, policy, lr_schedule
+        self.check_env = check_env
+        self.best = BestPolicy(policy, env.batch_size[0])
         self.estimator, self.optimizer, self.settings, self.logger = estimator, optimizer, settings, logger
         self.runs = env.batch_size[0]
         self.guard = FiniteGuard(policy, estimator, self.runs, settings.first_run)
@@ -228,6 +243,7 @@ class Trainer:
                     eval_return = None
                     if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
                         eval_return = state.evals[k] = self.guard.check_evaluation(k, self.evaluate())
+                        self.best.observe(k, eval_return)
                     statistics = update_statistics(s.first_run, k, self.episodes_after(k), stats, eval_return)
                     metrics.write(metric_rows(statistics))
                     state.update, state.finished = k + 1, is_last
@@ -244,7 +260,42 @@ class Trainer:
                 notice.cancel()
                 reporter.close()
             metrics.sync()
+            if s.final_episodes and state.finished:
+                state.final_check = self._final_check()
+                self._film_best(run_dir, state.final_check)
         self._save(run_dir, state)
+
+    def _final_check(self) -> dict[str, Any]:
+        """The final and the best policies on the same ``final_episodes`` fresh deterministic
+        episodes per run (:func:`~sde_torchrl.trainers.final_check.run_final_check`); the
+        training and evaluation envs are closed first (their simulators are done with)."""
+        for env in (self.env, self.eval_env):
+            env.close(raise_if_closed=False)
+        log.info("checking the final and the best policies on %d fresh episodes per run", self.settings.final_episodes)
+        with set_exploration_type(ExplorationType.DETERMINISTIC), nonfinite_policy("guarded"):
+            return run_final_check(self.check_env, self.settings.final_episodes, self.settings.eval_episodes,
+                                   self.best, self._check_rollout, self.estimator.returns)
+
+    def _film_best(self, run_dir: RunDirectory, check: dict[str, Any]) -> None:
+        """Where the env can film an episode (ball catching): the run whose best policy did best
+        on the fresh episodes, that policy on another fresh episode, as ``best_policy.gif``."""
+        base = getattr(self.eval_env, "base_env", self.eval_env)
+        if not hasattr(base, "film"):
+            return
+        returns = [sum(run) / len(run) for run in check["best"]]
+        run = max(range(len(returns)), key=returns.__getitem__)
+
+        def act(features: torch.Tensor) -> torch.Tensor:
+            shaped = features.to(torch.float32).expand(self.runs, 1, -1)
+            return self.policy(TensorDict({"observation": shaped}, batch_size=[self.runs, 1]))["action"][run, 0]
+
+        with self.best.loaded(), torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            filmed = base.film(act, run_dir.path / BEST_POLICY_GIF, seed=self.settings.first_run + run)
+        log.info("filmed run %d's best policy on another fresh ball (mean reward per step %.3f): %s",
+                 self.settings.first_run + run, filmed, run_dir.path / BEST_POLICY_GIF)
+
+    def _check_rollout(self, env: EnvBase) -> TensorDictBase:
+        return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
 
     def _first_update_notice(self, update: int) -> str:
         """What the session's first update does, for a job that has been silent for a while."""
@@ -262,6 +313,7 @@ class Trainer:
     def _save(self, run_dir: RunDirectory, state: LoopState) -> None:
         if self.queue is not None:
             state.queue = self.queue.state_dict()
+        state.best = self.best.state_dict()
         save_job(run_dir.checkpoint, config=run_dir.config, loop=state.state_dict(), policy=self.policy,
                  optimizer=self.optimizer, streams=job_streams(self.policy, self.env, self.eval_env))
 
@@ -274,6 +326,8 @@ class Trainer:
                            streams=job_streams(self.policy, self.env, self.eval_env), updates=self.settings.updates)
         state = LoopState.from_state_dict(loop)
         run_dir.check_metrics(self._recorded_rows(state), state.finished)
+        if state.best is not None:
+            self.best.load_state_dict(state.best)
         if not state.finished:  # an earlier session's summary (a checkpoint replaced by an older one)
             run_dir.summary.unlink(missing_ok=True)
         if self.queue is not None:
@@ -323,8 +377,10 @@ def train_in_directory(
                 trainer._loop(run_dir, state, checkpoint_period, progress)
         finally:
             close_logger(trainer.logger)
-        summary = {**(labels or {}), **trainer._summary(state)}
-        summary = run_dir.write_summary({**summary, **final_levels(summary)})
+        if state.best is not None:
+            write_best_policy(run_dir.path / BEST_POLICY, state.best)
+        summary = {**(labels or {}), **trainer._summary(state), **best_and_checked(state)}
+        summary = run_dir.write_summary({**summary, **final_levels(summary, state)})
     log.info("results in %s", run_dir.path.resolve())
     return summary
 

@@ -16,8 +16,9 @@ import torch
 
 from sde_torchrl.utils.checks import positive_int
 
-#: Purposes that get their own stream in every run.
-STREAMS = ("init", "explore", "env", "eval_env")
+#: Purposes that get their own stream in every run (``final_eval``: the episodes on which a job's
+#: final and best policies are checked at its end, apart from training and periodic evaluation).
+STREAMS = ("init", "explore", "env", "eval_env", "final_eval")
 
 
 def run_seed(seed: int, run: int, stream: str) -> int:

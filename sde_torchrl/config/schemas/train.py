@@ -70,6 +70,10 @@ class TrainConf(Frozen):
         eval_period: deterministic evaluation every this many updates (and after the last); 0:
             only after the last.
         eval_episodes: deterministic episodes per evaluation and run.
+        final_episodes: at the job's end, its final policy and its best one (by the periodic
+            evaluations, kept in ``best_policy.pt``) are each evaluated on this many fresh
+            deterministic episodes per run, the same for both and drawn apart from training and
+            periodic evaluation; 0: none.
         r_lim: convergence threshold on the mean exploratory return (``null``: not tracked).
         stop_at_threshold: end the job once every run has exceeded ``r_lim``.
         tensor_rollout: collect by tensor stepping where the env allows (``false``: ``env.rollout``).
@@ -119,6 +123,7 @@ class TrainConf(Frozen):
     lr: float = 0.01
     eval_period: int = 20
     eval_episodes: int = 5
+    final_episodes: int = 0
     r_lim: Optional[float] = None
     stop_at_threshold: bool = False
     tensor_rollout: bool = True

@@ -14,6 +14,8 @@ To use a second core, run two batched envs in two processes with :func:`make_par
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -23,6 +25,7 @@ from torchrl.envs import EnvBase, InitTracker, ParallelEnv, TransformedEnv
 
 from sde_torchrl.envs.ballcatch.episodes import linear_episode
 from sde_torchrl.envs.ballcatch.models import DEFAULT_MODEL
+from sde_torchrl.envs.ballcatch.outcomes import catch_outcomes
 from sde_torchrl.envs.ballcatch.task import EPISODE_STEPS, CatchEpisode
 from sde_torchrl.envs.ballcatch.world import BallCatchConfig, BallCatchWorld
 from sde_torchrl.utils.rng import RunStreams
@@ -159,6 +162,30 @@ class BatchedBallCatchEnv(EnvBase):
         if self.observation == "raw":
             return observation
         return observation[..., :3] * self._half_width.to(observation) + self._centre.to(observation)
+
+    def episode_outcomes(self, episodes: TensorDictBase) -> dict[str, torch.Tensor]:
+        """What whole episodes of this env (``[..., T]``, from their reset on) did: dropped, kept
+        on the hand or held, and when the ball was first held
+        (:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`)."""
+        observed = torch.cat([episodes["observation"][..., :1, :], episodes["next", "observation"]], -2)
+        return catch_outcomes(self.ball_positions(observed), episodes["action"][..., 3],
+                              episodes["next", "reward"][..., 0], self.config.arm.ground_z)
+
+    def film(self, act: Callable[[torch.Tensor], torch.Tensor], path: str | Path, seed: int = 0) -> float:
+        """Films one episode of ``act`` (this env's observation ``[F]`` → action ``[4]``) in the
+        gymnasium form of the same arm (a fresh ball, released by ``seed``) as a GIF at ``path``
+        (about a second of rendering); returns the episode's mean reward per step."""
+        from sde_torchrl.envs.ballcatch.demo import write_gif
+        from sde_torchrl.envs.ballcatch.gym_env import BallCatchEnv, episode_return
+
+        env, frames = BallCatchEnv(render_mode="rgb_array", config=self.config), []
+        try:
+            value = episode_return(env, lambda obs: act(self.features(torch.as_tensor(obs))).double().numpy(),
+                                   seed, frames=frames)
+        finally:
+            env.close()
+        write_gif(frames, path)
+        return value
 
     def _affine_maps(self, matrices: torch.Tensor) -> torch.Tensor:
         """Maps ``M`` of the observation (``[..., 4, F]``, float64) as maps ``[A | b]`` of the raw

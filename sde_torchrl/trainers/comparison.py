@@ -1,0 +1,74 @@
+"""The lines that end a multirun: one per method (the jobs' overrides that differ, seeds and
+shards aside), comparing what its runs reached, with 95 % intervals."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
+
+#: Overrides that split one method's runs over jobs rather than tell methods apart.
+SHARDING = ("seed", "first_run")
+#: The levels that count as catching the ball (paper section 4.2: R >= -1.1).
+CATCHES = ("good catch", "catch")
+
+
+def job_result(overrides: list[str], summary: dict[str, Any]) -> dict[str, Any]:
+    """What a finished job of a multirun reports for the comparison: its overrides, each run's
+    final evaluation (the paper's mean reward per step for ball catching) and, for ball catching,
+    each run's final level and its best policy's level on the fresh balls."""
+    result = {"overrides": [o for o in overrides if not o.startswith("hydra.")],
+              "final_eval": summary.get("final_eval_mean_reward", summary["final_eval_return"])}
+    for key in ("final_eval_level", "best_check_level"):
+        if key in summary:
+            result[key] = summary[key]
+    return result
+
+
+def method_label(overrides: list[str], shared: set[str]) -> str:
+    """A job's method: its overrides but the shared ones and those of :data:`SHARDING`.
+
+    Examples:
+        >>> method_label(["explorer=rex", "seed=3", "+experiment=ballcatch"], {"+experiment=ballcatch"})
+        'explorer=rex'
+    """
+    kept = [o for o in overrides if o not in shared and o.split("=", 1)[0].lstrip("+~") not in SHARDING]
+    return " ".join(kept) or "all jobs"
+
+
+def comparison_lines(results: list[dict[str, Any]]) -> list[str]:
+    """One line per method of a multirun's finished jobs: its runs, the mean final evaluation
+    with its bootstrap interval over runs and, for ball catching, the runs whose last evaluation
+    is a catch and whose best policy catches on the fresh balls (Wilson intervals).
+
+    Examples:
+        >>> jobs = [{"overrides": ["explorer=sde", "seed=0"], "final_eval": [-1.0, -2.0]},
+        ...         {"overrides": ["explorer=rex", "seed=0"], "final_eval": [-3.0]}]
+        >>> comparison_lines(jobs)[1]
+        'explorer=rex: 1 run in 1 job; final evaluation mean -3.000 [-3.000, -3.000]'
+    """
+    if not results:
+        return []
+    shared = set.intersection(*(set(result["overrides"]) for result in results))
+    methods: dict[str, list[dict[str, Any]]] = {}
+    for result in results:
+        methods.setdefault(method_label(result["overrides"], shared), []).append(result)
+    lines = []
+    for label, jobs in methods.items():
+        values = [value for job in jobs for value in job["final_eval"]]
+        interval = bootstrap_interval(values)
+        runs = len(values)
+        line = (f"{label}: {runs} run{'s' if runs > 1 else ''} in {len(jobs)} job{'s' if len(jobs) > 1 else ''}; "
+                f"final evaluation mean {interval.estimate:.3f} [{interval.low:.3f}, {interval.high:.3f}]")
+        for key, what in (("final_eval_level", "last evaluation a catch"),
+                          ("best_check_level", "best policy catches on the fresh balls")):
+            if all(key in job for job in jobs):
+                count = sum(level in CATCHES for job in jobs for level in job[key])
+                share = binomial_interval(count, runs)
+                line += (f"; {what} in {count} ({round(100 * share.estimate)} % "
+                         f"[{round(100 * share.low)}, {round(100 * share.high)}])")
+        lines.append(line)
+    return lines
+
+
+__all__ = ["comparison_lines", "job_result", "method_label"]
