@@ -339,7 +339,7 @@ def test_a_finished_job_closes_its_worlds(tmp_path, monkeypatch):
     built = []
     original = build.build_trainer
     monkeypatch.setattr(build, "build_trainer", lambda *a, **k: built.append(original(*a, **k)) or built[-1])
-    cfg = compose_config("+experiment=ballcatch", "runs=2", "updates=1", "episode_queue=2",
+    cfg = compose_config("+experiment=ballcatch_reinforce", "runs=2", "updates=1", "episode_queue=2",
                          "env.episode_length=5", "eval_episodes=1", "logger=none")
     build.run_job(validate(cfg), str(tmp_path), {})
     worlds = [w for env in (built[0].env, built[0].eval_env) for w in env.base_env.worlds]
@@ -567,17 +567,17 @@ def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     from sde_torchrl.config.schemas import envs as config
 
     assert config.ARM_MODELS == tuple(ARM_MODELS)
-    cfg = compose_config("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=1", "episode_queue=2",
-                         "env.episode_length=5", "eval_episodes=1", "logger=none")
+    cfg = compose_config("+experiment=ballcatch_reinforce", "env.model=pybrain", "runs=1", "updates=1",
+                         "episode_queue=2", "env.episode_length=5", "eval_episodes=1", "logger=none")
     trainer = build.build_trainer(cfg)
     try:
         assert {env.base_env.config.model for env in (trainer.env, trainer.eval_env)} == {"pybrain"}
     finally:
         trainer.close()
-    result = run_cli("+experiment=ballcatch", "env.model=pybrain", "runs=1", "updates=2", "episode_queue=2",
+    result = run_cli("+experiment=ballcatch_reinforce", "env.model=pybrain", "runs=1", "updates=2", "episode_queue=2",
                      "env.episode_length=20", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
-    bad = run_cli("+experiment=ballcatch", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
+    bad = run_cli("+experiment=ballcatch_reinforce", "env.model=ode", "runs=1", "updates=1", run_dir=tmp_path / "bad")
     assert bad.returncode != 0
     assert "env.model=ode: one of pybrain, cup, pybrain_held, pybrain_strong_fingers" in bad.stderr
 

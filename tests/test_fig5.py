@@ -276,7 +276,7 @@ def test_final_policies_of_some_runs_only_or_of_two_evaluations_are_refused(tmp_
         fig5.main([str(tmp_path), "--out", str(tmp_path / "out")])
 
 
-@pytest.mark.parametrize("experiment", [["+experiment=ballcatch", "episode_queue=2"],  # σ̂ learned
+@pytest.mark.parametrize("experiment", [["+experiment=ballcatch_reinforce", "episode_queue=2"],  # σ̂ learned
                                         ["+experiment=ballcatch_enac"]])  # σ̂ fixed: not a parameter
 @pytest.mark.e2e
 def test_final_policy_evaluation_repeats_the_trainers_final_evaluation(tmp_path, experiment):

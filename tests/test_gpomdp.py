@@ -289,7 +289,7 @@ def test_resume_after_crash_equals_uninterrupted(tmp_path, overrides):
     assert resumed == reference
 
 
-@pytest.mark.parametrize("experiment", ["pendulum", "ballcatch"])
+@pytest.mark.parametrize("experiment", ["pendulum", "ballcatch_reinforce"])
 def test_composes_with_the_other_envs_and_trains(tmp_path, experiment):
     from sde_torchrl.config.build import build_trainer
 

@@ -301,7 +301,7 @@ def test_estimator_refuses_other_policies_and_mixed_rows():
 
 
 def test_pgpe_composes_with_the_ball_catching_env(tmp_path):
-    result = run_cli("+experiment=ballcatch", *PGPE, "runs=2", "updates=2", "episodes_per_update=2",
+    result = run_cli("+experiment=ballcatch_reinforce", *PGPE, "runs=2", "updates=2", "episodes_per_update=2",
                      "episode_queue=4", "env.episode_length=20", "eval_episodes=1", "logger=none", run_dir=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     rows = read_rows(tmp_path)

@@ -35,7 +35,7 @@ def test_absurd_sizes_are_refused_at_once_in_one_line(tmp_path, override, key):
 
 
 def test_max_memory_gb_sets_the_limit():
-    ballcatch = ("+experiment=ballcatch", "runs=5")
+    ballcatch = ("+experiment=ballcatch_reinforce", "runs=5")
     assert estimate_memory(validate(compose_config(*ballcatch))).total_gb == pytest.approx(1.0, abs=0.05)
     with pytest.raises(Exception) as info:
         validate(compose_config(*ballcatch, "max_memory_gb=0.8"))
@@ -44,14 +44,14 @@ def test_max_memory_gb_sets_the_limit():
     validate(compose_config(*ballcatch, "max_memory_gb=1.2"))
 
 
-#: Max RSS of ``+experiment=ballcatch runs=N`` measured on this machine (``/usr/bin/time -v``, 2-3 updates).
+#: Max RSS of ``+experiment=ballcatch_reinforce runs=N`` measured on this machine (``/usr/bin/time -v``, 2-3 updates).
 MEASURED_GB = {5: 1.01, 20: 2.84, 50: 6.52}
 
 
 @pytest.mark.parametrize("runs, measured_gb", MEASURED_GB.items())
 def test_ballcatch_estimates_grow_with_the_worlds(runs, measured_gb):
     """Max RSS measured on this machine (``/usr/bin/time -v``, 2-3 updates): within 30 %."""
-    conf = validate(compose_config("+experiment=ballcatch", f"runs={runs}", "max_memory_gb=1000"))
+    conf = validate(compose_config("+experiment=ballcatch_reinforce", f"runs={runs}", "max_memory_gb=1000"))
     estimate = estimate_memory(conf)
     assert estimate.worlds == runs * 4 * 28e6  # one training world and three evaluation worlds per run
     if measured_gb is not None:
@@ -74,12 +74,14 @@ def test_the_guides_memory_figures_are_the_estimates_and_the_measurements():
     """The figures ``docs/guide/guarantees.md`` quotes are the estimator's (and the measurements above)."""
     text = " ".join((REPO / "docs" / "guide" / "guarantees.md").read_text().split())
     runs = sorted(MEASURED_GB)
-    estimates = [estimate_memory(validate(compose_config("+experiment=ballcatch", f"runs={n}", "max_memory_gb=1000")))
+    estimates = [estimate_memory(validate(compose_config("+experiment=ballcatch_reinforce", f"runs={n}",
+                                                         "max_memory_gb=1000")))
                  .total / GB for n in runs]
     quoted = (f"{' / '.join(f'{e:.1f}' for e in estimates)} GB estimated for {' / '.join(map(str, runs))} runs, "
               f"{' / '.join(f'{MEASURED_GB[n]:.2f}' for n in runs)} GB measured")
     assert quoted in text
-    request = launcher_request(validate(compose_config("+experiment=ballcatch", "runs=50", "max_memory_gb=1000")))
+    request = launcher_request(validate(compose_config("+experiment=ballcatch_reinforce", "runs=50",
+                                                       "max_memory_gb=1000")))
     shard = re.search(r"a 50-run ball-catching shard: (\d+) GB, (\d+) min", text)
     assert shard and (int(shard[1]), int(shard[2])) == (request["mem_gb"], request["timeout_min"])
 
@@ -116,7 +118,7 @@ def test_mlp_actors_are_estimated_from_their_parameters_and_activations(override
     (("+experiment=minimize", "episode_queue=100000000"), "episode_queue", "the episodes' steps"),
     (("+experiment=minimize", "env.dim=3000"), "env.dim", "the episodes' steps"),
     (("+experiment=minimize", "updates=10000000000"), "updates", "the per-update records"),
-    (("+experiment=ballcatch", "runs=2000"), "runs", "the simulator worlds"),
+    (("+experiment=ballcatch_reinforce", "runs=2000"), "runs", "the simulator worlds"),
 ])
 def test_the_setting_that_dominates_is_named(overrides, key, part):
     with pytest.raises(Exception) as info:
@@ -177,7 +179,7 @@ def test_a_job_says_what_it_does_within_seconds(monkeypatch, caplog):
 
 #: The estimate (bytes) and the policy's sizes of each experiment, as the estimators' and explorers'
 #: names decided them before their schemas declared what they keep in memory.
-ESTIMATES = {"ballcatch": (520082112, (28, 0)), "ballcatch_enac": (520086592, (28, 0)),
+ESTIMATES = {"ballcatch_reinforce": (520082112, (28, 0)), "ballcatch_enac": (520086592, (28, 0)),
              "ballcatch_gpomdp": (526802112, (28, 0)), "ballcatch_pgpe": (523392096, (24, 0)),
              "minimize2d_mlp": (406650160, (23, 3))}
 

@@ -17,7 +17,7 @@ How far that matters after Adam's per-parameter scaling is the condition number 
 correlation matrix, also reported.
 
 This script measures ``S`` on the task and checks the identity on the trainer's own episodes:
-it builds ``+experiment=ballcatch`` (REINFORCE + SDE) at σ̂₀ = e⁻² (:data:`SIGMA_PARAM`) for one run,
+it builds ``+experiment=ballcatch_reinforce`` (REINFORCE + SDE) at σ̂₀ = e⁻² (:data:`SIGMA_PARAM`) for one run,
 collects ``--episodes`` exploratory episodes at ``Θ0`` with the trainer's collector, computes
 the estimator's scores, and writes into ``--out``:
 
@@ -42,14 +42,14 @@ from pathlib import Path
 import torch
 
 #: The experiment measured, at the exploration scale the committed record was measured with
-#: (σ̂₀ = e⁻², +experiment=ballcatch's before it started at e⁻³), and the score of its controller's weights.
-EXPERIMENT = "ballcatch"
+#: (σ̂₀ = e⁻², +experiment=ballcatch_reinforce's before it started at e⁻³), and the score of its controller's weights.
+EXPERIMENT = "ballcatch_reinforce"
 SIGMA_PARAM = -2.0
 WEIGHT = "actor.module.0.module.weight"
 
 
 def measure(episodes: int, seed: int) -> dict:
-    """Collects ``episodes`` exploratory episodes of ``+experiment=ballcatch`` (one run, ``Θ0`` of
+    """Collects ``episodes`` exploratory episodes of ``+experiment=ballcatch_reinforce`` (one run, ``Θ0`` of
     ``seed``) and measures ``S`` and the identity ``ψ = Θ̂ S`` on them (module docstring).
 
     Examples:

@@ -34,7 +34,8 @@ GROUPS = {
 USAGE = """\
 Train policy gradients with state-dependent exploration (SDE).
 
-  python train.py +experiment=ballcatch           the paper's ball catching, REINFORCE + SDE
+  python train.py +experiment=ballcatch           4 arms learn to catch a ball: ENAC + SDE (Fig. 6)
+  python train.py +experiment=ballcatch_reinforce the same with REINFORCE + SDE (Fig. 5)
   python train.py +experiment=minimize runs=30    30 runs of the 1-D task side by side
   python train.py -m +experiment=noise_sweep      a sweep: Table 1's noise levels
   python train.py +experiment=ballcatch --help    this help with that experiment's whole config
