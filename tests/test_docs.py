@@ -4,7 +4,7 @@
   every name of ``sde_torchrl.__all__`` has its entry on the API page, with a docstring. The
   build is an ``e2e`` test; ``.ci/run``, which has just built the site with that command, gives
   it to the test in ``SDE_TORCHRL_BUILT_SITE`` so that it is built once.
-- The ``python`` blocks of each page under ``docs/guide`` and ``docs/reproduce`` run as written, in
+- The ``python`` blocks of each page under ``docs/guide``, ``docs/reproduce`` and ``docs/chosen`` run as written, in
   order, one process per page; a ``text`` block right after a ``python`` block is that block's
   expected output, compared exactly.
 - The ``console`` blocks' ``$ python -m sde_torchrl...`` commands print what the page shows.
@@ -27,7 +27,7 @@ import sde_torchrl
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
-PAGES = sorted([*DOCS.glob("guide/*.md"), *DOCS.glob("reproduce/*.md")])
+PAGES = sorted([*DOCS.glob("guide/*.md"), *DOCS.glob("reproduce/*.md"), *DOCS.glob("chosen/*.md")])
 BUILD = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-b", "html", "-q", "docs"]
 # blocks run from a temporary folder import this checkout's package, not another installed copy
 CHECKOUT_ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
@@ -40,7 +40,7 @@ BUILT_SITE = "SDE_TORCHRL_BUILT_SITE"
 
 
 def _pages_and_conf() -> list[Path]:
-    """Files every build reads (the guide and reproduction pages, the front page, the configuration):
+    """Files every build reads (the guide, reproduction and selection pages, the front page, the configuration):
     one changed since a build leaves the site older than it."""
     return [*PAGES, *DOCS.glob("*.md"), DOCS / "conf.py"]
 
