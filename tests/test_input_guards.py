@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from _helpers import sde_policy
+from _helpers import compose_config, own_stderr_lines, run_cli, sde_policy
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import Compose, InitTracker, StepCounter, TransformedEnv
@@ -22,6 +22,8 @@ from sde_torchrl import (
     nonfinite_policy,
 )
 from sde_torchrl.collectors.rollout import collect_episodes
+from sde_torchrl.config.errors import describe_error
+from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.objectives.estimators import (
     EpisodesError,
     MissingEpisodesKeyError,
@@ -370,3 +372,54 @@ def test_pgpe_refuses_a_reward_with_terms_and_another_runs_count():
         PGPEEstimator(policy)(bad)
     with pytest.raises(EpisodesError, match="stacked over runs=2"):
         PGPEEstimator(policy)(episodes[:1])
+
+
+# ------------------------------------------------------------------------------ PPO, A2C and SAC configs
+
+#: A SAC job on Pendulum-v1 of 2 updates × 2 rounds × 8 env steps.
+SAC = ("algorithm=sac", "env=gym", "updates=2", "algorithm.rounds_per_update=2", "algorithm.train_freq=8",
+       "algorithm.batch_size=16", "algorithm.buffer_size=100")
+
+
+def _refusal(*overrides: str) -> str:
+    """The one line that refuses the config of ``overrides``."""
+    with pytest.raises(Exception) as info:
+        validate(compose_config(*overrides))
+    return describe_error(info.value)
+
+
+def test_sac_refuses_a_warm_up_as_long_as_the_job():
+    """``learning_starts`` at or beyond the job's env steps would run to the end with grad_norm 0 in every row."""
+    validate(compose_config(*SAC, "algorithm.learning_starts=24"))  # the last round takes gradient steps
+    for starts in (32, 40):
+        assert _refusal(*SAC, f"algorithm.learning_starts={starts}") == (
+            f"algorithm.learning_starts={starts}: below the job's 32 env steps (updates × algorithm.rounds_per_update "
+            "× algorithm.train_freq), or no gradient step is ever taken: lower it, or raise updates")
+
+
+def test_sac_refuses_a_minibatch_larger_than_its_buffer():
+    """As PPO refuses a minibatch larger than its rollout."""
+    assert _refusal(*SAC, "algorithm.batch_size=101") == (
+        "algorithm.batch_size=101: at most algorithm.buffer_size = 100 (a minibatch is drawn from the transitions "
+        "the replay buffer keeps)")
+    assert _refusal("+experiment=sac_hopper_bullet", "algorithm.batch_size=100000000").startswith(
+        "algorithm.batch_size=100000000: at most algorithm.buffer_size = 300000")
+
+
+@pytest.mark.parametrize("algorithm", ["ppo", "a2c", "sac"])
+def test_the_algorithms_refuse_episodes_per_update(algorithm):
+    """A top-level key of the episodic estimators that PPO, A2C and SAC do not read; its default
+    (which the schema cannot tell from the same value set) is accepted."""
+    validate(compose_config(f"algorithm={algorithm}", "env=gym", "episodes_per_update=10"))
+    line = _refusal(f"algorithm={algorithm}", "env=gym", "episodes_per_update=3")
+    assert line.startswith(f"episodes_per_update=3: 10 (its default) with algorithm={algorithm}: a setting of the "
+                           f"episodic estimators, which algorithm={algorithm} does not read"), line
+
+
+def test_a_warm_up_as_long_as_the_job_exits_2_in_one_line(tmp_path):
+    result = run_cli(*SAC, "algorithm.learning_starts=32", run_dir=tmp_path / "run")
+    lines = own_stderr_lines(result.stderr)
+    assert result.returncode == 2 and lines == [
+        "error: algorithm.learning_starts=32: below the job's 32 env steps (updates × algorithm.rounds_per_update "
+        "× algorithm.train_freq), or no gradient step is ever taken: lower it, or raise updates"], result.stderr[-2000:]
+    assert not (tmp_path / "run" / "metrics.csv").exists()

@@ -1,8 +1,9 @@
 """How much memory and time a training job needs, estimated from its sizes before anything is
 built: the limit a job is checked against, and what the cluster launchers request per shard.
 
-A job holds, besides the interpreter, torch and pybullet (:data:`BASE_BYTES`) (an on-policy job,
-``algorithm=ppo``, otherwise: :func:`_onpolicy_memory`; ``algorithm=sac``: :func:`_sac_memory`):
+A job of the episodic estimators holds, besides the interpreter, torch and pybullet
+(:data:`BASE_BYTES`) (a PPO or A2C job holds otherwise: :func:`_onpolicy_memory`; a SAC job:
+:func:`_sac_memory`):
 
 - one simulator world per env slot: ``runs × (episodes_per_update + eval_episodes)`` worlds of
   ball catching (:data:`WORLD_BYTES` each), of gymnasium envs (:data:`GYM_ENV_BYTES`; a PyBullet
@@ -21,6 +22,10 @@ A job holds, besides the interpreter, torch and pybullet (:data:`BASE_BYTES`) (a
 The constants are measured on ball catching (PyBrain arm, 2 cores, torch 2.13 CPU, max RSS by
 ``/usr/bin/time -v``): 1.01 GB for 5 runs and 2.84 GB for 20 runs after the first updates; the
 actor's and the scores' on the function-minimisation task with MLP actors (``tests/test_resources.py``).
+A PPO, A2C or SAC job (``algorithm``) is counted by its networks, minibatch, rollout and replay
+buffer instead; its constants (:data:`ALGORITHM_BASE_BYTES` and those after it) are measured on
+Pendulum-v1 and HalfCheetahBullet with networks up to 4096 × 4096 and minibatches up to 20,000
+(``tests/test_resources.py``).
 :func:`check_memory` refuses, before any work, a job whose estimate exceeds the memory the
 machine has available (or ``max_memory_gb``), naming the estimate, its largest part and the size
 setting whose smallest value would save the most (:func:`dominant_setting`).
@@ -73,6 +78,24 @@ STEP_SCORE_BYTES, DRAW_BYTES = 6 * 4, 3 * 4
 #: One gymnasium env of ``env=gym`` (TorchRL's ``GymEnv`` around it): Pendulum-v1, 15-19 kB measured;
 #: a PyBullet env holds a world (:data:`WORLD_BYTES`).
 GYM_ENV_BYTES = 20e3
+#: A PPO / A2C / SAC job's interpreter with torch, TorchRL and gymnasium loaded, its job built and trained
+#: with 64 × 64 networks on Pendulum-v1 (0.45 GB measured: ``tests/test_resources.py``).
+ALGORITHM_BASE_BYTES = 0.45 * GB
+#: What ``algorithm.compile`` adds: the compiler loaded and the compiled graphs (0.1 GB measured).
+COMPILE_BYTES = 0.1 * GB
+#: Observation and action sizes of the gymnasium envs of the experiments, by a part of ``env.id``;
+#: another env is taken to have :data:`GYM_STEP_FLOATS` ``// 4`` of each.
+GYM_DIMENSIONS = {"Pendulum": (3, 1), "MountainCarContinuous": (2, 1), "HalfCheetahBullet": (26, 6),
+                  "HopperBullet": (15, 3), "Walker2DBullet": (22, 6), "AntBullet": (28, 8)}
+#: Bytes per collected env step (not per env) of a PPO / A2C rollout, an evaluation or a SAC round
+#: until its steps are stacked: each step's tensordict, a dozen small tensors (3 kB measured).
+STEP_BYTES = 3000
+#: Bytes per hidden unit and minibatch row of a PPO / A2C / SAC job's networks trained on it: the
+#: activations kept for the backward pass, their gradients and the allocator's slack (measured:
+#: PPO 6.7, A2C 5.8, SAC 9.9 over its actor and both Q-networks; ``tests/test_resources.py``).
+ALGORITHM_ACTIVATION_BYTES = 10
+#: Bytes per number of a PPO / A2C rollout: the steps' float32 numbers, GAE's and the minibatches' copies.
+ONPOLICY_BYTES_PER_FLOAT = 8
 #: Env steps per second and core that a job is assumed to reach (ball catching; the other envs
 #: are faster): a conservative rate for the time a launcher requests.
 STEPS_PER_SECOND = {"ballcatch": 2000, "other": 20000}
@@ -82,9 +105,6 @@ ONPOLICY_STEPS_PER_SECOND = 300
 #: Env steps per second of a SAC job (``algorithm=sac``), one gradient step per env step: the
 #: zoo's HalfCheetahBullet settings ran at 26 on a shared 2-core machine; a little less is assumed.
 SAC_STEPS_PER_SECOND = 20
-#: Bytes per number of an on-policy rollout: its tensors, and what GAE and the minibatches copy
-#: (measured: 0.25 GB for 8,192 steps of 3,688 numbers).
-ONPOLICY_BYTES_PER_FLOAT = 8
 #: Factor on the estimates for a launcher's request.
 MARGIN = 1.3
 
@@ -106,15 +126,20 @@ class MemoryEstimate:
     actor: float = 0.0
     scores: float = 0.0
     updates: float = 0.0
+    networks: float = 0.0
+    buffer: float = 0.0
+    batch: float = 0.0
 
-    #: What each part is, for a message.
+    #: What each part is, for a message (the last three: PPO, A2C and SAC jobs).
     PARTS: ClassVar[dict[str, str]] = {"base": "Python with torch and TorchRL loaded", "worlds": "the simulator worlds",
              "episodes": "the episodes' steps", "actor": "the actor's parameters and activations",
-             "scores": "the estimator's per-episode scores", "updates": "the per-update records"}
+             "scores": "the estimator's per-episode scores", "updates": "the per-update records",
+             "networks": "the networks' parameters, gradients and optimiser state", "buffer": "the replay buffer",
+             "batch": "the minibatch and the networks' activations over it"}
 
     @property
     def total(self) -> float:
-        return self.base + self.worlds + self.episodes + self.actor + self.scores + self.updates
+        return sum(getattr(self, name) for name in self.PARTS)
 
     @property
     def largest(self) -> tuple[str, float]:
@@ -238,48 +263,168 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
 
 
 def _onpolicy_memory(conf: Any) -> MemoryEstimate:
-    """An on-policy job (``algorithm=ppo``): one PyBullet world per env (training and evaluation;
-    30 MB each measured on HalfCheetah, :data:`WORLD_BYTES`), and one rollout of
-    ``n_envs × n_steps`` steps whose rows hold, as :func:`step_floats` counts, observations, actions
-    and scalars, and the SDE noise matrix and ``σ̂`` (``A × S`` each) over the actor's last hidden
-    layer (``S`` features, held twice).
+    """A PPO or A2C job (``algorithm=ppo``, ``a2c``):
+
+    - the envs (:func:`_env_bytes`, ``n_envs`` of them for training);
+    - the networks (:func:`_network_bytes`): the actor (its last hidden layer the SDE features
+      ``S``, with ``σ̂``, at most ``A × S``) and the critic (``algorithm.critic_hidden``, else the
+      actor's layers);
+    - the episodes' steps: the rollout's ``n_steps`` steps (:data:`STEP_BYTES`) of ``n_envs × n_steps``
+      rows, each the observation and the next one, action, log-likelihood, flags, rewards and
+      GAE's outputs (:data:`ONPOLICY_BYTES_PER_FLOAT` per number), and an evaluation
+      (:func:`_evaluation_bytes`);
+    - the larger of the minibatch's graph through actor and critic (PPO: ``batch_size`` rows; A2C:
+      the whole rollout; :data:`ALGORITHM_ACTIVATION_BYTES` per hidden unit and row) and GAE's pass of the
+      critic over the rollout's observations and next observations without gradient (the widest
+      layer's input and output, float32).
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0"),
-        ...            actor=Conf(hidden=[256, 256]), algorithm=Conf(n_envs=16, n_steps=512), eval_episodes=10)
+        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0",
+        ...                     episode_length=1000), actor=Conf(hidden=[256, 256]),
+        ...            explorer=Conf(schedule="every_n_steps"), optimizer=Conf(_target_="torch.optim.Adam"),
+        ...            algorithm=Conf(n_envs=16, n_steps=512, batch_size=128, critic_hidden=None, compile=True),
+        ...            eval_episodes=10, final_episodes=0)
         >>> estimate_memory(job).total_gb
-        1.71
+        1.72
     """
-    observation, action, _ = _dimensions(conf.env)
-    features = conf.actor.hidden[-1] if conf.actor.hidden else observation
-    floats = 3 * observation + 3 * action + 2 * action * features + 2 * features + 8
-    worlds = (conf.algorithm.n_envs + conf.eval_episodes) if "Bullet" in str(getattr(conf.env, "id", "")) else 0
-    steps = conf.algorithm.n_envs * conf.algorithm.n_steps
-    return MemoryEstimate(base=BASE_BYTES, worlds=worlds * WORLD_BYTES,
-                          episodes=steps * floats * ONPOLICY_BYTES_PER_FLOAT)
+    observation, action = _gym_dimensions(conf)
+    alg = conf.algorithm
+    hidden = [int(size) for size in conf.actor.hidden]
+    critic_hidden = [int(size) for size in (alg.critic_hidden if alg.critic_hidden is not None else hidden)]
+    features = hidden[-1] if hidden else observation
+    networks = _network_bytes(conf, [observation, *hidden, action], action * features + action,
+                              ([observation, *critic_hidden, 1], 1, 0))
+    rows = alg.n_envs * alg.n_steps
+    graph = getattr(alg, "batch_size", rows) * (sum(hidden) + sum(critic_hidden)) * ALGORITHM_ACTIVATION_BYTES
+    advantages = 2 * rows * 2 * max(critic_hidden, default=1) * 4
+    rollout = alg.n_steps * STEP_BYTES + rows * (2 * observation + 2 * action + 12) * ONPOLICY_BYTES_PER_FLOAT
+    return MemoryEstimate(base=_algorithm_base(conf), worlds=_env_bytes(conf, alg.n_envs),
+                          episodes=rollout + _evaluation_bytes(conf, observation, action, features),
+                          networks=networks, batch=max(graph, advantages))
 
 
 def _sac_memory(conf: Any) -> MemoryEstimate:
-    """A SAC job (``algorithm=sac``): one PyBullet world per env (one training env and the
-    evaluation envs, :data:`WORLD_BYTES`), and the replay buffer of ``min(buffer_size, env steps)``
-    transitions, each two observations, an action and three scalars of 4 bytes, held twice
-    while a checkpoint is written.
+    """A SAC job (``algorithm=sac``):
+
+    - the envs (:func:`_env_bytes`, one for training);
+    - the networks (:func:`_network_bytes`): the actor (as PPO's) and two Q-networks of
+      ``[observation, action]`` with the actor's hidden layers, each with its target copy, and
+      the critic they were made from;
+    - the replay buffer of ``min(buffer_size, env steps)`` transitions as stored (float32
+      observation, action, reward and next observation; two flags of a byte), held twice when
+      a resumed job loads it (the checkpoint's copy and the buffer's);
+    - the minibatch: ``batch_size`` sampled transitions and the actor loss's graph through the
+      actor and both Q-networks (:data:`ALGORITHM_ACTIVATION_BYTES` per hidden unit and row);
+    - the episodes' steps: a round's ``train_freq`` steps (:data:`STEP_BYTES`) and an evaluation
+      (:func:`_evaluation_bytes`).
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0"),
-        ...            algorithm=Conf(buffer_size=300_000, train_freq=8, rounds_per_update=125), updates=1000,
-        ...            eval_episodes=10)
+        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0",
+        ...                     episode_length=1000), actor=Conf(hidden=[400, 300]),
+        ...            explorer=Conf(schedule="rollout"), optimizer=Conf(_target_="torch.optim.Adam"),
+        ...            algorithm=Conf(buffer_size=300_000, batch_size=256, train_freq=8, rounds_per_update=125,
+        ...                           compile=True), updates=1000, eval_episodes=10, final_episodes=0)
         >>> estimate_memory(job).total_gb
-        0.83
+        1.48
     """
-    observation, action, _ = _dimensions(conf.env)
+    observation, action = _gym_dimensions(conf)
     alg = conf.algorithm
-    worlds = (1 + conf.eval_episodes) if "Bullet" in str(getattr(conf.env, "id", "")) else 0
+    hidden = [int(size) for size in conf.actor.hidden]
+    features = hidden[-1] if hidden else observation
+    networks = _network_bytes(conf, [observation, *hidden, action], action * features + action,
+                              ([observation + action, *hidden, 1], 2, 3))
     transitions = min(alg.buffer_size, conf.updates * alg.rounds_per_update * alg.train_freq)
-    return MemoryEstimate(base=BASE_BYTES, worlds=worlds * WORLD_BYTES,
-                          episodes=2 * transitions * (2 * observation + action + 3) * 4)
+    stored = (2 * observation + action + 1) * 4 + 2
+    batch = alg.batch_size * (stored + 3 * sum(hidden) * ALGORITHM_ACTIVATION_BYTES)
+    return MemoryEstimate(base=_algorithm_base(conf), worlds=_env_bytes(conf, 1),
+                          episodes=alg.train_freq * STEP_BYTES + _evaluation_bytes(conf, observation, action, features),
+                          networks=networks, buffer=2 * transitions * stored, batch=batch)
+
+
+def _algorithm_base(conf: Any) -> float:
+    """:data:`ALGORITHM_BASE_BYTES`, and :data:`COMPILE_BYTES` with ``algorithm.compile``."""
+    return ALGORITHM_BASE_BYTES + (COMPILE_BYTES if getattr(conf.algorithm, "compile", False) else 0.0)
+
+
+def _gym_dimensions(conf: Any) -> tuple[int, int]:
+    """(observation size, action size) of a PPO / A2C / SAC job's gymnasium env
+    (:data:`GYM_DIMENSIONS`), the observation with the time feature (``algorithm.time_feature``)."""
+    env_id = str(getattr(conf.env, "id", ""))
+    observation, action = next((sizes for name, sizes in GYM_DIMENSIONS.items() if name in env_id),
+                               (GYM_STEP_FLOATS // 4, GYM_STEP_FLOATS // 4))
+    return observation + int(bool(getattr(conf.algorithm, "time_feature", False))), action
+
+
+def _mlp_sizes(layers: list[int]) -> tuple[int, int]:
+    """(weights and biases, largest weight matrix) of a fully connected network with these layer
+    sizes, input first.
+
+    Examples:
+        >>> _mlp_sizes([3, 64, 64, 1])
+        (4481, 4096)
+    """
+    pairs = list(zip(layers[:-1], layers[1:], strict=True))
+    return sum(fan_in * fan_out + fan_out for fan_in, fan_out in pairs), max(i * o for i, o in pairs)
+
+
+def _optimizer_moments(optimizer: Any) -> int:
+    """Numbers the ``optimizer`` group's optimiser keeps per parameter: Adam its two moments,
+    RMSprop its average of squares, SGD its momentum (none without).
+
+    Examples:
+        >>> from types import SimpleNamespace as Conf
+        >>> _optimizer_moments(Conf(_target_="torch.optim.Adam")), _optimizer_moments(Conf(_target_="torch.optim.SGD"))
+        (2, 0)
+    """
+    target = str(getattr(optimizer, "_target_", "") or "")
+    if target.endswith("SGD"):
+        return int(bool(getattr(optimizer, "momentum", 0)))
+    return 1 if target.endswith("RMSprop") else 2
+
+
+def _network_bytes(conf: Any, actor_layers: list[int], actor_extra: int,
+                   critic: tuple[list[int], int, int]) -> float:
+    """The networks of a PPO / A2C / SAC job, float32: each trained parameter, its gradient and the
+    optimiser's moments (:func:`_optimizer_moments`); the actor's parameters also in the best
+    policy kept and in its copy at a checkpoint; the critic's copies; and the largest weight
+    matrix twice more (the optimiser step's temporary, the checkpoint's digest).
+
+    Args:
+        conf: the job's config (its ``optimizer``).
+        actor_layers: the actor's layer sizes, observation first.
+        actor_extra: the actor's parameters outside those layers (the exploration scale).
+        critic: the critic's layer sizes, its trained copies and its other copies (SAC: two
+            Q-networks; their targets and the critic they were made from).
+    """
+    per_trained = 2 + _optimizer_moments(conf.optimizer)
+    actor, actor_layer = _mlp_sizes(actor_layers)
+    layers, trained, other = critic
+    parameters, critic_layer = _mlp_sizes(layers)
+    numbers = (per_trained + 2) * (actor + actor_extra) + (trained * per_trained + other) * parameters
+    return 4 * (numbers + 2 * max(actor_layer, critic_layer))
+
+
+def _env_bytes(conf: Any, training: int) -> float:
+    """The envs of a PPO / A2C / SAC job: ``training`` ones, the ``eval_episodes`` evaluation envs
+    and the final check's (at most ``eval_episodes`` at a time, made beside them): a PyBullet env
+    holds a world (:data:`WORLD_BYTES`), another :data:`GYM_ENV_BYTES`."""
+    check = min(conf.eval_episodes, getattr(conf, "final_episodes", 0) or 0)
+    per_env = WORLD_BYTES if "Bullet" in str(getattr(conf.env, "id", "")) else GYM_ENV_BYTES
+    return (training + conf.eval_episodes + check) * per_env
+
+
+def _evaluation_bytes(conf: Any, observation: int, action: int, features: int) -> float:
+    """An evaluation of a PPO / A2C / SAC job: ``eval_episodes`` episodes side by side for
+    ``episode_length`` steps (:data:`STEP_BYTES` each), every number of every step held twice
+    while the steps are stacked: observations, action, flags and, with an SDE explorer (the one
+    whose schema has a noise ``schedule``), the noise matrices of the step and of the next one
+    and ``σ̂`` (``A × S`` each) and the features ``S``."""
+    sde = getattr(conf.explorer, "schedule", None) is not None
+    floats = 2 * observation + (3 * action * features + features + 2 * action if sde else 3 * action) + 10
+    length = conf.env.episode_length
+    return length * STEP_BYTES + 2 * conf.eval_episodes * length * floats * 4
 
 
 def estimate_minutes(conf: Any) -> float:
@@ -367,24 +512,13 @@ def check_memory(conf: Any) -> MemoryEstimate:
     if estimate.total > limit:
         where = f"max_memory_gb={limit_gb:g}" if limit_gb is not None else \
             f"the {limit / GB:.1f} GB this machine has available"
-        if hasattr(getattr(conf, "algorithm", None), "buffer_size"):
-            raise ArgumentError("algorithm.buffer_size", conf.algorithm.buffer_size,
-                                f"the job would hold about {estimate.total / GB:.1f} GB (estimate), more than {where}; "
-                                "lower algorithm.buffer_size")
-        if getattr(conf, "algorithm", None) is not None:
-            sizes = {"algorithm.n_envs": (conf.algorithm.n_envs, 16),
-                     "algorithm.n_steps": (conf.algorithm.n_steps, 512)}
-            name = max(sizes, key=lambda key: sizes[key][0] / sizes[key][1])
-            raise ArgumentError(name, sizes[name][0],
-                                f"the job would hold about {estimate.total / GB:.1f} GB (estimate), more than {where}; "
-                                "lower algorithm.n_envs or algorithm.n_steps")
         savings = dominant_setting(conf)
         floor = smallest_job(conf).total
         if limit_gb is not None and (not savings or floor > limit):
             raise ArgumentError("max_memory_gb", limit_gb,
                                 f"the job would hold about {estimate.total / GB:.2f} GB (estimate), and about "
                                 f"{floor / GB:.2f} GB with every size setting at its smallest "
-                                f"({MemoryEstimate.PARTS['base']}: {BASE_BYTES / GB:.2f} GB): a limit of at least "
+                                f"({MemoryEstimate.PARTS['base']}: {estimate.base / GB:.2f} GB): a limit of at least "
                                 f"{math.ceil(estimate.total / GB * 10) / 10:g}, or null (the memory available)")
         part, held = estimate.largest
         name = next(iter(savings), "runs")
@@ -393,7 +527,7 @@ def check_memory(conf: Any) -> MemoryEstimate:
                             f"the job would hold about {estimate.total / GB:.1f} GB (estimate), more than {where}; "
                             f"lower {name} (the largest part, {held / GB:.1f} GB, is {MemoryEstimate.PARTS[part]})"
                             + (f", or {', '.join(others)}" if others else "")
-                            + ("; or split the runs into shards (first_run)" if conf.runs > 1 else ""))
+                            + ("; or split the runs into shards (first_run)" if getattr(conf, "runs", 1) > 1 else ""))
     return estimate
 
 
@@ -414,6 +548,11 @@ def _smallest(conf: Any) -> dict[str, Any]:
     hidden = getattr(getattr(conf, "actor", None), "hidden", None)
     if hidden:
         smallest["actor.hidden"] = [1] * len(hidden)
+    algorithm = getattr(conf, "algorithm", None)
+    if algorithm is not None:  # PPO, A2C, SAC: the settings each has
+        smallest.update({f"algorithm.{key}": 1 for key in ("n_envs", "n_steps", "batch_size", "buffer_size")})
+        if getattr(algorithm, "critic_hidden", None):
+            smallest["algorithm.critic_hidden"] = [1] * len(algorithm.critic_hidden)
     present = {}
     for key, value in smallest.items():
         try:

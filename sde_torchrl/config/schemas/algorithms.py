@@ -147,9 +147,10 @@ class SACConf(Frozen):
 
     Attributes:
         buffer_size: transitions the replay buffer keeps.
-        batch_size: transitions per minibatch.
+        batch_size: transitions per minibatch, at most ``buffer_size``.
         learning_starts: env steps of uniform random actions before the first gradient step, a
-            multiple of ``train_freq``.
+            multiple of ``train_freq`` and below the job's env steps (checked with ``updates``:
+            :func:`~sde_torchrl.config.schemas.train.validate`).
         train_freq: env steps collected per round.
         gradient_steps: gradient steps after each round.
         gamma: discount.
@@ -183,6 +184,10 @@ class SACConf(Frozen):
     def __post_init__(self) -> None:
         for name in ("buffer_size", "batch_size", "train_freq", "gradient_steps", "rounds_per_update"):
             positive_int(f"algorithm.{name}", getattr(self, name))
+        if self.batch_size > self.buffer_size:
+            raise ArgumentError("algorithm.batch_size", self.batch_size,
+                                f"at most algorithm.buffer_size = {self.buffer_size} (a minibatch is drawn from the "
+                                "transitions the replay buffer keeps)")
         non_negative_int("algorithm.learning_starts", self.learning_starts)
         if self.learning_starts % self.train_freq:
             raise ArgumentError("algorithm.learning_starts", self.learning_starts,

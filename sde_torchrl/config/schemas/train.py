@@ -194,11 +194,21 @@ def loop_settings(conf: TrainConf) -> TrainingSettings:
 def _check_onpolicy(conf: TrainConf) -> None:
     """What ``algorithm=ppo`` (``a2c``, ``sac``) trains on: one learner, a gymnasium env, an MLP
     actor, an SDE or Gaussian explorer, no episodic estimator; the SB3-style noise counts over its
-    rollouts (SAC's: its rounds of ``train_freq`` steps)."""
+    rollouts (SAC's: its rounds of ``train_freq`` steps); SAC takes a gradient step before the job ends.
+
+    ``episodes_per_update``, which only the episodic estimators read, is refused at any value but
+    its default: a config cannot tell that default from the same value set on purpose."""
     name = {A2CConf: "a2c", SACConf: "sac"}.get(type(conf.algorithm), "ppo")
     if conf.runs != 1:
         raise ArgumentError("runs", conf.runs, f"1 with algorithm={name} (one learner per job; sweep over seed "
                                                "for more)")
+    default = next(f.default for f in fields(TrainConf) if f.name == "episodes_per_update")
+    if conf.episodes_per_update != default:
+        batch = "algorithm.train_freq env steps a round" if name == "sac" else \
+            "algorithm.n_envs × algorithm.n_steps env steps an update"
+        raise ArgumentError("episodes_per_update", conf.episodes_per_update,
+                            f"{default} (its default) with algorithm={name}: a setting of the episodic estimators, "
+                            f"which algorithm={name} does not read (it collects {batch})")
     if conf.device != "cpu":
         raise ArgumentError("device", conf.device, f"cpu with algorithm={name}")
     if conf.estimator is not None:
@@ -233,6 +243,7 @@ def _check_onpolicy(conf: TrainConf) -> None:
                                 "SB3 counts the noise's steps over each rollout")
     if name == "sac":
         _check_sac_explorer(conf.explorer)
+        _check_sac_learns(conf)
     check_memory(conf)
 
 
@@ -243,6 +254,17 @@ def _check_sac_explorer(explorer: Any) -> None:
     if isinstance(explorer, GaussianExplorerConf) and not explorer.learn_sigma:
         raise ArgumentError("explorer.learn_sigma", False, "true with algorithm=sac and explorer=gaussian (its "
                                                            "log-std is a learned head of the actor)")
+
+
+def _check_sac_learns(conf: TrainConf) -> None:
+    """SAC's first gradient step follows ``learning_starts`` env steps of random actions: a warm-up
+    as long as the job (``updates × rounds_per_update × train_freq`` steps) never takes one."""
+    alg = conf.algorithm
+    steps = conf.updates * alg.rounds_per_update * alg.train_freq
+    if alg.learning_starts >= steps:
+        raise ArgumentError("algorithm.learning_starts", alg.learning_starts,
+                            f"below the job's {steps:,} env steps (updates × algorithm.rounds_per_update × "
+                            "algorithm.train_freq), or no gradient step is ever taken: lower it, or raise updates")
 
 
 def _check_pgpe(conf: TrainConf) -> None:
