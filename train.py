@@ -32,6 +32,7 @@ other jobs go on, and the exit code is the failures' common code (1 if they diff
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import shlex
@@ -59,7 +60,7 @@ from sde_torchrl.jobs.lock import RunDirectoryInUse, hold_run_directory
 from sde_torchrl.trainers.interrupt import TrainingInterrupted, stop_requested
 from sde_torchrl.trainers.progress import progress_wanted
 from sde_torchrl.trainers.sweep_stop import handle_in_parent, in_worker, job_started
-from sde_torchrl.utils.files import DamagedFileError, DiskFullError, write_atomically
+from sde_torchrl.utils.files import DamagedFileError, FileWriteError, write_atomically
 
 log = logging.getLogger("train")
 register_resolvers()
@@ -110,7 +111,7 @@ def one_line(error: BaseException) -> tuple[str, int]:
     unusable = unusable_run_directory(error)
     if unusable is not None:
         return unusable, EXIT_CONFIG
-    if isinstance(error, DiskFullError):
+    if isinstance(error, FileWriteError):  # a full device, the file-size limit: the file and the cause
         return str(error), EXIT_FAILED
     if isinstance(error, (RunDirectoryInUse, DamagedFileError)):
         return str(error), EXIT_IN_USE if isinstance(error, RunDirectoryInUse) else EXIT_DAMAGED
@@ -120,7 +121,8 @@ def one_line(error: BaseException) -> tuple[str, int]:
 
 def unusable_run_directory(error: BaseException) -> str | None:
     """The one line for a run directory that cannot be made (Hydra makes it before :func:`main`):
-    a file of that name, a symbolic link to nothing (dangling, or a loop), or a path below a file.
+    a file of that name, a symbolic link to nothing (dangling, or a loop), a path below a file,
+    or a name longer than its file system allows (``ENAMETOOLONG``).
 
     Examples:
         >>> import tempfile
@@ -128,11 +130,16 @@ def unusable_run_directory(error: BaseException) -> str | None:
         >>> link.symlink_to(link.with_name("gone"))
         >>> unusable_run_directory(FileExistsError(17, "File exists", str(link)))  # doctest: +ELLIPSIS
         '.../run is a symbolic link to nothing (dangling, or a loop): give the job another hydra.run.dir ...'
+        >>> print(unusable_run_directory(OSError(36, "File name too long", "/tmp/" + "x" * 300)))  # doctest: +ELLIPSIS
+        /tmp/xxx...x: a name of 300 bytes, over its file system's limit of 255 bytes per name: give the job ...
     """
     name = getattr(error, "filename", None)
+    another = "give the job another hydra.run.dir (hydra.sweep.dir for a sweep)"
+    if isinstance(error, OSError) and error.errno == errno.ENAMETOOLONG and name:
+        return f"{name}: {_too_long(Path(name))}: {another}"
     if not isinstance(error, (FileExistsError, NotADirectoryError)) or not name:
         return None
-    path, another = Path(name), "give the job another hydra.run.dir (hydra.sweep.dir for a sweep)"
+    path = Path(name)
     if path.is_symlink() and not path.exists():
         return f"{path} is a symbolic link to nothing (dangling, or a loop): {another}, or remove the link"
     if path.is_file():
@@ -141,6 +148,22 @@ def unusable_run_directory(error: BaseException) -> str | None:
     if above is not None:
         return f"{path} is below a file ({above}), not in a directory: {another}"
     return None
+
+
+def _too_long(path: Path) -> str:
+    """What makes ``path`` too long, in words: its longest name beyond the file system's limit
+    per name (``NAME_MAX``, 255 bytes on most), or else the whole path beyond ``PATH_MAX``."""
+    existing = next((parent for parent in path.parents if os.path.isdir(parent)), Path("/"))  # False if too long
+    limits = {}
+    for limit, default in (("PC_NAME_MAX", 255), ("PC_PATH_MAX", 4096)):
+        try:
+            limits[limit] = os.pathconf(existing, limit)
+        except (OSError, ValueError, AttributeError):  # not known here: the usual value
+            limits[limit] = default
+    longest = max((len(os.fsencode(part)) for part in path.parts), default=0)
+    if longest > limits["PC_NAME_MAX"]:
+        return f"a name of {longest} bytes, over its file system's limit of {limits['PC_NAME_MAX']} bytes per name"
+    return f"a path of {len(os.fsencode(str(path)))} bytes, over the limit of {limits['PC_PATH_MAX']} bytes per path"
 
 
 def _is_foreign_checkpoint(error: BaseException) -> bool:

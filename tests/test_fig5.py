@@ -199,8 +199,20 @@ def test_conflicting_copies_of_a_run_are_refused(tmp_path):
         fig5.load_runs([tmp_path], "reinforce")
 
 
-def test_no_runs_of_the_estimator_is_an_error(tmp_path):
-    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out"), "--estimator", "enac"]) == 1
+def test_no_runs_of_the_estimator_is_refused_in_one_line(tmp_path, capsys):
+    assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out"), "--estimator", "enac"]) == 2
+    assert capsys.readouterr().err == f"error: no enac runs under {[str(tmp_path)]}\n"
+
+
+def test_the_command_refuses_conflicting_copies_in_one_line_without_a_traceback(tmp_path):
+    _write_job(tmp_path / "a", "sde", 0, CURVES["sde"][:1])
+    _write_job(tmp_path / "b", "sde", 0, CURVES["sde"][1:2])
+    command = [sys.executable, "-m", "analysis.paper.fig5", "--out", str(tmp_path / "out"), str(tmp_path)]
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert result.stderr == (f"error: run 0 of sde appears twice with different results (second copy in "
+                             f"{tmp_path / 'b'})\n"), result.stderr[-2000:]
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.e2e
@@ -265,15 +277,22 @@ def test_final_policies_on_more_episodes_are_counted_beside_the_trainers_evaluat
     assert "| SDE | 4 | 100 % [51, 100] | 75 % [30, 95] | 50 % [15, 85] | 25 % [5, 70] |" in table
 
 
-def test_final_policies_of_some_runs_only_or_of_two_evaluations_are_refused(tmp_path):
+def test_final_policies_of_some_runs_only_or_of_two_evaluations_or_damaged_are_refused(tmp_path, capsys):
+    def refusal() -> str:
+        assert fig5.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1, err
+        return err
+
     _write_job(tmp_path / "sde", "sde", 0, CURVES["sde"])
     _write_final_policy(tmp_path / "sde", "sde", 0, [-1.0, -1.0])
-    with pytest.raises(ValueError, match="2 runs .first 2. have no final_policy.json"):
-        fig5.main([str(tmp_path), "--out", str(tmp_path / "out")])
+    assert "sde: 2 runs (first 2) have no final_policy.json entry" in refusal()
     _write_job(tmp_path / "more", "sde", 2, CURVES["sde"][2:])
     _write_final_policy(tmp_path / "more", "sde", 2, [-1.0, -1.0], episodes=10)
-    with pytest.raises(ValueError, match="different evaluations"):
-        fig5.main([str(tmp_path), "--out", str(tmp_path / "out")])
+    assert "final_policy.json files of different evaluations" in refusal()
+    (tmp_path / "more" / "final_policy.json").write_text('{"explorer": "sde", ')
+    assert refusal().startswith(f"error: {tmp_path / 'more' / 'final_policy.json'} cannot be read as JSON")
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("experiment", [["+experiment=ballcatch_reinforce", "episode_queue=2"],  # σ̂ learned

@@ -1,13 +1,16 @@
 """Nothing lost, nothing silently wrong: the run-directory lock, damaged files, the
-evaluation guard, strict summaries, logger CSV files and configurations that cannot learn."""
+evaluation guard, strict summaries, logger CSV files, configurations that cannot learn, writes
+that fail (a full disk, the file-size limit) and run directories that cannot be made."""
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
 import random
 import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -556,6 +559,46 @@ def test_a_full_disk_is_named_leaves_no_temporary_file_and_resumes_once_freed(tm
     resumed = run_cli(*cli, run_dir=run_dir)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert (run_dir / "metrics.csv").read_bytes() == (tmp_path / "reference" / "metrics.csv").read_bytes()
+
+
+#: A PPO job of one update whose checkpoint (a 256 × 256 layer and Adam's moments) is over 200 KiB.
+BIG_CHECKPOINT = ("algorithm=ppo", "env=gym", "env.episode_length=20", "algorithm.n_steps=16", "algorithm.batch_size=8",
+                  "algorithm.n_epochs=1", "eval_episodes=1", "actor.hidden=[256,256]", "actor.init=null", "updates=1",
+                  "logger=none")
+
+
+def test_the_file_size_limit_is_named_with_the_file_and_leaves_no_temporary_file(tmp_path):
+    run_dir = tmp_path / "run"
+    command = " ".join(map(shlex.quote, train_command(*BIG_CHECKPOINT, run_dir=run_dir)))
+    limited = subprocess.run(["bash", "-c", f"ulimit -f 200; exec {command}"], cwd=REPO, capture_output=True,
+                             text=True, timeout=300)
+    assert limited.returncode == 1, limited.stderr[-2000:]
+    assert own_stderr_lines(limited.stderr) == [
+        f"error: {run_dir / 'checkpoint.pt'} could not be written: it reached this process's file-size limit (200 KiB, "
+        "ulimit -f); raise the limit (ulimit -f unlimited) and run the same command again: the job resumes from its "
+        "last checkpoint"]
+    assert not [p.name for p in run_dir.rglob("*.tmp")]
+
+
+def test_a_failed_write_names_the_file_and_the_cause(tmp_path):
+    from sde_torchrl.utils.files import FileWriteError, write_atomically
+
+    def failing(f):
+        f.write(b"some")
+        raise OSError(errno.EIO, "Input/output error")
+
+    with pytest.raises(FileWriteError, match=rf"^{tmp_path}/summary.json could not be written: Input/output error$"):
+        write_atomically(tmp_path / "summary.json", failing)
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_run_directory_name_over_the_file_system_s_limit_is_a_config_error(tmp_path):
+    path = tmp_path / ("x" * 300)
+    result = run_cli("+experiment=minimize", "updates=2", run_dir=path)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert own_stderr_lines(result.stderr) == [f"error: {path}: a name of 300 bytes, over its file system's limit of "
+                                               "255 bytes per name: give the job another hydra.run.dir "
+                                               "(hydra.sweep.dir for a sweep)"]
 
 
 def test_a_run_directory_that_is_a_file_is_a_config_error(tmp_path):

@@ -1,18 +1,24 @@
 """The one non-finite policy (sde_torchrl.utils.nonfinite): "raise" by default for direct use,
-"guarded" inside the trainer, whose guard names the update; set in one place, restored after it."""
+"guarded" inside the trainer, whose guard names the update; set in one place, restored after it.
+
+A non-finite stop of PPO, A2C or SAC shows the offending values and advises settings the job has;
+a NaN that a gymnasium env returns after finite actions is reported as the env's, with its step."""
 
 from __future__ import annotations
 
 import threading
 
+import gymnasium
+import numpy as np
 import pytest
 import torch
-from _helpers import build, sde_policy
+from _helpers import build, compose_config, sde_policy
 from tensordict.nn import TensorDictSequential
 
 import sde_torchrl
 from sde_torchrl import LinearActor, MinimizeEnv, PGPEEstimator, ReinforceEstimator, make_minimize_env
 from sde_torchrl.collectors.rollout import collect_episodes
+from sde_torchrl.envs.gym_checks import EnvOutputError
 from sde_torchrl.modules.pgpe import ParameterExplorer
 from sde_torchrl.objectives.base import NonFiniteEpisodesError
 from sde_torchrl.trainers.guard import NonFiniteError
@@ -221,3 +227,115 @@ def test_an_unknown_policy_is_refused_before_the_block(policy):
     message = str(info.value)
     assert message.startswith("nonfinite_policy=") and "raise" in message and "guarded" in message, message
     assert not ran and current_nonfinite_policy() == "raise"
+
+
+# ------------------------------------------------------------------------------ PPO, A2C and SAC
+
+#: A few steps of PPO or SAC on Pendulum-v1, no logger.
+PPO = ("algorithm=ppo", "env=gym", "env.episode_length=10", "algorithm.n_steps=8", "algorithm.batch_size=4",
+       "algorithm.n_epochs=1", "updates=2", "eval_episodes=1", "actor.hidden=[4]", "actor.init=null", "logger=none")
+SAC = ("algorithm=sac", "env=gym", "env.episode_length=10", "algorithm.train_freq=4", "algorithm.gradient_steps=1",
+       "algorithm.batch_size=4", "algorithm.learning_starts=4", "updates=3", "eval_episodes=1", "actor.hidden=[4]",
+       "logger=none")
+
+
+def _build_actor_critic(*overrides: str):
+    from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
+    from sde_torchrl.config.build_sac import build_sac_trainer
+    from sde_torchrl.config.schemas.train import validate
+
+    conf = validate(compose_config(*overrides))
+    return (build_sac_trainer if conf.algorithm.__class__.__name__ == "SACConf" else build_onpolicy_trainer)(conf)
+
+
+class _PoisonedStep:
+    """The trainer's gradient step, after which two entries of the policy's first weight are NaN and inf."""
+
+    def __init__(self, trainer) -> None:
+        self.step, self.policy = trainer.update_step, trainer.policy
+
+    def __call__(self, *args):
+        out = self.step(*args)
+        with torch.no_grad():
+            weight = next(self.policy.parameters())
+            weight.view(-1)[1], weight.view(-1)[2] = float("nan"), float("inf")
+        return out
+
+    def __getattr__(self, name):  # SAC's step also sets its round
+        return getattr(self.step, name)
+
+
+@pytest.mark.parametrize(("overrides", "remedy"), [
+    (PPO, "(lower lr or set a smaller algorithm.max_grad_norm)"),
+    (SAC, "(lower lr or set a larger algorithm.batch_size)"),
+])
+def test_an_actor_critic_stop_shows_the_values_and_a_remedy_of_its_own_settings(tmp_path, overrides, remedy):
+    trainer = _build_actor_critic(*overrides)
+    trainer.update_step = _PoisonedStep(trainer)
+    with pytest.raises(NonFiniteError) as info:
+        trainer.train(tmp_path)
+    message = str(info.value)
+    assert info.value.what == "parameter" and info.value.runs == [0], message
+    assert " in run 0: [nan, inf] (2 of " in message and "entries, the first at [0, 1]);" in message, message
+    assert message.endswith(remedy) and "estimator." not in message, message
+
+
+class NaNEnv(gymnasium.Env):
+    """Returns a NaN observation entry (or reward) at the third step of every episode, whatever the action."""
+
+    observation_space = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def __init__(self, bad: str = "observation") -> None:
+        self.bad, self.t = bad, 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        observation, reward = np.full(2, 0.1, np.float32), -float(np.square(action).sum())
+        if self.t == 3:
+            if self.bad == "observation":
+                observation[1] = np.nan
+            else:
+                reward = float("nan")
+        return observation, reward, False, False, {}
+
+
+gymnasium.register("NaNObservation-v0", entry_point=NaNEnv, max_episode_steps=20)
+gymnasium.register("NaNReward-v0", entry_point=NaNEnv, max_episode_steps=20, kwargs={"bad": "reward"})
+NAN_OBSERVATION, NAN_REWARD = f"{__name__}:NaNObservation-v0", f"{__name__}:NaNReward-v0"
+
+
+@pytest.mark.parametrize(("env_id", "what"), [(NAN_OBSERVATION, "observation [0.1, nan]"),
+                                              (NAN_REWARD, "reward [nan]")])
+def test_a_nan_from_the_env_is_reported_as_the_env_s_with_its_step(tmp_path, env_id, what):
+    from sde_torchrl.config.build import build_trainer
+
+    trainer = build_trainer(compose_config("env=gym", f"env.id={env_id}", "env.episode_length=10", "updates=2",
+                                           "episodes_per_update=2", "logger=none"))
+    with pytest.raises(EnvOutputError) as info:  # not the guard's NonFiniteError, which would blame lr
+        trainer.train(tmp_path)
+    message = str(info.value)
+    assert message.startswith(f"env {env_id} returned a non-finite {what} at step 3 of run 0 episode 0, after a "
+                              "finite action: the env made it"), message
+    assert "lr" not in message, message
+
+
+@pytest.mark.parametrize("overrides", [PPO, SAC])
+def test_a_nan_from_the_env_stops_ppo_and_sac_as_the_env_s_with_its_step(tmp_path, overrides):
+    trainer = _build_actor_critic(*overrides, f"env.id={NAN_REWARD}")
+    with pytest.raises(EnvOutputError, match=rf"^env {NAN_REWARD} returned a non-finite reward \[nan\] at step 3 of "
+                                             r"env 0's episode \(seed \d+\), after a finite action"):
+        trainer.train(tmp_path)
+
+
+def test_a_nan_after_a_nan_action_is_left_to_the_guard():
+    from sde_torchrl.envs.gym_checks import check_env_output
+
+    check_env_output("any", "step 1", [float("nan")], float("nan"), action=[float("nan")])  # the policy's doing
+    with pytest.raises(EnvOutputError, match=r"^env any returned a non-finite observation \[nan\] at the reset"):
+        check_env_output("any", "the reset", [float("nan")])

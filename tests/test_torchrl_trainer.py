@@ -7,17 +7,20 @@
   builds TorchRL's own policy.
 - Both config stores live in one process: this repository's ``conf/`` composes and builds a job
   while TorchRL's trainer configs are registered, and TorchRL's config composes after it.
-- ``make_sde_model`` refuses what it cannot honour, naming the fix.
+- ``make_sde_model`` refuses what it cannot honour, naming the fix; the example refuses a
+  non-finite setting of the SDE policy before anything is built, in one line naming its key.
 """
 
 from __future__ import annotations
 
 import hashlib
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import torch
-from _helpers import REPO
+from _helpers import REPO, own_stderr_lines
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 from tensordict import TensorDict
@@ -128,3 +131,36 @@ def test_make_sde_model_follows_tanh_normal_s_bounds_and_mean_bound():
     td = policy(TensorDict({"observation": torch.ones(3), "sde_noise": torch.zeros(1, 3)}, []))
     assert torch.allclose(td["loc"], torch.tensor([5.0]))  # 5 · tanh(100 / 5)
     assert torch.allclose(td["action"], 2 * torch.tanh(torch.tensor([5.0])))  # squashed into [-2, 2]
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("models.policy_model.init_param=inf", "models.policy_model.init_param=inf: a finite number within float32's"),
+    ("models.policy_model.gaussian_init_param=nan", "models.policy_model.gaussian_init_param=nan: a finite number"),
+    ("models.policy_model.high=nan", "models.policy_model.high=nan: null, a finite number, or a list"),
+    ("models.policy_model.low=[-inf]", "models.policy_model.low=[-inf]: null, a finite number, or a list"),
+    ("models.policy_model.action_dim=0", "models.policy_model.action_dim=0: null (read from the network) or a"),
+    ("models.policy_model.every_n=3", "models.policy_model.every_n=3: null unless models.policy_model.schedule="),
+])
+def test_a_refused_sde_setting_is_named_by_its_key_before_anything_is_built(override, message):
+    from sde_torchrl.config.torchrl_trainer import check_sde_models
+    from sde_torchrl.utils.checks import ArgumentError
+
+    check_sde_models(example_config(*TINY))  # the example's own settings pass
+    with pytest.raises(ArgumentError) as info:
+        check_sde_models(example_config(*TINY, override))
+    assert str(info.value).startswith(message), str(info.value)
+
+
+def test_make_sde_model_refuses_a_non_finite_init_param():
+    with pytest.raises(ValueError, match=r"^init_param=nan: a finite number"):
+        make_sde_model(MLP(in_features=3, out_features=2, num_cells=[4]), init_param=float("nan"))
+
+
+def test_the_example_refuses_a_non_finite_init_param_in_one_line_with_the_config_exit_code(tmp_path):
+    result = subprocess.run([sys.executable, str(EXAMPLE / "train.py"), *TINY, "models.policy_model.init_param=nan",
+                             f"hydra.run.dir={tmp_path}"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    lines = own_stderr_lines(result.stderr)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert lines == ["error: models.policy_model.init_param=nan: a finite number within float32's range "
+                     "(|x| <= 3.4e+38)"], lines

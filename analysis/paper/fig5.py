@@ -22,6 +22,10 @@ With ``--estimator all`` it compares the methods of the REINFORCE sweeps, beyond
 REX with REINFORCE, SDE with GPOMDP (``sde+gpomdp``) and PGPE, written as ``methods.*``, with
 every method's difference from REINFORCE + SDE (and PGPE's from REX) in the same form.
 
+Sweeps it cannot make the figure from (a job not finished, copies of a run that disagree, final
+policies of some runs only, no run of the estimator) are refused in one line on stderr,
+``error: ...``, with exit code 2.
+
 Usage:
     python -m analysis.paper.fig5 --out results/fig5 multirun/2026-11-22/10-00-00 [more shards...]
     python -m analysis.paper.fig5 --estimator enac --out results/fig6 SWEEP_DIR
@@ -36,7 +40,7 @@ import sys
 from pathlib import Path
 
 from analysis.figures import bounds, difference_of_means, saved_figure, style, write_page_json
-from analysis.sweeps import finished_jobs
+from analysis.sweeps import EXIT_REFUSED, finished_jobs
 
 #: Levels of the paper's right-hand plots: "slowed down", "kept on the fingers", "catch",
 #: "good catch".
@@ -60,6 +64,10 @@ WINDOW = 5
 COMPARED = ("reinforce", "gpomdp", "pgpe")
 #: ``--estimator all``: (method, baseline) pairs whose differences are reported.
 VERSUS = (("sde", "rex"), ("sde+gpomdp", "sde"), ("pgpe", "sde"), ("pgpe", "rex"))
+
+
+class Refused(ValueError):
+    """Sweeps the figure cannot be made from; :func:`main` reports it in one line, exit code 2."""
 
 
 def method_label(explorer: str, estimator: str, wanted: str) -> str | None:
@@ -104,9 +112,25 @@ def load_runs(directories: list[Path], estimator: str) -> dict[str, dict[int, di
                    "collapse": collapse}
             previous = runs.setdefault(explorer, {}).setdefault(index, run)
             if previous != run:
-                raise ValueError(f"run {index} of {explorer} appears twice with different results "
+                raise Refused(f"run {index} of {explorer} appears twice with different results "
                                  f"(second copy in {job.path})")
     return runs
+
+
+def read_json(path: Path, *keys: str) -> dict:
+    """The JSON object in ``path``, which must hold ``keys``.
+
+    Raises:
+        Refused: the file cannot be read, is not a JSON object, or lacks one of ``keys``.
+    """
+    try:
+        found = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise Refused(f"{path} cannot be read as JSON ({' '.join(str(error).split())}): write it again") from None
+    missing = [key for key in keys if not isinstance(found, dict) or key not in found]
+    if missing:
+        raise Refused(f"{path} has no {', '.join(missing)}: not the file this figure reads; write it again")
+    return found
 
 
 def load_per_run(directories: list[Path], estimator: str, filename: str, key: str) -> dict[str, dict[int, float]]:
@@ -117,7 +141,7 @@ def load_per_run(directories: list[Path], estimator: str, filename: str, key: st
     values: dict[str, dict[int, float]] = {}
     for directory in directories:
         for path in sorted(directory.rglob(filename)):
-            found = json.loads(path.read_text())
+            found = read_json(path, "explorer", "estimator", "first_run", key)
             label = method_label(found["explorer"], found["estimator"], estimator)
             if label is not None:
                 for offset, value in enumerate(found[key]):
@@ -134,7 +158,7 @@ def behaviour_counts(directories: list[Path], estimator: str) -> dict[str, dict[
     counts: dict[str, dict[str, int]] = {}
     for directory in directories:
         for path in sorted(directory.rglob("reevaluation_pybrain.json")):
-            found = json.loads(path.read_text())
+            found = read_json(path, "explorer", "estimator", "per_episode")
             label = method_label(found["explorer"], found["estimator"], estimator)
             if label is not None:
                 codes = [code for run in found["per_episode"]["behaviour"] for code in run]
@@ -148,9 +172,9 @@ def final_policy_episodes(directories: list[Path]) -> tuple[int, int] | None:
     """The episodes and seed of the ``final_policy.json`` files under ``directories`` as
     ``(episodes, seed)``, or ``None`` if there are none; files that disagree are refused."""
     found = {(f["episodes"], f["seed"]) for directory in directories
-             for f in map(json.loads, map(Path.read_text, sorted(directory.rglob("final_policy.json"))))}
+             for f in (read_json(path, "episodes", "seed") for path in sorted(directory.rglob("final_policy.json")))}
     if len(found) > 1:
-        raise ValueError(f"final_policy.json files of different evaluations {sorted(found)}: use one")
+        raise Refused(f"final_policy.json files of different evaluations {sorted(found)}: use one")
     return found.pop() if found else None
 
 
@@ -275,7 +299,7 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
     index → the final policy's return on more episodes), the same for ``"final_policy"``.
 
     Raises:
-        ValueError: ``final_policy`` has some of an explorer's runs but not all.
+        Refused: ``final_policy`` has some of an explorer's runs but not all.
     """
     from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
 
@@ -283,8 +307,8 @@ def report(runs: dict[str, dict[int, dict]], estimator: str,
     for explorer, values in final_policy.items():
         missing = sorted(runs.get(explorer, {}).keys() - values.keys())
         if missing:
-            raise ValueError(f"{explorer}: {len(missing)} runs (first {missing[0]}) have no final_policy.json "
-                             "entry: run analysis/paper/ballcatch_final.py on every shard")
+            raise Refused(f"{explorer}: {len(missing)} runs (first {missing[0]}) have no final_policy.json "
+                          "entry: run analysis/paper/ballcatch_final.py on every shard")
     flags = {explorer: reached(by_run, final_policy.get(explorer)) for explorer, by_run in runs.items()}
     explorers = {}
     for explorer, by_run in sorted(runs.items()):
@@ -471,25 +495,31 @@ def _plot_panels(runs: dict[str, dict[int, dict]], result: dict, left, right, ti
 
 def main(argv: list[str] | None = None, estimator: str = "reinforce",
          prog: str = f"python -m {__spec__.name}") -> int:
+    """Writes the figure and its tables; returns the exit code: 0, or :data:`~analysis.sweeps.EXIT_REFUSED`
+    for sweeps it cannot be made from (:class:`Refused`, no run of the estimator), once their line
+    ``error: ...`` is on stderr."""
     parser = argparse.ArgumentParser(prog=prog, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweeps", nargs="+", type=Path, help="sweep or run directories (shards)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--estimator", choices=sorted(FIGURE), default=estimator)
     args = parser.parse_args(argv)
-    runs = load_runs(args.sweeps, args.estimator)
-    if not runs:
-        print(f"error: no {args.estimator} runs under {[str(s) for s in args.sweeps]}", file=sys.stderr)
-        return 1
+    try:
+        runs = load_runs(args.sweeps, args.estimator)
+        if not runs:
+            raise Refused(f"no {args.estimator} runs under {[str(s) for s in args.sweeps]}")
+        initial = load_per_run(args.sweeps, args.estimator, "initial.json", "initial_eval_return")
+        final_policy = load_per_run(args.sweeps, args.estimator, "final_policy.json", "final_policy_return")
+        result = report(runs, args.estimator, initial, final_policy)
+        evaluated = final_policy_episodes(args.sweeps)
+        behaviours = behaviour_counts(args.sweeps, args.estimator)
+    except Refused as refused:
+        print(f"error: {refused}", file=sys.stderr)
+        return EXIT_REFUSED
     args.out.mkdir(parents=True, exist_ok=True)
     name = FIGURE[args.estimator]
-    initial = load_per_run(args.sweeps, args.estimator, "initial.json", "initial_eval_return")
-    final_policy = load_per_run(args.sweeps, args.estimator, "final_policy.json", "final_policy_return")
-    result = report(runs, args.estimator, initial, final_policy)
-    evaluated = final_policy_episodes(args.sweeps)
     if evaluated is not None:
         result["final_policy"] = {"episodes": evaluated[0], "seed": evaluated[1]}
-    behaviours = behaviour_counts(args.sweeps, args.estimator)
     if behaviours:
         result["behaviours"] = behaviours
     write_page_json(args.out / f"{name}.json", result, indent=2)

@@ -13,17 +13,21 @@ The noise matrix lives in the env, drawn by the policy's own
 collectors append it when asked: ``auto_register_policy_transforms: true`` in the collector's
 config (TorchRL's default from 0.15 on). There is no separate ``transform`` option for it: the
 primer must match the policy's dimensions, schedule and keys, which the policy already knows.
+
+:func:`check_sde_models` checks the settings of every ``sde`` model of a composed config before
+anything is built, naming each refused one by its key (``models.policy_model.init_param=nan: ...``),
+as ``train.py``'s schemas do for this repository's own configs.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import torch
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING, DictConfig, ListConfig
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torch import nn
@@ -32,6 +36,8 @@ from torchrl.trainers.algorithms.configs.modules import ModelConfig
 
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import SDEActor, make_sde_actor
+from sde_torchrl.utils.checks import ArgumentError, float32_number, is_int, noise_schedule, one_of
+from sde_torchrl.utils.options import SHARINGS, SIGMA_TRANSFORMS
 
 #: ``_target_`` of :class:`SDEModelConfig`.
 TARGET = f"{__name__}.make_sde_model"
@@ -185,6 +191,8 @@ def make_sde_model(
         The :class:`~sde_torchrl.modules.sde_actor.SDEActor`.
 
     Raises:
+        ArgumentError: a setting :func:`check_sde_settings` refuses (a non-finite ``init_param``,
+            bound, ...).
         ValueError: an ``exploration_type`` other than ``"RANDOM"``, more than one output key,
             dimensions that cannot be inferred from the network, an odd ``out_features`` with
             ``extract_normal_params``, or several input keys and no ``feature_key``.
@@ -198,6 +206,8 @@ def make_sde_model(
         >>> bool((td["action"].abs() <= 2).all()), bool((td["sde_noise"] == td["sde_noise"][0]).all())
         (True, True)
     """
+    check_sde_settings({"low": low, "high": high, "action_dim": action_dim, "feature_dim": feature_dim,
+                        **sde_options})
     if str(exploration_type).upper() not in ("RANDOM", "INTERACTIONTYPE.RANDOM"):
         raise ValueError(
             f"exploration_type={exploration_type!r}: the SDE policy samples (RANDOM) unless TorchRL's exploration "
@@ -239,6 +249,101 @@ def register_torchrl_configs() -> None:
         'sde_torchrl.config.torchrl_trainer.make_sde_model'
     """
     ConfigStore.instance().store(group="model", name="sde", node=SDEModelConfig)
+
+
+#: The settings of an ``sde`` model that :func:`check_sde_settings` checks.
+CHECKED_SETTINGS = ("init_param", "gaussian_init_param", "low", "high", "action_dim", "feature_dim", "schedule",
+                    "every_n", "rollout_steps", "sharing", "sigma_transform")
+
+
+def check_sde_settings(settings: Mapping[str, Any], prefix: str = "") -> None:
+    """Refuses the settings of an ``sde`` model that would build a policy acting on NaN, or none.
+
+    Checks those of ``settings`` that :func:`make_sde_model` reads (absent ones are not checked):
+    ``init_param`` and ``gaussian_init_param`` (a number a float32 ``σ̂`` parameter holds; ``null``
+    for the latter), ``low`` and ``high`` (``null``, a finite number or a list of them),
+    ``action_dim`` and ``feature_dim`` (``null`` or a positive integer), ``schedule`` with
+    ``every_n`` and ``rollout_steps``, ``sharing`` and ``sigma_transform``.
+
+    Args:
+        settings: the model's fields (a config node or keyword arguments).
+        prefix: the model's key in the config, with a trailing dot (``"models.policy_model."``).
+
+    Raises:
+        ArgumentError: ``<prefix><field>=<value>: <what is allowed>``.
+
+    Examples:
+        >>> check_sde_settings({"init_param": -1.0, "low": [-2.0], "high": 2})
+        >>> check_sde_settings({"init_param": float("nan")}, "models.policy_model.")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: models.policy_model.init_param=nan: a finite number within ...
+    """
+    if "init_param" in settings:
+        float32_number(prefix + "init_param", settings["init_param"])
+    if settings.get("gaussian_init_param") is not None:
+        float32_number(prefix + "gaussian_init_param", settings["gaussian_init_param"])
+    for name in ("low", "high"):
+        value = settings.get(name)
+        if value is not None and not _finite_numbers(value):
+            raise ArgumentError(prefix + name, value,
+                                "null, a finite number, or a list of finite numbers (one per action)")
+    for name in ("action_dim", "feature_dim"):
+        value = settings.get(name)
+        if value is not None and not (is_int(value) and value >= 1):
+            raise ArgumentError(prefix + name, value, "null (read from the network) or a positive integer")
+    if any(name in settings for name in ("schedule", "every_n", "rollout_steps")):
+        noise_schedule(settings.get("schedule", "episode"), settings.get("every_n"), prefix,
+                       rollout_steps=settings.get("rollout_steps"))
+    for name, allowed in (("sharing", SHARINGS), ("sigma_transform", SIGMA_TRANSFORMS)):
+        if name in settings:
+            one_of(prefix + name, settings[name], allowed)
+
+
+def check_sde_models(cfg: DictConfig) -> None:
+    """Checks every ``sde`` model of a composed TorchRL trainer config (each node whose
+    ``_target_`` is :func:`make_sde_model`) with :func:`check_sde_settings`, before anything is
+    built: a refused setting is named by its key in ``cfg``. A node that only interpolates
+    another (``loss.actor_network: ${models.policy_model}``) is checked where it is defined.
+
+    Raises:
+        ArgumentError: ``<key>=<value>: <what is allowed>``, e.g. ``models.policy_model.init_param=nan: ...``.
+
+    Examples:
+        >>> cfg = OmegaConf.create({"models": {"policy_model": {"_target_": TARGET, "high": float("inf")}},
+        ...                         "loss": {"actor_network": "${models.policy_model}"}})
+        >>> check_sde_models(cfg)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.utils.checks.ArgumentError: models.policy_model.high=inf: null, a finite number, ...
+    """
+
+    def visit(node: DictConfig | ListConfig, path: str) -> None:
+        keys = node.keys() if isinstance(node, DictConfig) else range(len(node))
+        for key in keys:
+            if OmegaConf.is_interpolation(node, key) or OmegaConf.is_missing(node, key):
+                continue
+            child = node[key]
+            if isinstance(child, (DictConfig, ListConfig)):
+                visit(child, f"{path}{key}.")
+        if isinstance(node, DictConfig) and node.get("_target_") == TARGET:
+            check_sde_settings({key: node[key] for key in CHECKED_SETTINGS
+                                if key in node and not OmegaConf.is_missing(node, key)}, path)
+
+    visit(cfg, "")
+
+
+def _finite_numbers(value: Any) -> bool:
+    """``value`` is a finite number, or a non-empty list (or tensor) of them; not a bool."""
+    items = list(value) if isinstance(value, (ListConfig, list, tuple)) else [value]
+    if any(isinstance(item, bool) for item in items):
+        return False
+    try:
+        numbers = torch.as_tensor(items if isinstance(value, (ListConfig, list, tuple)) else value,
+                                  dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        return False
+    return numbers.numel() > 0 and bool(torch.isfinite(numbers).all())
 
 
 def _built(network: nn.Module | DictConfig | Callable[[], nn.Module]) -> nn.Module:
@@ -302,4 +407,5 @@ def _bound(value: Any, default: float) -> torch.Tensor | float:
     return float(value)
 
 
-__all__ = ["MeanHead", "SDEModelConfig", "make_sde_model", "register_torchrl_configs"]
+__all__ = ["MeanHead", "SDEModelConfig", "check_sde_models", "check_sde_settings", "make_sde_model",
+           "register_torchrl_configs"]

@@ -39,7 +39,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, InitTracker, ObservationNorm, StepCounter, Transform, TransformedEnv
 from torchrl.envs.libs.gym import GymEnv
 
-from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
+from sde_torchrl.envs.gym_checks import check_env_output, check_spaces, check_time_limit
 from sde_torchrl.envs.vector import first_reset
 from sde_torchrl.utils.checks import positive_int
 from sde_torchrl.utils.options import NORMALIZATIONS
@@ -74,6 +74,8 @@ class GymRunsEnv(EnvBase):
     Raises:
         ArgumentError: for an env whose action or observation space SDE cannot use (a discrete
             action space, a ``Dict`` observation: see :func:`~sde_torchrl.envs.gym_checks.check_spaces`).
+        EnvOutputError: (when reset or stepped) an env returned a non-finite observation or reward
+            after a finite action (:func:`~sde_torchrl.envs.gym_checks.check_env_output`).
 
     Examples:
         >>> env = GymRunsEnv("Pendulum-v1", episodes=2, runs=1)
@@ -103,6 +105,7 @@ class GymRunsEnv(EnvBase):
         self.reward_spec = proto.reward_spec.expand(*batch, *proto.reward_spec.shape).clone().to(self.device)
         # the gymnasium envs step on the CPU: their state is kept there, the outputs go to the device
         self._absorbed = torch.zeros(*batch, 1, dtype=torch.bool)
+        self._steps = [0] * (runs * episodes)  # steps of each env's episode so far, for messages
         self._last_obs = proto.observation_spec["observation"].expand(*batch, *proto.observation_spec[
             "observation"].shape).zero()
         self._streams: RunStreams | None = None
@@ -124,6 +127,8 @@ class GymRunsEnv(EnvBase):
         obs = self._last_obs.reshape(len(self.envs), -1).clone()
         for i in mask.nonzero().flatten().tolist():
             obs[i] = self.envs[i]._reset(seed=int(seeds[i]), options=self.reset_options)["observation"]
+            self._steps[i] = 0
+            check_env_output(self.env_id, f"the reset of {self._episode(i)} (seed {int(seeds[i])})", obs[i])
         self._absorbed.view(-1)[mask] = False
         self._last_obs = obs.reshape(self._last_obs.shape)
         return TensorDict({"observation": self._last_obs.clone()}, batch_size=self.batch_size, device=self.device)
@@ -138,6 +143,8 @@ class GymRunsEnv(EnvBase):
                 continue  # episode over: frozen observation, no reward
             out = env._step(TensorDict({"action": actions[i]}, batch_size=[]))
             obs[i], reward[i] = out["observation"], out["reward"]
+            self._steps[i] += 1
+            check_env_output(self.env_id, f"step {self._steps[i]} of {self._episode(i)}", obs[i], reward[i], actions[i])
             absorbed[i] = bool(out["done"].any())
         self._last_obs = obs.reshape(self._last_obs.shape)
         done = torch.zeros(*self.batch_size, 1, dtype=torch.bool)  # the horizon is StepCounter's
@@ -146,6 +153,11 @@ class GymRunsEnv(EnvBase):
             "reward": reward.reshape(*self.batch_size, 1),
             "done": done, "terminated": done.clone(), "truncated": done.clone(),
         }, batch_size=self.batch_size, device=self.device)
+
+    def _episode(self, i: int) -> str:
+        """The ``i``-th env of the flattened batch, in words: its run (global index) and episode."""
+        run, episode = divmod(i, self.batch_size[1])
+        return f"run {self.first_run + run} episode {episode}"
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         for env in self.envs:
@@ -235,13 +247,17 @@ def random_observation_stats(env: GymEnv, steps: int, seed: int = 0) -> tuple[to
     gym_env = env._env
     rng = np.random.default_rng(seed)
     space = gym_env.action_space
+    env_id = gym_env.spec.id if gym_env.spec is not None else type(gym_env).__name__
     obs, _ = gym_env.reset(seed=seed)
+    check_env_output(env_id, "the first reset of env.normalize_obs=stats's statistics", obs)
     seen = [np.asarray(obs, dtype=np.float64)]
-    for _ in range(steps - 1):
+    for step in range(1, steps):
         action = rng.uniform(space.low, space.high).astype(space.dtype)
-        obs, _, terminated, truncated, _ = gym_env.step(action)
+        obs, reward, terminated, truncated, _ = gym_env.step(action)
+        check_env_output(env_id, f"random step {step} of env.normalize_obs=stats's statistics", obs, reward, action)
         if terminated or truncated:
             obs, _ = gym_env.reset(seed=int(rng.integers(2**31)))
+            check_env_output(env_id, f"the reset after random step {step} of env.normalize_obs=stats's statistics", obs)
         seen.append(np.asarray(obs, dtype=np.float64))
     data = np.stack(seen)
     return (torch.as_tensor(data.mean(0), dtype=torch.float32),

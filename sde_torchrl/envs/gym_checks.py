@@ -5,6 +5,11 @@ registered id before anything is built, and :class:`~sde_torchrl.envs.gym.GymRun
 :func:`check_spaces` and :func:`check_time_limit` on the env it builds (``"module:Env-v0"`` ids,
 Python callers). Both raise :class:`~sde_torchrl.utils.checks.ArgumentError` naming the config key, so
 that ``train.py`` reports either as one line with the config-error exit code.
+
+While the envs run, :func:`check_env_output` refuses an observation or a reward that holds NaN or
+infinity after a finite action (:class:`EnvOutputError`): the env produced it, and no training
+setting would change it, so the job stops naming the env and the step rather than leaving it to
+the non-finite guard, which would take it for a diverged policy.
 """
 
 from __future__ import annotations
@@ -13,6 +18,58 @@ from collections.abc import Mapping
 from typing import Any
 
 from sde_torchrl.utils.checks import ArgumentError
+
+
+class EnvOutputError(RuntimeError):
+    """A gymnasium env returned a non-finite observation or reward after finite actions.
+
+    Args:
+        env_id: the gymnasium id.
+        what: ``"observation"`` or ``"reward"``.
+        value: what the env returned (its first 6 entries are shown).
+        where: when, in words (``"step 3 of env 0's episode (seed 12), after a finite action"``).
+
+    Examples:
+        >>> str(EnvOutputError("my_envs:Bad-v0", "reward", float("nan"), "step 3"))  # doctest: +ELLIPSIS
+        'env my_envs:Bad-v0 returned a non-finite reward [nan] at step 3: the env made it, and no training ...'
+    """
+
+    def __init__(self, env_id: str, what: str, value: Any, where: str) -> None:
+        import numpy as np
+
+        self.env_id, self.what, self.where = env_id, what, where
+        shown = [float(f"{v:.6g}") for v in np.asarray(value, dtype=np.float64).reshape(-1)[:6]]
+        super().__init__(f"env {env_id} returned a non-finite {what} {shown} at {where}: the env made it, and no "
+                         "training setting changes that; check the env, or choose another env.id")
+
+
+def check_env_output(env_id: str, where: str, observation: Any, reward: Any = None, action: Any = None) -> None:
+    """Refuses a non-finite observation or reward that an env returned after a finite ``action``.
+
+    After a non-finite action (a diverged policy's) nothing is checked: the trainer's non-finite
+    guard names the update and the parameters.
+
+    Args:
+        env_id: the gymnasium id, for the message.
+        where: the step, in words (:class:`EnvOutputError`).
+        observation: the observation returned (array-like).
+        reward: the reward returned (``None`` after a reset).
+        action: the action the env was stepped with (``None`` after a reset).
+
+    Raises:
+        EnvOutputError: the observation or the reward holds NaN or infinity.
+
+    Examples:
+        >>> check_env_output("Pendulum-v1", "step 1", [0.0, 1.0], 0.5, action=[0.1])
+        >>> check_env_output("Pendulum-v1", "step 1", [float("nan")], 0.5, action=[float("nan")])  # the policy's
+    """
+    import numpy as np
+
+    if action is not None and not np.isfinite(np.asarray(action, dtype=np.float64)).all():
+        return
+    for what, value in (("observation", observation), ("reward", reward)):
+        if value is not None and not np.isfinite(np.asarray(value, dtype=np.float64)).all():
+            raise EnvOutputError(env_id, what, value, where if action is None else f"{where}, after a finite action")
 
 
 def check_spaces(env_id: str, action_space: Any, observation_space: Any) -> None:

@@ -36,7 +36,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from sde_torchrl.envs.gym_checks import check_spaces, check_time_limit
+from sde_torchrl.envs.gym_checks import check_env_output, check_spaces, check_time_limit
 from sde_torchrl.utils.checks import positive_int
 from sde_torchrl.utils.native_output import native_stdout_silenced
 from sde_torchrl.utils.rng import RunStreams
@@ -63,6 +63,8 @@ class GymVectorEnv(EnvBase):
 
     Raises:
         ArgumentError: for spaces SDE cannot use, or an ``episode_length`` beyond the env's time limit.
+        EnvOutputError: (when reset or stepped) an env returned a non-finite observation or reward
+            after a finite action (:func:`~sde_torchrl.envs.gym_checks.check_env_output`).
 
     Examples:
         >>> env = GymVectorEnv("Pendulum-v1", n_envs=3, episode_length=5)
@@ -138,6 +140,7 @@ class GymVectorEnv(EnvBase):
     def _start(self, i: int, seed: int) -> np.ndarray:
         self._seeds[i], self._actions[i] = seed, []
         obs, _ = self.envs[i].reset(seed=seed, options=self.reset_options)
+        check_env_output(self.env_id, f"the reset of env {i} (seed {seed})", obs)
         return obs
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -148,6 +151,8 @@ class GymVectorEnv(EnvBase):
         for i, env in enumerate(self.envs):
             obs, reward[i], terminated[i], truncated[i], _ = env.step(actions[i])
             self._actions[i].append(actions[i])
+            check_env_output(self.env_id, f"step {len(self._actions[i])} of env {i}'s episode (seed {self._seeds[i]})",
+                             obs, reward[i], actions[i])
             self._last_obs[i] = self._observe(i, obs)
             if self.episode_length is not None and len(self._actions[i]) >= self.episode_length:
                 truncated[i] = True

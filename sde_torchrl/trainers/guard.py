@@ -15,6 +15,9 @@ from torch import nn
 from sde_torchrl.objectives.estimators import EpisodicEstimator
 from sde_torchrl.objectives.pgpe import PGPEEstimator
 
+#: What to try when an episodic estimator's job diverges: the settings that job has.
+EPISODIC_REMEDY = "lower lr or set estimator.max_grad_norm"
+
 
 class NonFiniteError(RuntimeError):
     """A return, score, gradient or parameter became NaN or infinite.
@@ -25,21 +28,26 @@ class NonFiniteError(RuntimeError):
         parameter: the parameter's name in the policy's state dict, or ``None``.
         runs: global indices of the runs concerned.
 
+    The message shows up to 6 of ``values`` (the offending ones, as the caller chose them) and
+    ends with ``remedy``: settings of the job's own kind (an episodic estimator's by default).
+
     Examples:
         >>> str(NonFiniteError(3, "return", [1])).startswith("non-finite return at update 3 in run 1")
         True
+        >>> str(NonFiniteError(0, "gradient norm", [0], values=torch.tensor([float("nan")]),
+        ...                    remedy="lower lr or algorithm.max_grad_norm"))  # doctest: +ELLIPSIS
+        'non-finite gradient norm at update 0 in run 0: [nan]; ... (lower lr or algorithm.max_grad_norm)'
     """
 
     def __init__(self, update: int, what: str, runs: list[int], parameter: str | None = None,
-                 values: torch.Tensor | None = None, detail: str = "") -> None:
+                 values: torch.Tensor | None = None, detail: str = "", remedy: str = EPISODIC_REMEDY) -> None:
         self.update, self.what, self.runs, self.parameter = update, what, runs, parameter
         subject = what if parameter is None else (
             f"parameter {parameter}" if what == "parameter" else f"{what} of parameter {parameter}")
         shown = "" if values is None else f" {values.detach().flatten()[:6].tolist()}"
         super().__init__(
             f"non-finite {subject} at update {update} in run{'s' if len(runs) != 1 else ''} "
-            f"{', '.join(map(str, runs))}:{shown}{detail}; metrics.csv keeps the updates before it "
-            "(lower lr or set estimator.max_grad_norm)"
+            f"{', '.join(map(str, runs))}:{shown}{detail}; metrics.csv keeps the updates before it ({remedy})"
         )
 
 

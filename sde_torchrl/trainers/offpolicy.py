@@ -107,6 +107,9 @@ class SACTrainer(OnPolicyTrainer):
         See :func:`sde_torchrl.config.build_sac.build_sac_trainer`.
     """
 
+    #: What a non-finite stop advises: SAC has no gradient clipping; a larger minibatch steadies its steps.
+    nonfinite_remedy = "lower lr or set a larger algorithm.batch_size"
+
     def __init__(self, collector: Any, eval_env: Any, policy: nn.Module, loss: nn.Module, update: SACUpdate,
                  settings: Any, schedule: OffPolicySchedule, warmup: UniformActions, logger: Any = None,
                  check_env: Any = None) -> None:
@@ -133,7 +136,7 @@ class SACTrainer(OnPolicyTrainer):
                 norms += [self.update_step(self.buffer.sample()) for _ in range(self.schedule.gradient_steps)]
         self._check(k, "return", torch.tensor([mean]))
         grad_norm = torch.stack(norms).mean().reshape(1) if norms else torch.zeros(1)
-        self._check(k, "gradient", grad_norm)
+        self._check(k, "gradient norm", grad_norm)
         for name, value in self.modules.state_dict().items():
             self._check(k, "parameter", value, name)
         return {"return_mean": torch.tensor([mean]), "grad_norm": grad_norm,

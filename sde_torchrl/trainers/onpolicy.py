@@ -155,6 +155,9 @@ class OnPolicyTrainer:
         See :func:`sde_torchrl.config.build_onpolicy.build_onpolicy_trainer`.
     """
 
+    #: What a non-finite stop advises (:class:`~sde_torchrl.trainers.guard.NonFiniteError`): settings of the job.
+    nonfinite_remedy = "lower lr or set a smaller algorithm.max_grad_norm"
+
     def __init__(
         self, collector: StepCollector, eval_env: EnvBase, policy: nn.Module, critic: nn.Module,
         advantage: Callable[[TensorDictBase], Any], update: Callable[[TensorDictBase, int], float],
@@ -194,7 +197,7 @@ class OnPolicyTrainer:
         if self.lr_schedule is not None:
             self.lr_schedule.apply(k)
         grad_norm = torch.tensor([self.update_step(batch, k)])
-        self._check(k, "gradient", grad_norm)
+        self._check(k, "gradient norm", grad_norm)
         for name, value in self.modules.state_dict().items():
             self._check(k, "parameter", value, name)
         return {"return_mean": torch.tensor([mean]), "grad_norm": grad_norm,
@@ -210,8 +213,12 @@ class OnPolicyTrainer:
         return mean
 
     def _check(self, k: int, what: str, value: torch.Tensor, name: str | None = None) -> None:
+        """Raises :class:`~sde_torchrl.trainers.guard.NonFiniteError` if ``value`` (``what`` at
+        update ``k``; ``name``: the parameter's) is not finite, showing its offending entries."""
         if value.is_floating_point() and not bool(torch.isfinite(value).all()):
-            raise NonFiniteError(k, what, [self.settings.first_run], parameter=name)
+            shown, where = offending_entries(value)
+            raise NonFiniteError(k, what, [self.settings.first_run], parameter=name, values=shown, detail=where,
+                                 remedy=self.nonfinite_remedy)
 
     def evaluate(self) -> torch.Tensor:
         """Mean raw return of ``eval_episodes`` deterministic episodes, one per env, ``[1]``."""
@@ -355,6 +362,23 @@ class OnPolicyTrainer:
         }
 
 
+def offending_entries(value: torch.Tensor) -> tuple[torch.Tensor, str]:
+    """The non-finite entries of ``value`` and, for a tensor of several entries, how many there
+    are and where the first is.
+
+    Examples:
+        >>> offending_entries(torch.tensor([[1.0, float("inf")], [float("nan"), 2.0]]))
+        (tensor([inf, nan]), ' (2 of 4 entries, the first at [0, 1])')
+        >>> offending_entries(torch.tensor([float("nan")]))
+        (tensor([nan]), '')
+    """
+    bad = ~torch.isfinite(value.detach())
+    if value.numel() == 1:
+        return value.detach().reshape(1), ""
+    first = bad.nonzero()[0].tolist()
+    return value.detach()[bad], f" ({int(bad.sum())} of {value.numel()} entries, the first at {first})"
+
+
 def first_episode_returns(episodes: TensorDictBase) -> torch.Tensor:
     """Each env's return of its first episode in a rollout ``[..., T]`` that runs past episode
     ends (rewards up to and including the first ``done``), ``[...]``."""
@@ -363,4 +387,5 @@ def first_episode_returns(episodes: TensorDictBase) -> torch.Tensor:
     return (reward * first_episode).sum(-1)
 
 
-__all__ = ["RECORDED_KEYS", "EpisodeReturns", "OnPolicySettings", "OnPolicyTrainer", "RETURN_WINDOW"]
+__all__ = ["RECORDED_KEYS", "EpisodeReturns", "OnPolicySettings", "OnPolicyTrainer", "RETURN_WINDOW",
+           "offending_entries"]

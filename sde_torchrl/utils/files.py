@@ -3,8 +3,11 @@
 Every file a job rewrites (``checkpoint.pt``, ``summary.json``, a ``metrics.csv`` cut back on
 resume, the TorchRL logger's CSV files) goes through :func:`write_atomically`: written to
 ``<name>.tmp``, flushed and fsynced, then renamed over the old file, and the rename made durable.
-A write that fails because the device is full raises :class:`DiskFullError`, naming the file
-and the remedy, and leaves no temporary file.
+A write that fails leaves no temporary file and raises a :class:`FileWriteError` naming the file,
+the cause and the remedy (:func:`as_write_failure`): :class:`DiskFullError` for a full device,
+:class:`FileSizeLimitError` for the process's file-size limit (``ulimit -f``; Python ignores the
+``SIGXFSZ`` that would otherwise kill it, so the write fails with ``EFBIG``, which ``torch.save``
+reports as ``unexpected pos`` without the system's words).
 """
 
 from __future__ import annotations
@@ -37,7 +40,47 @@ class DamagedFileError(RuntimeError):
         super().__init__(f"{path} is damaged: {problem}; {remedy}")
 
 
-class DiskFullError(OSError):
+class FileWriteError(OSError):
+    """A file could not be written: the message names it, the cause and the remedy.
+
+    Args:
+        path: the file.
+        cause: why, in words.
+        code: the ``errno`` (``EIO`` when the cause had none, as ``torch.save``'s writer).
+
+    Examples:
+        >>> str(FileWriteError("run/summary.json", "Input/output error"))
+        'run/summary.json could not be written: Input/output error'
+    """
+
+    def __init__(self, path: str | os.PathLike, cause: str, code: int = errno.EIO) -> None:
+        self.path = Path(path)
+        super().__init__(code, f"{path} could not be written: {cause}")
+
+    def __str__(self) -> str:
+        return self.strerror
+
+
+class FileSizeLimitError(FileWriteError):
+    """A file could not be written because it reached the process's file-size limit (``ulimit -f``).
+
+    Args:
+        path: the file.
+        limit: the limit in bytes.
+
+    Examples:
+        >>> str(FileSizeLimitError("run/checkpoint.pt", 204800)).split(";")[0]
+        "run/checkpoint.pt could not be written: it reached this process's file-size limit (200 KiB, ulimit -f)"
+    """
+
+    def __init__(self, path: str | os.PathLike, limit: int) -> None:
+        self.limit = limit
+        super().__init__(path, f"it reached this process's file-size limit ({limit // 1024} KiB, ulimit -f); raise "
+                               "the limit (ulimit -f unlimited) and run the same command again: the job resumes from "
+                               "its last checkpoint", errno.EFBIG)
+
+
+class DiskFullError(FileWriteError):
     """A file of a run directory could not be written because its device is full; the file
     was left as it was (no temporary file stays behind).
 
@@ -51,13 +94,9 @@ class DiskFullError(OSError):
     """
 
     def __init__(self, path: str | os.PathLike, free: int) -> None:
-        self.path, self.free = Path(path), free
-        super().__init__(errno.ENOSPC, f"{path} could not be written: no space left on its device ({free // 1024} KiB "
-                                       "free); free some space and run the same command again: the job resumes "
-                                       "from its last checkpoint")
-
-    def __str__(self) -> str:
-        return self.strerror
+        self.free = free
+        super().__init__(path, f"no space left on its device ({free // 1024} KiB free); free some space and run the "
+                               "same command again: the job resumes from its last checkpoint", errno.ENOSPC)
 
 
 #: A failed write on a device with less than this free is taken as a full device (torch.save
@@ -65,25 +104,71 @@ class DiskFullError(OSError):
 FULL_BELOW_BYTES = 1 << 20
 
 
-def as_disk_full(path: str | os.PathLike, error: BaseException) -> BaseException:
-    """``error`` as a :class:`DiskFullError` if it came from a full device (``ENOSPC``, or any
-    failed write with less than :data:`FULL_BELOW_BYTES` left), else ``error`` itself.
+#: Words of ``torch.save``'s zip writer when a write under it failed (it does not pass the system's on).
+TORCH_WRITER_FAILED = ("inline_container.cc", "PytorchStreamWriter")
+
+
+def file_size_limit() -> int | None:
+    """The process's file-size limit in bytes (``ulimit -f``, ``RLIMIT_FSIZE``), or ``None``: none."""
+    try:
+        import resource
+    except ImportError:  # not on this platform
+        return None
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return None if limit == resource.RLIM_INFINITY else limit
+
+
+def as_write_failure(path: str | os.PathLike, error: BaseException,
+                     written: str | os.PathLike | None = None) -> BaseException:
+    """``error``, raised while writing ``path``, as a :class:`FileWriteError` naming the file and
+    the cause, or ``error`` itself if it was not a failed write:
+
+    - :class:`FileSizeLimitError`: the process has a file-size limit, and the write failed with
+      ``EFBIG`` or the file written (``written``, the temporary file written in ``path``'s place;
+      default ``path``) reached the limit;
+    - :class:`DiskFullError`: ``ENOSPC``, or any failure with less than :data:`FULL_BELOW_BYTES`
+      free on the device;
+    - :class:`FileWriteError`: another ``OSError`` that does not name its file, or ``torch.save``'s
+      writer failing (:data:`TORCH_WRITER_FAILED`).
 
     Examples:
         >>> import tempfile
-        >>> type(as_disk_full(tempfile.mkdtemp(), OSError(errno.ENOSPC, "No space left on device"))).__name__
+        >>> type(as_write_failure(tempfile.mkdtemp(), OSError(errno.ENOSPC, "No space left on device"))).__name__
         'DiskFullError'
+        >>> str(as_write_failure("run/metrics.csv", OSError(errno.EIO, "Input/output error")))
+        'run/metrics.csv could not be written: Input/output error'
     """
-    if isinstance(error, DiskFullError) or not isinstance(error, Exception):
+    if isinstance(error, FileWriteError) or not isinstance(error, Exception):
         return error
     path = Path(path)
+    limit, size = file_size_limit(), _size(Path(written) if written is not None else path)
+    if limit is not None and (getattr(error, "errno", None) == errno.EFBIG or size is not None and size >= limit):
+        return FileSizeLimitError(path, limit)
     try:
         free = shutil.disk_usage(path if path.is_dir() else path.parent).free
     except OSError:
-        return error
-    if getattr(error, "errno", None) == errno.ENOSPC or free < FULL_BELOW_BYTES:
-        return DiskFullError(path, free)
+        free = None
+    if getattr(error, "errno", None) == errno.ENOSPC or free is not None and free < FULL_BELOW_BYTES:
+        return DiskFullError(path, free or 0)
+    if isinstance(error, OSError) and error.filename is None:
+        return FileWriteError(path, error.strerror or str(error), error.errno or errno.EIO)
+    if isinstance(error, RuntimeError) and any(words in str(error) for words in TORCH_WRITER_FAILED):
+        return FileWriteError(path, f"torch.save's writer failed ({' '.join(str(error).split())})")
     return error
+
+
+def as_disk_full(path: str | os.PathLike, error: BaseException) -> BaseException:
+    """:func:`as_write_failure` of a file written in place (an appended ``metrics.csv``): a full
+    device, the file-size limit or another failed write, named."""
+    return as_write_failure(path, error)
+
+
+def _size(path: Path) -> int | None:
+    """``path``'s size in bytes, or ``None`` if it cannot be read."""
+    try:
+        return path.stat().st_size
+    except OSError:
+        return None
 
 
 def tmp_path(path: Path) -> Path:
@@ -113,10 +198,10 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], Any])
             f.flush()
             os.fsync(f.fileno())
     except BaseException as error:
+        failure = as_write_failure(path, error, written=tmp)  # before the temporary file, and its size, go
         tmp.unlink(missing_ok=True)  # the old file stays as it was; no half-written leftover
-        full = as_disk_full(path, error)
-        if full is not error:
-            raise full from error
+        if failure is not error:
+            raise failure from error
         raise
     os.replace(tmp, path)
     _sync_directory(path.parent)
