@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from _helpers import build, crash_at, read_rows
+from _helpers import build, compose_config, crash_at, read_rows
 from torch import nn
 
 from sde_torchrl.trainers.best import BEST_POLICY, BestPolicy
@@ -113,3 +113,25 @@ def test_ball_catching_lines_say_what_each_run_reached_and_what_its_policies_did
                                "on 20 fresh balls: -1.800, slowed")
     assert lines[2] == ("of 2 runs, on 20 fresh balls each: the best policy catches in 1, the final policy in 0; "
                         "a catch was reached in training by 1")
+
+
+@pytest.mark.parametrize("algorithm", ["ppo", "sac"])
+def test_actor_critic_jobs_keep_and_check_their_best_policy(tmp_path, algorithm):
+    """PPO (with its observation statistics) and SAC keep the best policy by evaluation and run it
+    with the final one on the same fresh episodes; a policy evaluated again on them is the same."""
+    from test_ppo_job import TINY as PPO
+    from test_sac_job import TINY as SAC
+
+    from sde_torchrl.config.build import run_job
+    from sde_torchrl.config.schemas.train import validate
+
+    overrides = [*(PPO if algorithm == "ppo" else SAC), "updates=4", "eval_period=1", "final_episodes=3",
+                 "logger=none"]
+    summary = run_job(validate(compose_config(*overrides)), str(tmp_path), {"algorithm": algorithm})
+    saved = torch.load(tmp_path / BEST_POLICY, weights_only=True)
+    assert saved["update"] == summary["best_update"] and 0 <= saved["update"][0] <= 3
+    assert all(name.startswith(("policy.", "normalizer.")) for name in saved["state_dict"])
+    assert (algorithm == "ppo") == any(name.startswith("normalizer.") for name in saved["state_dict"])
+    assert summary["check_episodes"] == 3
+    same = summary["best_update"][0] == 3
+    assert (summary["best_check_return"] == summary["final_check_return"]) == same
