@@ -279,20 +279,14 @@ class Trainer:
     def _film_best(self, run_dir: RunDirectory, check: dict[str, Any]) -> None:
         """Where the env can film an episode (ball catching): the run whose best policy did best
         on the fresh episodes, that policy on another fresh episode, as ``best_policy.gif``."""
-        base = getattr(self.eval_env, "base_env", self.eval_env)
-        if not hasattr(base, "film"):
-            return
         returns = [sum(run) / len(run) for run in check["best"]]
         run = max(range(len(returns)), key=returns.__getitem__)
-
-        def act(features: torch.Tensor) -> torch.Tensor:
-            shaped = features.to(torch.float32).expand(self.runs, 1, -1)
-            return self.policy(TensorDict({"observation": shaped}, batch_size=[self.runs, 1]))["action"][run, 0]
-
-        with self.best.loaded(), torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            filmed = base.film(act, run_dir.path / BEST_POLICY_GIF, seed=self.settings.first_run + run)
-        log.info("filmed run %d's best policy on another fresh ball (mean reward per step %.3f): %s",
-                 self.settings.first_run + run, filmed, run_dir.path / BEST_POLICY_GIF)
+        with self.best.loaded():
+            filmed = film_policy(self.policy, self.eval_env, run, run_dir.path / BEST_POLICY_GIF,
+                                 seed=self.settings.first_run + run)
+        if filmed is not None:
+            log.info("filmed run %d's best policy on another fresh ball (mean reward per step %.3f): %s",
+                     self.settings.first_run + run, filmed, run_dir.path / BEST_POLICY_GIF)
 
     def _check_rollout(self, env: EnvBase) -> TensorDictBase:
         return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
@@ -345,6 +339,28 @@ class Trainer:
             log.info("%s holds a finished job whose summary.json is missing or disagrees with its checkpoint: "
                      "rewritten from it", run_dir.path)
         return state
+
+
+def film_policy(policy: TensorDictSequential, env: EnvBase, run: int, path: str | os.PathLike,
+                seed: int = 0) -> float | None:
+    """Films run ``run`` of a (run-stacked) policy, without exploration, on one episode of
+    ``env``'s task where the env can film (its ``film``: ball catching), as a GIF at ``path``.
+
+    Returns:
+        The filmed episode's return as the env gives it (ball catching: mean reward per step),
+        or ``None`` where the env cannot film.
+    """
+    base = getattr(env, "base_env", env)
+    if not hasattr(base, "film"):
+        return None
+    runs = env.batch_size[0]
+
+    def act(features: torch.Tensor) -> torch.Tensor:
+        shaped = features.to(torch.float32).expand(runs, 1, -1)
+        return policy(TensorDict({"observation": shaped}, batch_size=[runs, 1]))["action"][run, 0]
+
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        return base.film(act, path, seed=seed)
 
 
 def train_in_directory(
