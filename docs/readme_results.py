@@ -1,19 +1,21 @@
-"""The README's results summary, written from the result files the analysis scripts commit.
+"""The README's headline results and the results page, written from the result files the
+analysis scripts commit.
 
-The README holds a short table of the headline results between the lines ``<!-- results:start -->``
-and ``<!-- results:end -->``: one row per measure, one measure per cell (each method's value and its
-interval in their own columns, the paper's where it states one), and a one-line legend under it
-saying what each column is. This script writes that block from
-``docs/table1/table1.json``, the ball-catching pages' JSON under ``docs/ballcatch/``
-(``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``, ``fig6_seed6/fig6.json``,
-``methods_selected/methods.json``, ``methods_seed4/methods.json``, ``selected/fig5.json``), the
-quick start's run (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/gsde_table.json``,
+The README holds a table of at most eight headline results, one per claim, between the lines
+``<!-- results:start -->`` and ``<!-- results:end -->``; ``docs/reproduce/results.md`` holds every
+result, between the same lines. Both tables have one measure per cell (each method's value and its
+interval in their own columns, the paper's where it states one) and a one-line legend under them.
+This script writes both blocks from ``docs/table1/table1.json``, the ball-catching pages' JSON under
+``docs/ballcatch/`` (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``,
+``fig6_seed6/fig6.json``, ``checked/checked.json``, ``methods_selected/methods.json``,
+``methods_seed4/methods.json``, ``selected/fig5.json``), the quick start's earlier run
+(``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/gsde_table.json``,
 ``docs/sac/gsde_table.json``, ``docs/gsde_table/gsde_table.json`` and the speed tables the
 benchmarks' ``speed`` command writes (``docs/ppo/speed.md``, ``docs/sac/speed_job.md``), so that
-no figure in the README is typed by hand::
+no figure in either is typed by hand::
 
-    python docs/readme_results.py           # rewrite the README's table
-    python docs/readme_results.py --check   # exit 1 if the README's table is not what this writes
+    python docs/readme_results.py           # rewrite both tables
+    python docs/readme_results.py --check   # exit 1 if either is not what this writes
 
 ``tests/test_readme.py`` runs the check. Rerun an analysis script, then this one.
 """
@@ -29,6 +31,9 @@ from pathlib import Path
 DOCS = Path(__file__).resolve().parent
 RESULTS = DOCS.parent / "results"  # the committed run records
 README = DOCS.parent / "README.md"
+RESULTS_PAGE = DOCS / "reproduce" / "results.md"
+#: The most rows the README's headline table may have.
+HEADLINE_ROWS = 8
 START, END = "<!-- results:start -->", "<!-- results:end -->"
 CATCH = "-1.1"  # the paper's "catch" level: mean reward per step of at least -1.1
 GOOD_CATCH = "-1.0"  # its "good catch" level
@@ -93,7 +98,7 @@ def _mean_of(first: list[float], second: list[float]) -> str:
 
 
 def summary() -> str:
-    """The README's results table (Markdown), one measure per cell, with its legend, from the committed result files."""
+    """The results page's table (Markdown), every result, one measure per cell, with its legend."""
     table1 = _load("table1/table1.json")["rows"]
     ours = [row["speedup"] for row in table1]
     paper = [row["paper"]["speedup"] for row in table1]
@@ -129,6 +134,8 @@ def summary() -> str:
                 paper_share(second, level) if paper else NONE)
 
     table1_page, fig_page = "docs/reproduce/table1.md", "docs/reproduce/fig5_6.md"
+    paper_page, diagnostics_page = "docs/chosen/ballcatch_paper_settings.md", "docs/chosen/ballcatch_diagnostics.md"
+    method_page = "docs/chosen/ballcatch_method.md"
     methods_page, ppo_page, sac_page = "docs/reproduce/methods.md", "docs/reproduce/ppo.md", "docs/reproduce/sac.md"
     reaching, ending = "runs reaching a catch in training", "runs whose last evaluation is a catch"
     ending_good = "runs whose last evaluation is a good catch"
@@ -141,10 +148,12 @@ def summary() -> str:
          NONE, NONE, NONE, f"{max(paper):.1f}×", NONE),
         ("Table 1, toy task", table1_page, sde_rex, "settings where SDE is significantly faster",
          f"{faster} of {len(table1)}", NONE, NONE, NONE, NONE, NONE),
-        catches("Fig. 5, REINFORCE, paper's settings", fig_page, sde_rex, (fig5["sde"], fig5["rex"]), reaching, "best",
+        catches("Fig. 5, REINFORCE, paper's settings", paper_page, sde_rex, (fig5["sde"], fig5["rex"]), reaching,
+                "best", paper=True),
+        catches("Fig. 6, ENAC, paper's settings", paper_page, sde_rex, (fig6["sde"], fig6["rex"]), reaching, "best",
                 paper=True),
-        catches("Fig. 6, ENAC, paper's settings", fig_page, sde_rex, (fig6["sde"], fig6["rex"]), reaching, "best",
-                paper=True),
+        *_checked_rows(fig_page, {name: f"{fig6[name]['paper'][CATCH]} %" for name in ("sde", "rex")
+                                  if CATCH in fig6[name].get("paper", {})}),
     ]
     for name, counts in (("Fig. 5, each explorer's selected learner", fig5_selected),
                          ("Fig. 6, each explorer's selected learner", fig6_selected)):
@@ -157,18 +166,18 @@ def summary() -> str:
     held_runs = f"of {held['sde']['runs']} each" if held["sde"]["runs"] == held["rex"]["runs"] else \
         f"of {held['sde']['runs']} and {held['rex']['runs']}"
     rows += [
-        (held_name, fig_page, sde_rex, f"{on_20}, {held_runs}", *_held(held["sde"], "catches"),
+        (held_name, diagnostics_page, sde_rex, f"{on_20}, {held_runs}", *_held(held["sde"], "catches"),
          *_held(held["rex"], "catches"), NONE, NONE),
-        (held_name, fig_page, sde_rex, f"final policies making a good catch over 20 new balls, {held_runs}",
+        (held_name, diagnostics_page, sde_rex, f"final policies making a good catch over 20 new balls, {held_runs}",
          *_held(held["sde"], "good_catches"), *_held(held["rex"], "good_catches"), NONE, NONE),
     ]
-    seed_4242 = "`+experiment=ballcatch`, seed 4242"
+    seed_4242 = "`+experiment=ballcatch_reinforce`, seed 4242"
     rows += [
-        (seed_4242, fig_page, "SDE", f"{ending}, of {selected['runs']}", *_share(selected, "final"), NONE, NONE,
+        (seed_4242, method_page, "SDE", f"{ending}, of {selected['runs']}", *_share(selected, "final"), NONE, NONE,
          NONE, NONE),
-        (seed_4242, fig_page, "SDE", f"{reaching}, of {selected['runs']}", *_share(selected), NONE, NONE,
+        (seed_4242, method_page, "SDE", f"{reaching}, of {selected['runs']}", *_share(selected), NONE, NONE,
          paper_share(selected), NONE),
-        ("`+experiment=ballcatch`, the quick start's seed 0", fig_page, "SDE",
+        ("`+experiment=ballcatch_reinforce`, seed 0", method_page, "SDE",
          "final evaluation, mean reward per step", f"{quick_start:.2f}", NONE, NONE, NONE, NONE, NONE),
         catches("Fig. 5's paper settings, other methods", methods_page, "PGPE vs SDE",
                 (methods["pgpe"], methods["sde"]), reaching, "best"),
@@ -195,6 +204,79 @@ def summary() -> str:
          NONE),
     ]
     rows += _gsde_rows(_load("gsde_table/gsde_table.json"), "docs/reproduce/gsde_table.md")
+    return _table([(result, _from_reproduce(page), *cells) for result, page, *cells in rows])
+
+
+def _from_reproduce(page: str) -> str:
+    """A page's link from ``docs/reproduce/`` (the results page's folder).
+
+    Examples:
+        >>> _from_reproduce("docs/reproduce/table1.md"), _from_reproduce("docs/chosen/ballcatch_method.md")
+        ('table1.md', '../chosen/ballcatch_method.md')
+    """
+    return page.removeprefix("docs/reproduce/") if page.startswith("docs/reproduce/") else f"../{page[5:]}"
+
+
+
+
+
+def headline() -> str:
+    """The README's table: one row per headline claim, at most :data:`HEADLINE_ROWS`."""
+    table1 = _load("table1/table1.json")["rows"]
+    ours = [row["speedup"] for row in table1]
+    paper = [row["paper"]["speedup"] for row in table1]
+    fig5_selected = _load("ballcatch/fig5_seed3/fig5.json")["explorers"]
+    fig6 = _load("ballcatch/fig6.json")["explorers"]
+    ppo = _load("ppo/gsde_table.json")["cells"]["ppo/halfcheetah/sde"]
+    sac = _load("sac/gsde_table.json")["cells"]["sac/mountaincar/sde"]
+    fig_page = "docs/reproduce/fig5_6.md"
+    first, second = fig5_selected["sde"], fig5_selected["rex"]
+    paper_fig5 = f"{first['paper'][CATCH]} %" if CATCH in first.get("paper", {}) else NONE
+    rows = [
+        ("Table 1, toy task", "docs/reproduce/table1.md", "lowest vs highest of its settings",
+         f"episodes REX needs ÷ episodes SDE needs, {len(table1)} settings", f"{min(ours):.1f}×", NONE,
+         f"{max(ours):.1f}×", NONE, f"{min(paper):.1f}×", f"{max(paper):.1f}×"),
+        ("Fig. 5, ball catching, REINFORCE", fig_page, "SDE vs REX",
+         f"runs reaching a catch in training, of {first['runs']} each", *_share(first, "best"),
+         *_share(second, "best"), paper_fig5, NONE),
+        *_checked_rows(fig_page, {name: f"{fig6[name]['paper'][CATCH]} %" for name in ("sde", "rex")
+                                  if CATCH in fig6[name].get("paper", {})}),
+        _versus_sb3_rows(f"PPO, HalfCheetahBullet, {ppo['ours']['env_steps'][0]:,} steps", "docs/reproduce/ppo.md",
+                         ppo, "final return")[1],
+        _versus_sb3_rows(f"SAC, MountainCarContinuous, {sac['ours']['env_steps'][0]:,} steps", "docs/reproduce/sac.md",
+                         sac, "final deterministic return")[1],
+        _gsde_rows(_load("gsde_table/gsde_table.json"), "docs/reproduce/gsde_table.md")[1],
+    ]
+    if len(rows) > HEADLINE_ROWS:
+        raise ValueError(f"the README's headline table has {len(rows)} rows, at most {HEADLINE_ROWS}")
+    return _table(rows)
+
+
+def _checked_rows(page: str, paper: dict[str, str] | None = None) -> list[tuple]:
+    """The headline learner (Fig. 6's setting, best policies kept), SDE against REX with the same
+    learner: runs reaching a catch in training (beside the paper's ``paper``: ``{"sde": "93 %", ...}``),
+    best and final policies catching on the fresh balls."""
+    checked = _load("ballcatch/checked/checked.json")["explorers"]
+    sde, rex = checked["sde"], checked["rex"]
+    paper = paper or {}
+
+    def share(explorer: dict, key: str) -> tuple[str, str]:
+        count, (low, high) = explorer["counts"]["catch"][key], explorer["intervals"]["catch"][key]
+        return f"{round(100 * count / explorer['runs'])} %", f"[{round(100 * low)}, {round(100 * high)}]"
+
+    runs = f"of {sde['runs']} each" if sde["runs"] == rex["runs"] else f"of {sde['runs']} and {rex['runs']}"
+    name = "Fig. 6, ball catching, ENAC (`+experiment=ballcatch`), best policies kept"
+    return [
+        (name, page, "SDE vs REX", f"runs reaching a catch in training, {runs}", *share(sde, "reached"),
+         *share(rex, "reached"), paper.get("sde", NONE), paper.get("rex", NONE)),
+        (name, page, "SDE vs REX", f"best policies catching on {sde['episodes']} fresh balls, {runs}",
+         *share(sde, "best_checked"), *share(rex, "best_checked"), NONE, NONE),
+        (name, page, "SDE vs REX", f"final policies catching on {sde['episodes']} fresh balls, {runs}",
+         *share(sde, "final_checked"), *share(rex, "final_checked"), NONE, NONE),
+    ]
+
+
+def _table(rows: list[tuple]) -> str:
     lines = ["| " + " | ".join(HEADER) + " |", "| " + " | ".join("---" for _ in HEADER) + " |"]
     lines += [f"| [{result}]({page}) | " + " | ".join(cells) + " |" for result, page, *cells in rows]
     return "\n".join(lines) + "\n\n" + LEGEND + "\n"
@@ -255,27 +337,34 @@ def _gsde_rows(table: dict, page: str) -> list[tuple[str, ...]]:
     ]
 
 
-def replaced(text: str) -> str:
-    """``text`` (the README) with its results block rewritten."""
+def replaced(text: str, table: str | None = None) -> str:
+    """``text`` (the README, or the results page) with its results block set to ``table``
+    (default: the README's :func:`headline`)."""
     head, sep, rest = text.partition(START)
     _, sep2, tail = rest.partition(END)
     if not sep or not sep2:
-        raise ValueError(f"README.md lacks the lines {START} and {END}")
-    return f"{head}{START}\n{summary()}{END}{tail}"
+        raise ValueError(f"the page lacks the lines {START} and {END}")
+    return f"{head}{START}\n{headline() if table is None else table}{END}{tail}"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="exit 1 if the README differs, write nothing")
+    parser.add_argument("--check", action="store_true", help="exit 1 if either table differs, write nothing")
     args = parser.parse_args(argv)
-    text = README.read_text()
-    new = replaced(text)
-    if args.check:
-        if new != text:
-            print("README.md's results table is not what docs/readme_results.py writes: run it", file=sys.stderr)
-            return 1
-        return 0
-    README.write_text(new)
+    stale = []
+    for path, table in ((README, headline()), (RESULTS_PAGE, summary())):
+        text = path.read_text()
+        new = replaced(text, table)
+        if new == text:
+            continue
+        if args.check:
+            stale.append(path.name)
+        else:
+            path.write_text(new)
+    if stale:
+        print(f"{', '.join(stale)}: the results table is not what docs/readme_results.py writes: run it",
+              file=sys.stderr)
+        return 1
     return 0
 
 

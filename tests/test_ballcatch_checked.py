@@ -38,7 +38,8 @@ def test_the_page_counts_what_the_jobs_final_checks_found(sweeps, tmp_path):
         episodes = page["explorers"][explorer]["best_policy_episodes"]
         assert sum(episodes.values()) == 2 * 2  # 2 runs × 2 fresh balls
         assert (sweeps / explorer / "0" / "best_policy.gif").stat().st_size > 0  # the best run's best policy, filmed
-    assert "| best policy catches on the fresh balls |" in (tmp_path / "checked.md").read_text()
+    page = (tmp_path / "checked.md").read_text()
+    assert "| best policy: a catch on the fresh balls |" in page and "| last evaluation: a good catch |" in page
 
 
 def test_a_sweep_without_final_checks_is_refused_in_one_line(sweeps, tmp_path, capsys):

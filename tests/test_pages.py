@@ -24,7 +24,15 @@ from _helpers import REPO
 
 from analysis import figures
 from analysis.benchmarks.gsde_table import cli as gsde_table
-from analysis.paper import ballcatch_controllers, ballcatch_finger_probe, ballcatch_reevaluation, fig5, fig6, table1
+from analysis.paper import (
+    ballcatch_checked,
+    ballcatch_controllers,
+    ballcatch_finger_probe,
+    ballcatch_reevaluation,
+    fig5,
+    fig6,
+    table1,
+)
 from analysis.selection import ballcatch_tuning, learner_search
 
 BALLCATCH = REPO / "docs" / "ballcatch"
@@ -97,6 +105,8 @@ PAGES = {  # page → (script, its arguments before --out, the folder the page i
                              "all"], BALLCATCH / "score_probe", ("methods.md", "methods.json")),
     "held_training": sde_against_rex(fig5, "held_training"),
     "strong_fingers": sde_against_rex(fig5, "strong_fingers"),
+    "checked": (ballcatch_checked, [str(RECORDS / "runs" / "checked" / explorer) for explorer in ("sde", "rex")],
+                BALLCATCH / "checked", ("checked.md", "checked.json")),
     "selected/fig5": (fig5, [str(RECORDS / "runs" / "selected" / "heldout_4242")], BALLCATCH / "selected",
                       ("fig5.md", "fig5.json")),
     "controllers": (ballcatch_controllers, [f"{label}={RECORDS / 'runs' / path}" for label, path in (

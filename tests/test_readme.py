@@ -47,6 +47,19 @@ def test_readme_example_runs(tmp_path):
 def test_readme_results_are_what_the_script_writes_from_the_committed_results():
     text = README.read_text()
     assert readme_results.replaced(text) == text, "README's results table differs: run python docs/readme_results.py"
+    page = readme_results.RESULTS_PAGE.read_text()
+    assert readme_results.replaced(page, readme_results.summary()) == page, \
+        "the results page's table differs: run python docs/readme_results.py"
+
+
+def test_the_readme_shows_at_most_eight_headline_results_and_the_page_has_them_all():
+    def rows(text: str) -> list[str]:
+        block = text[text.index(readme_results.START):text.index(readme_results.END)]
+        return [line for line in block.splitlines() if line.startswith("| [")]
+
+    headline, everything = rows(README.read_text()), rows(readme_results.RESULTS_PAGE.read_text())
+    assert 0 < len(headline) <= readme_results.HEADLINE_ROWS
+    assert len(everything) > len(headline)
 
 
 def test_the_results_check_fails_on_a_changed_figure(monkeypatch, tmp_path):
@@ -107,11 +120,13 @@ def test_quick_start_training_command_runs(tmp_path):
     """The quick start's training command as written, cut to 2 updates of one run (the full job is minutes)."""
     command = shlex.split(_quick_start()[0].split("&&")[-1])
     assert command[:2] == ["python", "train.py"]
-    short = ["runs=1", "updates=2", "episode_queue=2", "eval_period=1", f"hydra.run.dir={tmp_path / 'run'}"]
+    short = ["runs=1", "updates=2", "episode_queue=2", "eval_period=1", "final_episodes=2",
+             f"hydra.run.dir={tmp_path / 'run'}"]
     result = subprocess.run([sys.executable, *command[1:], *short], cwd=REPO, capture_output=True, text=True,
                             timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
-    assert (tmp_path / "run" / "summary.json").exists()
+    assert (tmp_path / "run" / "summary.json").exists() and (tmp_path / "run" / "best_policy.pt").exists()
+    assert "of 1 run, on 2 fresh balls each: the best policy catches in" in result.stdout + result.stderr
 
 
 def _github_anchor(heading: str) -> str:

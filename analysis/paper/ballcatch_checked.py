@@ -26,10 +26,10 @@ from analysis.sweeps import EXIT_REFUSED, finished_jobs
 
 #: The measures, in the page's order: (key, what the page calls it).
 MEASURES = (
-    ("best_checked", "best policy catches on the fresh balls"),
-    ("reached", "reached a catch in training"),
-    ("final", "last evaluation is a catch"),
-    ("final_checked", "final policy catches on the fresh balls"),
+    ("best_checked", "best policy: {level} on the fresh balls"),
+    ("reached", "{level} reached in training"),
+    ("final", "last evaluation: {level}"),
+    ("final_checked", "final policy: {level} on the fresh balls"),
 )
 #: The levels counted, by name: a catch includes a good catch.
 LEVELS = {"catch": ("good catch", "catch"), "good catch": ("good catch",)}
@@ -130,8 +130,9 @@ def markdown(result: dict, sweeps: list[str]) -> str:
             difference = result["sde_minus_rex"][name][key]
             low, high = difference["interval"]
             mark = " (significant)" if difference["significant"] else ""
-            lines.append(f"| {label} | {_share(sde['counts'][name][key], sde['runs'], sde['intervals'][name][key])} | "
-                         f"{_share(rex['counts'][name][key], rex['runs'], rex['intervals'][name][key])} | "
+            shares = [_share(side["counts"][name][key], side["runs"], side["intervals"][name][key])
+                      for side in (sde, rex)]
+            lines.append(f"| {label.format(level=f'a {name}')} | {shares[0]} | {shares[1]} | "
                          f"{100 * difference['estimate']:+.0f} [{100 * low:+.0f}, {100 * high:+.0f}]{mark} |")
         lines.append("")
     for explorer, stats in (("SDE", sde), ("REX", rex)):
