@@ -558,6 +558,7 @@ def test_model_option_reaches_gymnasium_and_is_checked():
         BallCatchEnv(config=BallCatchConfig(), model="cup")
 
 
+@pytest.mark.e2e
 def test_config_knows_the_arm_models_and_passes_the_choice_to_the_env(tmp_path):
     """``env.model`` (checked against a copy of the model names: config.py imports no pybullet)
     reaches the batched env that ``train.py`` builds."""

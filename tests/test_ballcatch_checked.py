@@ -13,6 +13,9 @@ from analysis.paper import ballcatch_best_film, ballcatch_checked
 from sde_torchrl.config.build import run_job
 from sde_torchrl.config.schemas.train import validate
 
+#: Ball-catching jobs run as processes (train.py), as a user runs them: the end-to-end tests.
+pytestmark = pytest.mark.e2e
+
 TINY = ("+experiment=ballcatch", "runs=2", "updates=2", "eval_period=1", "episode_queue=2", "env.episode_length=40",
         "final_episodes=2", "logger=none")
 

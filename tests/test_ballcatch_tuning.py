@@ -14,6 +14,7 @@ from sde_torchrl.config.schemas.train import validate
 
 
 @pytest.mark.parametrize("method", list(tuning.METHODS))
+@pytest.mark.e2e
 def test_every_job_is_a_valid_config_with_the_rules_learner(method):
     alpha0 = tuning.METHODS[method][2]
     expected = {  # candidate → (return, optimiser class, lr, schedule, momentum)
@@ -38,6 +39,7 @@ def test_every_job_is_a_valid_config_with_the_rules_learner(method):
 
 
 @pytest.mark.parametrize("method", list(tuning.METHODS))
+@pytest.mark.e2e
 def test_round_three_jobs_change_only_what_their_rule_says(method):
     """Round 3 (learner_selection.md, 2026-12-03): C7's learner with σ̂₀ = e⁻³ (C10), e⁻⁴ (C11) or
     the scaled observation (C12), beside C7 and C1; seed 3000, 16 runs."""

@@ -232,6 +232,7 @@ def test_module_gym_id_is_refused_when_built_as_a_config_error():
         "gymnasium.envs.classic_control:CartPole-v1 has Discrete(2)")
 
 
+@pytest.mark.e2e
 def test_gym_env_errors_on_the_command_line_fail_in_one_line(tmp_path):
     """Discrete actions and a too-long episode give one line and exit 2, refused by the schema
     before any env is built; the time-limit advice, run as printed, starts the job."""

@@ -157,6 +157,7 @@ CONSOLE = [(page, command, output) for page in PAGES for command, output in cons
 
 
 @pytest.mark.parametrize(("page", "command", "output"), CONSOLE, ids=[c for _, c, _ in CONSOLE])
+@pytest.mark.e2e
 def test_a_console_command_of_the_docs_prints_what_the_page_shows(page, command, output, tmp_path):
     assert "--video" not in command, "a checked command must not write into the repository"
     argv = shlex.split(command)

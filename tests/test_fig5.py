@@ -204,6 +204,7 @@ def test_no_runs_of_the_estimator_is_refused_in_one_line(tmp_path, capsys):
     assert capsys.readouterr().err == f"error: no enac runs under {[str(tmp_path)]}\n"
 
 
+@pytest.mark.e2e
 def test_the_command_refuses_conflicting_copies_in_one_line_without_a_traceback(tmp_path):
     _write_job(tmp_path / "a", "sde", 0, CURVES["sde"][:1])
     _write_job(tmp_path / "b", "sde", 0, CURVES["sde"][1:2])

@@ -66,6 +66,7 @@ def finished(made, tmp_path) -> Path:
 
 # ------------------------------------------------------------------------------- the job
 
+@pytest.mark.e2e
 def test_a_committed_run_directory_survives_its_documented_command(tmp_path):
     """A committed run directory (no checkpoint, by design), copied, and its command run on it
     (the overrides it recorded, as its page documents them): one line, exit 0, no file changed."""
@@ -232,6 +233,7 @@ def test_a_finished_job_never_trains_again_whatever_is_done_to_its_checkpoint(fi
     assert read_finished_run(finished).summary == summary
 
 
+@pytest.mark.e2e
 def test_a_damaged_checkpoint_of_a_finished_job_on_the_command_line(made, tmp_path):
     """Exit 0 with the finished line and the checkpoint's line, no advice to move the previous
     checkpoint in, and no file changed."""
@@ -312,6 +314,7 @@ def test_sweep_readers_refuse_a_job_the_sweep_lists_that_never_started(tmp_path,
     assert len(left_out) == 1 and re.match(f"left out \\(finished_only\\): {says}", left_out[0]), left_out
 
 
+@pytest.mark.e2e
 def test_an_analysis_script_refuses_a_sweep_with_a_job_missing_in_one_line(tmp_path):
     sweep = Path(shutil.copytree(FIG5, tmp_path / "fig5"))
     shutil.rmtree(sweep / "1")

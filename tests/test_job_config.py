@@ -150,6 +150,7 @@ DAMAGES = {
 }
 
 
+@pytest.mark.e2e
 def test_rows_without_their_job_config_are_refused_never_overwritten(rows_only):
     """A job killed before its first checkpoint, its job_config.json deleted, then run with
     another seed: exit 4 naming the file and the remedy, the rows as they were."""
@@ -211,6 +212,7 @@ def test_a_finished_job_s_damaged_job_config_is_refused_by_the_job_and_the_reade
         read_finished_run(finished)
 
 
+@pytest.mark.e2e
 def test_a_truncated_job_config_of_a_finished_job_on_the_command_line(finished):
     path = finished / "job_config.json"
     path.write_bytes(path.read_bytes()[:100])

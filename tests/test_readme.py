@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from docs import readme_results
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -116,6 +118,7 @@ def test_quick_start_is_two_commands_the_training_one_and_the_tests():
     assert commands[1].endswith("python -m pytest")
 
 
+@pytest.mark.e2e
 def test_quick_start_training_command_runs(tmp_path):
     """The quick start's training command as written, cut to 2 updates of one run (the full job is minutes)."""
     command = shlex.split(_quick_start()[0].split("&&")[-1])

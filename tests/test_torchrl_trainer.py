@@ -156,6 +156,7 @@ def test_make_sde_model_refuses_a_non_finite_init_param():
         make_sde_model(MLP(in_features=3, out_features=2, num_cells=[4]), init_param=float("nan"))
 
 
+@pytest.mark.e2e
 def test_the_example_refuses_a_non_finite_init_param_in_one_line_with_the_config_exit_code(tmp_path):
     result = subprocess.run([sys.executable, str(EXAMPLE / "train.py"), *TINY, "models.policy_model.init_param=nan",
                              f"hydra.run.dir={tmp_path}"],
