@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from sde_torchrl.trainers.summary import CATCHES
 from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
 
 #: Overrides that split one method's runs over jobs rather than tell methods apart.
 SHARDING = ("seed", "first_run")
-#: The levels that count as catching the ball (paper section 4.2: R >= -1.1).
-CATCHES = ("good catch", "catch")
 
 
 def job_result(overrides: list[str], summary: dict[str, Any]) -> dict[str, Any]:
