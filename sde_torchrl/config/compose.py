@@ -1,7 +1,9 @@
-"""The repository's Hydra config composed in Python, as ``train.py`` composes it.
+"""The library's Hydra config composed in Python, as ``train.py`` and ``sde-train`` compose it.
 
 For tests and the ``analysis/`` scripts, which build trainers or read sweep parameters without
-going through ``train.py``'s command line.
+going through the command line. The config tree ships inside the package (``sde_torchrl/conf/``; a
+clone's top-level ``conf/`` links to it); in a clone, Hydra's search path also holds the study's
+tree, ``analysis/conf/`` (``hydra_plugins/sde_torchrl_study/``), for its sweeps and rounds.
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ from omegaconf import DictConfig
 
 from sde_torchrl.config.registration import register_resolvers
 
-#: ``conf/`` beside the package: where a clone installed in editable mode keeps its config tree.
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+#: The package's own config tree, ``sde_torchrl/conf/``: installed with it, and ``conf/`` in a clone.
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 
 def compose(
@@ -31,7 +33,7 @@ def compose(
 
     Args:
         overrides: Hydra overrides, as on the command line (``"+experiment=minimize"``, ``"runs=2"``).
-        config_dir: the config tree holding ``config.yaml``; default: the repository's ``conf/``
+        config_dir: the config tree holding ``config.yaml``; default: the package's own
             (:data:`CONF_DIR`).
         return_hydra_config: also return the ``hydra`` node (sweeper params, runtime choices).
 
@@ -50,8 +52,8 @@ def compose(
     directory = Path(CONF_DIR if config_dir is None else config_dir).resolve()
     if not (directory / "config.yaml").is_file():
         raise FileNotFoundError(
-            f"config_dir={directory}: no config.yaml there; pass config_dir= the repository's conf/ "
-            "(found by default only when sde_torchrl is installed from a clone in editable mode)"
+            f"config_dir={directory}: no config.yaml there; pass config_dir= a config tree such as "
+            f"the package's own ({CONF_DIR})"
         )
     register_resolvers()
     with initialize_config_dir(config_dir=str(directory), version_base="1.3"), store_entries_hidden(directory):
