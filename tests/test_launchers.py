@@ -40,7 +40,6 @@ def _shards_equal_one_process(tmp_path: Path, *launcher: str) -> None:
 
 
 @pytest.mark.e2e
-@pytest.mark.xdist_group("submitit")  # the preemption test below finds its task by name
 def test_submitit_local_executor_shards_equal_one_process(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     _shards_equal_one_process(tmp_path, "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10")
@@ -58,7 +57,8 @@ def test_slurm_config_composes_for_submitit(tmp_path):
     assert "mem_gb: 9" in result.stdout and "timeout_min: 162" in result.stdout
 
 
-SWEEPS = sorted(p.stem for p in (REPO / "conf" / "experiment").glob("*sweep.yaml"))
+#: The study's sweeps (analysis/conf/experiment/, on Hydra's search path in a clone).
+SWEEPS = sorted(p.stem for p in (REPO / "analysis" / "conf" / "experiment").glob("*sweep.yaml"))
 
 
 @pytest.mark.parametrize("launcher", ["slurm", "ray_cluster"])
@@ -111,8 +111,31 @@ def test_ray_cluster_shards_equal_one_process(tmp_path, ray_head):
     _shards_equal_one_process(tmp_path, "hydra/launcher=ray_cluster", f"hydra.launcher.ray.init.address={ray_head}")
 
 
+def _descendants(pid: int) -> list[int]:
+    """The processes below ``pid`` (children, their children, ...), from each process's parent in ``/proc``."""
+    parents = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parents[int(stat.parent.name)] = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):  # ended meanwhile
+            continue
+    found, todo = [], [pid]
+    while todo:
+        below = todo.pop()
+        children = [child for child, parent in parents.items() if parent == below]
+        found += children
+        todo += children
+    return found
+
+
+def _command_line(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:  # ended meanwhile
+        return b""
+
+
 @pytest.mark.e2e
-@pytest.mark.xdist_group("submitit")  # `pgrep -f submitit.core._submit` must find its task only
 def test_submitit_preemption_checkpoints_requeues_and_resumes(tmp_path):
     """submitit's preemption / time-limit signal (SIGUSR2, as ``job._interrupt()`` sends it):
     the job checkpoints after its update, submitit requeues it, and the requeued job resumes to
@@ -130,8 +153,7 @@ def test_submitit_preemption_checkpoints_requeues_and_resumes(tmp_path):
         assert launched.poll() is None, launched.communicate()[1][-2000:]
         assert time.monotonic() < deadline, "no progress"
         time.sleep(0.02)
-    tasks = [int(pid) for pid in subprocess.run(["pgrep", "-f", "submitit.core._submit"], capture_output=True,
-                                                text=True).stdout.split()]
+    tasks = [pid for pid in _descendants(launched.pid) if b"submitit.core._submit" in _command_line(pid)]
     assert len(tasks) == 1, tasks
     os.kill(tasks[0], signal.SIGUSR2)
     _, stderr = launched.communicate(timeout=300)

@@ -79,6 +79,7 @@ def test_a_joblib_sweep_reports_each_job_s_failure_and_exits_non_zero(tmp_path):
     assert errors[1].startswith(f"error: {tmp_path / '2'} is in use by another process (pid ")
     assert errors[1].endswith("lr=0.003)")
     assert f"{tmp_path / '1'} holds a finished job (2 updates of 2 runs): nothing was changed" in result.stdout
+    assert not (tmp_path / ".job_reports").exists()  # the jobs' reports to the parent, removed once read
 
 
 def _children(pid: int) -> list[int]:

@@ -429,6 +429,23 @@ def test_unknown_group_option_fails(jobs):
     assert not (result.out_dir / "summary.json").exists()
 
 
+@pytest.mark.e2e
+def test_python_m_sde_torchrl_from_another_directory_runs_the_job_train_py_runs(tmp_path):
+    """``python -m sde_torchrl`` (the installed command, ``sde-train``), started outside the clone,
+    trains what ``train.py`` trains, byte for byte, with its ``train.log``; a second start on the
+    finished job says so in one line and changes nothing."""
+    job = ("+experiment=minimize", *TINY)
+    script = subprocess.run([sys.executable, "train.py", *job, f"hydra.run.dir={tmp_path / 'script'}"], cwd=REPO,
+                            capture_output=True, text=True, timeout=300)
+    command = [sys.executable, "-m", "sde_torchrl", *job, f"hydra.run.dir={tmp_path / 'module'}"]
+    module = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert script.returncode == 0 and module.returncode == 0, (script.stderr[-2000:], module.stderr[-2000:])
+    assert (tmp_path / "module" / "metrics.csv").read_bytes() == (tmp_path / "script" / "metrics.csv").read_bytes()
+    assert (tmp_path / "module" / "train.log").is_file()
+    again = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and f"{tmp_path / 'module'} holds a finished job" in again.stdout, again
+
+
 # --------------------------------------------------------------------------------------------
 # 6. The exploration noise in collected episodes follows the explorer's schedule
 # --------------------------------------------------------------------------------------------
