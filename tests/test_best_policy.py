@@ -9,6 +9,7 @@ import torch
 from _helpers import build, compose_config, crash_at, read_rows
 from torch import nn
 
+import sde_torchrl.config.schemas.envs  # noqa: F401 - the env schemas declare their reports
 from sde_torchrl.trainers.best import BEST_POLICY, BestPolicy
 from sde_torchrl.trainers.summary import checked_lines, final_levels
 

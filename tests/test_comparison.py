@@ -5,13 +5,15 @@ from __future__ import annotations
 import pytest
 from _helpers import run_cli
 
+import sde_torchrl.config.schemas.envs  # noqa: F401 - the env schemas declare their reports
 from sde_torchrl.trainers.comparison import comparison_lines, job_result
 
 
 def test_methods_are_the_overrides_that_differ_with_seeds_and_shards_merged():
-    summaries = {"explorer=sde": {"final_eval_mean_reward": [-1.0, -1.05], "final_eval_return": [-500.0, -525.0],
+    summaries = {"explorer=sde": {"env": "ballcatch", "final_eval_mean_reward": [-1.0, -1.05],
+                                  "final_eval_return": [-500.0, -525.0],
                                   "final_eval_level": ["good catch", "catch"], "best_check_level": ["catch", "slowed"]},
-                 "explorer=rex": {"final_eval_mean_reward": [-2.5], "final_eval_return": [-1250.0],
+                 "explorer=rex": {"env": "ballcatch", "final_eval_mean_reward": [-2.5], "final_eval_return": [-1250.0],
                                   "final_eval_level": ["dropped"], "best_check_level": ["catch"]}}
     results = [job_result(["+experiment=ballcatch", explorer, f"seed={seed}", "hydra.sweep.dir=x"], summary)
                for explorer, summary in summaries.items() for seed in (0, 1)]

@@ -19,14 +19,11 @@ from omegaconf import DictConfig
 from tensordict.nn import TensorDictSequential
 
 from sde_torchrl.config.schemas.algorithms import SACConf
-from sde_torchrl.config.schemas.estimators import PGPEEstimatorConf
-from sde_torchrl.config.schemas.policy import PGPEExplorerConf
 from sde_torchrl.config.schemas.train import TrainConf, loop_settings, validate
 from sde_torchrl.envs.gym import FEATURES_KEY
 from sde_torchrl.jobs.heap import fix_mmap_threshold
 from sde_torchrl.jobs.resources import keeps_step_scores
 from sde_torchrl.modules.sde_actor import make_sde_actor
-from sde_torchrl.objectives.estimators import ENACEstimator
 from sde_torchrl.trainers.optim import exploration_parameters, make_optimizer
 from sde_torchrl.trainers.trainer import Trainer
 from sde_torchrl.utils.devices import training_device
@@ -101,7 +98,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
     actor = instantiate(conf.actor, in_features=obs_dim, out_features=act_dim, runs=conf.runs)
     actor.module.reset_parameters(RunStreams(conf.seed, conf.runs, "init", conf.first_run))
     streams = RunStreams(conf.seed, conf.runs, "explore", conf.first_run)
-    if isinstance(conf.explorer, PGPEExplorerConf):  # PGPE draws the actor's own parameters
+    if getattr(conf.explorer, "draws_actor_parameters", False):  # PGPE draws the actor's own parameters
         explorer = instantiate(conf.explorer, actor=actor, runs=conf.runs)
         policy = TensorDictSequential(actor, explorer)
     else:
@@ -117,10 +114,12 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
     # The trainer collects and updates under the non-finite policy "guarded" (its FiniteGuard names
     # the update): the estimator and the env need no option for it (sde_torchrl.utils.nonfinite).
-    # PGPE scores its parameter distribution in closed form: the top-level `scores` is the others'
-    scores = {} if isinstance(conf.estimator, PGPEEstimatorConf) else {"scores": conf.scores}
+    # the estimator's schema declares its traits: whether it takes `scores` (PGPE scores its
+    # parameter distribution in closed form), whether it regresses on them (ENAC)
+    scores = {"scores": conf.scores} if conf.estimator.takes_scores else {}
     estimator = instantiate(conf.estimator, policy=policy, **scores)
-    warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
+    if conf.estimator.regresses_on_scores:
+        warn_if_rank_deficient(estimator, max(conf.episodes_per_update, conf.episode_queue), conf.runs)
     optimizer, lr_schedule = make_optimizer(policy.parameters(), conf.lr, asdict(conf.optimizer), conf.updates,
                                             scale_parameters=exploration_parameters(policy))
     logger = None
@@ -136,7 +135,7 @@ def build_trainer(cfg: DictConfig | TrainConf, out_dir: str | None = None) -> Tr
 
 
 def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
-    """Warns when ENAC's regression on ``[ψ, 1]`` has fewer episodes than unknowns.
+    """Warns when a regression on ``[ψ, 1]`` (ENAC's) has fewer episodes than unknowns.
 
     Not refused, unlike REINFORCE on one episode (:class:`~sde_torchrl.config.schemas.train.TrainConf`): the
     minimum-norm solution ENAC then takes interpolates the returns and is not zero, only noisy,
@@ -152,8 +151,6 @@ def warn_if_rank_deficient(estimator: Any, episodes: int, runs: int) -> None:
         >>> estimator = ENACEstimator(make_sde_actor(LinearActor(1, 1), SDEParams(1, 1)))
         >>> warn_if_rank_deficient(estimator, episodes=10, runs=1)  # 3 unknowns: nothing to say
     """
-    if not isinstance(estimator, ENACEstimator):
-        return
     unknowns = 1 + sum(p[0].numel() if p.dim() and p.shape[0] == runs else p.numel()
                        for p in estimator.learnable_parameters().values())
     if episodes < unknowns:

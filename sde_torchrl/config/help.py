@@ -20,8 +20,9 @@ from sde_torchrl.config.schemas.train import TrainConf
 
 #: The groups a user chooses from, in the order a job is put together, and what each chooses.
 GROUPS = {
-    "experiment": "a whole job at once (add it with +experiment=NAME): the paper's experiments, their "
-                  "sweeps (run those with -m), PPO, A2C and SAC on the PyBullet tasks",
+    "experiment": "a whole job at once (add it with +experiment=NAME): the paper's experiments (run a sweep "
+                  "with -m), PPO, A2C and SAC on the PyBullet tasks; a clone adds the study's sweeps "
+                  "(analysis/conf/experiment/)",
     "env": "the task",
     "actor": "the controller that gives the action's mean",
     "explorer": "how the policy explores: SDE, REX, PGPE, gSDE or plain Gaussian noise",
@@ -34,11 +35,10 @@ GROUPS = {
 USAGE = """\
 Train policy gradients with state-dependent exploration (SDE).
 
-  python train.py +experiment=ballcatch           4 arms learn to catch a ball: ENAC + SDE (Fig. 6)
-  python train.py +experiment=ballcatch_reinforce the same with REINFORCE + SDE (Fig. 5)
-  python train.py +experiment=minimize runs=30    30 runs of the 1-D task side by side
-  python train.py -m +experiment=noise_sweep      a sweep: Table 1's noise levels
-  python train.py +experiment=ballcatch --help    this help with that experiment's whole config
+  python train.py +experiment=NAME               a whole job: NAME, one of the experiment options below
+  python train.py +experiment=NAME runs=30       30 independent runs of it side by side
+  python train.py -m +experiment=NAME seed=0,1   a sweep: one job per seed, compared at the end
+  python train.py +experiment=NAME --help        this help with that experiment's whole config
 """
 
 

@@ -1,9 +1,11 @@
 """The schemas in Hydra's ``ConfigStore`` and the config's resolvers: what must be registered
 before a config is composed (:func:`register_resolvers`).
 
-Every group option's YAML file names its schema first in its defaults list
-(``/schema/<group>/<option>@_here_``) and holds only what differs from it; ``conf/config.yaml``
-names ``/schema/config``.
+Every schema registers itself where it is defined (``class MyConf(Frozen, schema="env/my")``,
+:data:`~sde_torchrl.config.schemas.frozen.SCHEMAS`); this module imports every module of
+:mod:`sde_torchrl.config.schemas`, so that a schema in any of them is found. Every group option's
+YAML file names its schema first in its defaults list (``/schema/<group>/<option>@_here_``) and
+holds only what differs from it; ``conf/config.yaml`` names ``/schema/config``.
 
 Examples:
     >>> SCHEMAS["estimator/enac"].option
@@ -12,58 +14,24 @@ Examples:
 
 from __future__ import annotations
 
-from hydra.core.config_store import ConfigStore
-from omegaconf import OmegaConf
+import importlib
+import pkgutil
+from types import SimpleNamespace
 
-from sde_torchrl.config.schemas.algorithms import A2CConf, PPOConf, SACConf
-from sde_torchrl.config.schemas.envs import BallCatchEnvConf, GymEnvConf, MinimizeEnvConf
-from sde_torchrl.config.schemas.estimators import (
-    ENACEstimatorConf,
-    GPOMDPEstimatorConf,
-    PGPEEstimatorConf,
-    ReinforceEstimatorConf,
-)
-from sde_torchrl.config.schemas.loggers import CSVLoggerConf, TensorboardLoggerConf, WandbLoggerConf
-from sde_torchrl.config.schemas.optimizers import AdamOptimizerConf, RMSpropOptimizerConf, SGDOptimizerConf
-from sde_torchrl.config.schemas.policy import (
-    ExplorerConf,
-    GaussianExplorerConf,
-    LinearActorConf,
-    MLPActorConf,
-    PGPEExplorerConf,
-)
-from sde_torchrl.config.schemas.train import TrainConf
+from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig, OmegaConf
+
+from sde_torchrl.config import schemas
+from sde_torchrl.config.schemas.frozen import SCHEMAS
 from sde_torchrl.jobs.resources import launcher_request
 
-#: ``schema/<name>`` → dataclass; YAML files name these first in their defaults list.
-SCHEMAS: dict[str, type] = {
-    "config": TrainConf,
-    "env/minimize": MinimizeEnvConf,
-    "env/gym": GymEnvConf,
-    "env/ballcatch": BallCatchEnvConf,
-    "actor/linear": LinearActorConf,
-    "actor/mlp": MLPActorConf,
-    "explorer/sde": ExplorerConf,
-    "explorer/pgpe": PGPEExplorerConf,
-    "explorer/gaussian": GaussianExplorerConf,
-    "algorithm/ppo": PPOConf,
-    "algorithm/a2c": A2CConf,
-    "algorithm/sac": SACConf,
-    "estimator/reinforce": ReinforceEstimatorConf,
-    "estimator/enac": ENACEstimatorConf,
-    "estimator/gpomdp": GPOMDPEstimatorConf,
-    "estimator/pgpe": PGPEEstimatorConf,
-    "optimizer/sgd": SGDOptimizerConf,
-    "optimizer/adam": AdamOptimizerConf,
-    "optimizer/rmsprop": RMSpropOptimizerConf,
-    "logger/csv": CSVLoggerConf,
-    "logger/tensorboard": TensorboardLoggerConf,
-    "logger/wandb": WandbLoggerConf,
-}
+for _module in pkgutil.iter_modules(schemas.__path__):
+    importlib.import_module(f"{schemas.__name__}.{_module.name}")
 
 
 def register_configs() -> None:
-    """Stores every schema in Hydra's ``ConfigStore`` (idempotent).
+    """Stores every schema in Hydra's ``ConfigStore`` as ``schema/<name>`` (idempotent); a
+    schema defined after this module was imported (a user's own) is stored by the next call.
 
     Examples:
         >>> register_configs()
@@ -97,9 +65,16 @@ def register_resolvers() -> None:
 
     OmegaConf.register_new_resolver("midway_r_lim", midway_r_lim, replace=True)
     # The launchers' requests per job (conf/hydra/launcher/*.yaml), from the job's sizes.
-    OmegaConf.register_new_resolver("sde_memory_gb", lambda _root_: launcher_request(_root_)["mem_gb"],
+    OmegaConf.register_new_resolver("sde_memory_gb", lambda _root_: launcher_request(job_of(_root_))["mem_gb"],
                                     replace=True)
-    OmegaConf.register_new_resolver("sde_time_min", lambda _root_: launcher_request(_root_)["timeout_min"],
+    OmegaConf.register_new_resolver("sde_time_min", lambda _root_: launcher_request(job_of(_root_))["timeout_min"],
                                     replace=True)
-    OmegaConf.register_new_resolver("sde_memory_bytes", lambda _root_: int(launcher_request(_root_)["mem_gb"] * 1e9),
-                                    replace=True)
+    OmegaConf.register_new_resolver(
+        "sde_memory_bytes", lambda _root_: int(launcher_request(job_of(_root_))["mem_gb"] * 1e9), replace=True)
+
+
+def job_of(root: DictConfig) -> SimpleNamespace:
+    """A composed config as the resource estimates read it: Hydra's own node left out, each
+    group as its schema's object (what the schemas declare is on those objects, not on the nodes)."""
+    return SimpleNamespace(**{key: OmegaConf.to_object(node) if isinstance(node, DictConfig) else node
+                              for key, node in root.items() if key != "hydra"})

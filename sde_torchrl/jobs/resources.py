@@ -1,53 +1,23 @@
 """How much memory and time a training job needs, estimated from its sizes before anything is
 built: the limit a job is checked against, and what the cluster launchers request per shard.
 
-A job of the episodic estimators holds, besides the interpreter, torch and pybullet
-(:data:`BASE_BYTES`) (a PPO or A2C job holds otherwise: :func:`_onpolicy_memory`; a SAC job:
-:func:`_sac_memory`):
-
-- one simulator world per env slot: ``runs × (episodes_per_update + eval_episodes)`` worlds of
-  ball catching (:data:`WORLD_BYTES` each), of gymnasium envs (:data:`GYM_ENV_BYTES`; a PyBullet
-  one, a world); the function-minimisation env keeps its state in small tensors;
-- the episodes of one update and one evaluation, ``[runs, max(N, Q) + eval_episodes, T]`` step
-  rows of :func:`step_floats` numbers each, and the estimator's work on them: :data:`WORK_FACTOR`
-  times the episodes; GPOMDP also keeps one score per step and parameter, PGPE each episode's
-  drawn parameters at every step;
-- the actor (:func:`policy_sizes`): its parameters and the explorer's, with their gradients and
-  the optimiser's state (:data:`PARAMETER_BYTES` each, per run), and the hidden layers'
-  activations over the kept episodes in the likelihood's graph (:data:`ACTIVATION_BYTES` per
-  hidden unit and step);
-- the per-episode scores, one per kept episode and parameter (:data:`SCORE_BYTES`);
-- the per-update records (returns, gradient norms, exploration: :data:`UPDATE_BYTES`).
-
-The constants are measured on ball catching (PyBrain arm, 2 cores, torch 2.13 CPU, max RSS by
-``/usr/bin/time -v``): 1.01 GB for 5 runs and 2.84 GB for 20 runs after the first updates; the
-actor's and the scores' on the function-minimisation task with MLP actors (``tests/test_resources.py``).
-A PPO, A2C or SAC job (``algorithm``) is counted by its networks, minibatch, rollout and replay
-buffer instead; its constants (:data:`ALGORITHM_BASE_BYTES` and those after it) are measured on
-Pendulum-v1 and HalfCheetahBullet with networks up to 4096 × 4096 and minibatches up to 20,000
-(``tests/test_resources.py``).
-:func:`check_memory` refuses, before any work, a job whose estimate exceeds the memory the
-machine has available (or ``max_memory_gb``), naming the estimate, its largest part and the size
-setting whose smallest value would save the most (:func:`dominant_setting`).
-The time a job needs (:func:`estimate_minutes`) counts the env steps it takes at
-:data:`STEPS_PER_SECOND`, a rate below what one core reaches on a shared machine (ball catching:
-2,400 steps/s for 2 jobs on 2 cores with tests beside them). :func:`launcher_request` turns both
-into a launcher's request with :data:`MARGIN` on top; ``conf/hydra/launcher/*.yaml`` ask for it
-through the ``sde_memory_gb`` and ``sde_time_min`` resolvers. This module imports neither torch
-nor pybullet: ``train.py`` runs it with the config checks. Nor does it import the config's
-schemas, which stand above it: what an estimator or explorer keeps in memory it reads off the
-traits their schemas declare as class attributes (``keeps_step_scores``,
-``carries_parameter_draws``, ``solves_in_float64`` of :class:`~sde_torchrl.config.schemas.estimators.EstimatorConf`;
-``draws_actor_parameters`` of :class:`~sde_torchrl.config.schemas.policy.PGPEExplorerConf`), ``False`` where
-a schema does not declare one.
+:func:`estimate_memory` adds up what a job holds, by part; its constants are measured on ball
+catching for the episodic estimators and on Pendulum-v1 and HalfCheetahBullet for PPO, A2C and
+SAC. :func:`check_memory` refuses, before any work, a job whose estimate exceeds the memory the
+machine has available (or ``max_memory_gb``). :func:`estimate_minutes` counts the env steps a
+job takes at its env's declared rate; :func:`launcher_request` turns both into a launcher's
+request with :data:`MARGIN` on top (``conf/hydra/launcher/*.yaml`` ask for it through the
+``sde_memory_gb`` and ``sde_time_min`` resolvers). This module imports neither torch, pybullet
+nor the config's schemas, which stand above it: it reads what they declare (see
+:func:`estimate_memory`), so ``train.py`` runs it with the config checks.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import Any, ClassVar
 
 from sde_torchrl.utils.checks import ArgumentError
@@ -55,17 +25,16 @@ from sde_torchrl.utils.checks import ArgumentError
 GB = 1e9
 #: Interpreter, torch, TorchRL and pybullet loaded, one job built with a single small run.
 BASE_BYTES = 0.40 * GB
-#: One ball-catching world (the PyBrain arm's 15 hinges, the ball, their contacts).
-WORLD_BYTES = 28e6
 #: Bytes held per number of the kept episodes, with the estimator's intermediates.
 WORK_FACTOR = 4 * 4
-#: Floats per step row of a gymnasium env whose spaces are not known before it is made.
-GYM_STEP_FLOATS = 64
+#: Floats per step row of an env whose sizes are known only once it is made: a quarter of them
+#: each the assumed observation and action size.
+UNKNOWN_STEP_FLOATS = 64
 #: Bytes per learnable parameter and run: the parameter, its gradient, the optimiser's state
 #: (Adam: two), the update's and the checkpoint's copies.
 PARAMETER_BYTES = 6 * 4
 #: Bytes per hidden unit and step of the kept episodes: the actor's activations in the
-#: likelihood's graph and their gradients (MLP actors: 12-14 measured; ``tests/test_resources.py``).
+#: likelihood's graph and their gradients (MLP actors: 12-14 measured).
 ACTIVATION_BYTES = 4 * 4
 #: Bytes per score (one per kept episode and parameter): the scores, their flattened copy and the
 #: estimator's products of them (REINFORCE: 23 measured); ENAC solves its regression in float64.
@@ -75,16 +44,13 @@ UPDATE_BYTES = 1000
 #: Bytes per step and parameter: GPOMDP's per-step scores of the kept episodes (21 measured), PGPE's
 #: drawn parameters and their noise, carried at every step of every episode (12 measured).
 STEP_SCORE_BYTES, DRAW_BYTES = 6 * 4, 3 * 4
-#: One gymnasium env of ``env=gym`` (TorchRL's ``GymEnv`` around it): Pendulum-v1, 15-19 kB measured;
-#: a PyBullet env holds a world (:data:`WORLD_BYTES`).
-GYM_ENV_BYTES = 20e3
 #: A PPO / A2C / SAC job's interpreter with torch, TorchRL and gymnasium loaded, its job built and trained
-#: with 64 × 64 networks on Pendulum-v1 (0.45 GB measured: ``tests/test_resources.py``).
+#: with 64 × 64 networks on Pendulum-v1 (0.45 GB measured).
 ALGORITHM_BASE_BYTES = 0.45 * GB
 #: What ``algorithm.compile`` adds: the compiler loaded and the compiled graphs (0.1 GB measured).
 COMPILE_BYTES = 0.1 * GB
-#: Observation and action sizes of the gymnasium envs of the experiments, by a part of ``env.id``;
-#: another env is taken to have :data:`GYM_STEP_FLOATS` ``// 4`` of each.
+#: Observation and action sizes of the gymnasium envs of the PPO / A2C / SAC experiments, by a part
+#: of ``env.id``; another env is taken to have :data:`UNKNOWN_STEP_FLOATS` ``// 4`` of each.
 GYM_DIMENSIONS = {"Pendulum": (3, 1), "MountainCarContinuous": (2, 1), "HalfCheetahBullet": (26, 6),
                   "HopperBullet": (15, 3), "Walker2DBullet": (22, 6), "AntBullet": (28, 8)}
 #: Bytes per collected env step (not per env) of a PPO / A2C rollout, an evaluation or a SAC round
@@ -92,13 +58,10 @@ GYM_DIMENSIONS = {"Pendulum": (3, 1), "MountainCarContinuous": (2, 1), "HalfChee
 STEP_BYTES = 3000
 #: Bytes per hidden unit and minibatch row of a PPO / A2C / SAC job's networks trained on it: the
 #: activations kept for the backward pass, their gradients and the allocator's slack (measured:
-#: PPO 6.7, A2C 5.8, SAC 9.9 over its actor and both Q-networks; ``tests/test_resources.py``).
+#: PPO 6.7, A2C 5.8, SAC 9.9 over its actor and both Q-networks).
 ALGORITHM_ACTIVATION_BYTES = 10
 #: Bytes per number of a PPO / A2C rollout: the steps' float32 numbers, GAE's and the minibatches' copies.
 ONPOLICY_BYTES_PER_FLOAT = 8
-#: Env steps per second and core that a job is assumed to reach (ball catching; the other envs
-#: are faster): a conservative rate for the time a launcher requests.
-STEPS_PER_SECOND = {"ballcatch": 2000, "other": 20000}
 #: Env steps per second of an on-policy job (``algorithm=ppo``), collection and updates together:
 #: PPO on HalfCheetahBullet with the zoo's settings ran at 374 on a shared 2-core machine.
 ONPOLICY_STEPS_PER_SECOND = 300
@@ -163,15 +126,11 @@ def step_floats(observation: int, action: int) -> int:
     return 3 * observation + 3 * action + observation * action + 8
 
 
-def _dimensions(env: Any) -> tuple[int, int, bool]:
-    """(observation size, action size, simulator worlds?) of an env config."""
-    target = str(getattr(env, "_target_", "") or "")
-    if "ballcatch" in target:
-        return 3, 4, True
-    if "minimize" in target:
-        dim = int(getattr(env, "dim", 1) or 1)
-        return dim, dim, False
-    return GYM_STEP_FLOATS // 4, GYM_STEP_FLOATS // 4, False
+def _sizes(env: Any) -> tuple[int, int]:
+    """(observation size, action size) that the env's schema declares, each
+    :data:`UNKNOWN_STEP_FLOATS` ``// 4`` where only the made env tells them."""
+    sizes = env.sizes()
+    return (int(sizes[0]), int(sizes[1])) if sizes is not None else (UNKNOWN_STEP_FLOATS // 4,) * 2
 
 
 def policy_sizes(conf: Any) -> tuple[int, int]:
@@ -182,13 +141,14 @@ def policy_sizes(conf: Any) -> tuple[int, int]:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.make_minimize_env", dim=2)
+        >>> from sde_torchrl.config.schemas.envs import MinimizeEnvConf
+        >>> env = MinimizeEnvConf(dim=2)
         >>> policy_sizes(Conf(env=env, actor=Conf(hidden=[3], bias=True), explorer=Conf(sharing="element")))
         (23, 3)
         >>> policy_sizes(Conf(env=env, actor=Conf(bias=False), explorer=Conf(schedule="episode")))
         (10, 0)
     """
-    observation, action, _ = _dimensions(conf.env)
+    observation, action = _sizes(conf.env)
     actor, explorer = getattr(conf, "actor", None), getattr(conf, "explorer", None)
     hidden = [int(size) for size in (getattr(actor, "hidden", None) or [])]
     bias = bool(getattr(actor, "bias", False))
@@ -218,6 +178,37 @@ def keeps_step_scores(conf: Any) -> bool:
 def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
     """The memory a job with config ``conf`` (a :class:`~sde_torchrl.config.schemas.train.TrainConf`) holds.
 
+    A job of the episodic estimators holds, besides the interpreter, torch and pybullet
+    (:data:`BASE_BYTES`):
+
+    - what each env slot holds beside its steps (a simulator world), as the env's schema declares
+      (``slot_bytes()``), for ``runs × (episodes_per_update + eval_episodes)`` slots;
+    - the episodes of one update and one evaluation, ``[runs, max(N, Q) + eval_episodes, T]`` step
+      rows of :func:`step_floats` numbers each (of the sizes the env's schema declares,
+      ``sizes()``, or :data:`UNKNOWN_STEP_FLOATS`), and the estimator's work on them:
+      :data:`WORK_FACTOR` times the episodes; GPOMDP also keeps one score per step and parameter,
+      PGPE each episode's drawn parameters at every step;
+    - the actor (:func:`policy_sizes`): its parameters and the explorer's, with their gradients
+      and the optimiser's state (:data:`PARAMETER_BYTES` each, per run), and the hidden layers'
+      activations over the kept episodes in the likelihood's graph (:data:`ACTIVATION_BYTES` per
+      hidden unit and step);
+    - the per-episode scores, one per kept episode and parameter (:data:`SCORE_BYTES`);
+    - the per-update records (returns, gradient norms, exploration: :data:`UPDATE_BYTES`).
+
+    The constants are measured on ball catching (PyBrain arm, 2 cores, torch CPU, max RSS by
+    ``/usr/bin/time -v``: 1.01 GB for 5 runs and 2.84 GB for 20 runs after the first updates),
+    the actor's and the scores' on the function-minimisation task with MLP actors. A PPO, A2C or
+    SAC job (``algorithm``) is counted by its networks, minibatch, rollout and replay buffer
+    instead (:data:`ALGORITHM_BASE_BYTES` and the constants after it, measured on Pendulum-v1 and
+    HalfCheetahBullet with networks up to 4096 × 4096 and minibatches up to 20,000).
+
+    What the schemas declare is read, ``False`` where a schema does not declare a trait: the env's
+    (:class:`~sde_torchrl.config.schemas.envs.EnvConf`) ``sizes()``, ``slot_bytes()``,
+    ``steps_per_second`` and ``size_settings``; the optimizer's ``moments()``; the estimator's
+    ``keeps_step_scores``, ``carries_parameter_draws`` and ``solves_in_float64``
+    (:class:`~sde_torchrl.config.schemas.estimators.EstimatorConf`) and the explorer's
+    ``draws_actor_parameters`` (:class:`~sde_torchrl.config.schemas.policy.PGPEExplorerConf`).
+
     Args:
         conf: the job's config (``runs``, ``episodes_per_update``, ``episode_queue``,
             ``eval_episodes``, ``env``, ``estimator``; ``actor``, ``explorer`` and ``updates``
@@ -229,15 +220,15 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.ballcatch.batched.make_ballcatch_env", episode_length=500)
-        >>> job = Conf(runs=50, episodes_per_update=1, episode_queue=20, eval_episodes=3, env=env,
-        ...            estimator=Conf(_target_="sde_torchrl.objectives.estimators.ReinforceEstimator"))
+        >>> from sde_torchrl.config.schemas.envs import BallCatchEnvConf
+        >>> job = Conf(runs=50, episodes_per_update=1, episode_queue=20, eval_episodes=3, env=BallCatchEnvConf(),
+        ...            estimator=Conf())
         >>> estimate_memory(job).total_gb
         6.38
     """
     if getattr(conf, "algorithm", None) is not None:
         return _sac_memory(conf) if hasattr(conf.algorithm, "buffer_size") else _onpolicy_memory(conf)
-    observation, action, worlds = _dimensions(conf.env)
+    observation, action = _sizes(conf.env)
     counted, hidden = policy_sizes(conf)
     parameters = counted if parameters is None else parameters
     kept = max(conf.episodes_per_update, conf.episode_queue)  # episodes per run in one update
@@ -250,12 +241,8 @@ def estimate_memory(conf: Any, parameters: int | None = None) -> MemoryEstimate:
     if keeps_step_scores(conf):  # one score per step and parameter, training episodes only
         episodes += conf.runs * kept * length * parameters * STEP_SCORE_BYTES
     envs = conf.runs * (conf.episodes_per_update + conf.eval_episodes)
-    if "gym" in str(getattr(conf.env, "_target_", "") or ""):  # one gymnasium env per slot
-        per_env = WORLD_BYTES if "Bullet" in str(getattr(conf.env, "id", "")) else GYM_ENV_BYTES
-    else:
-        per_env = WORLD_BYTES if worlds else 0
     return MemoryEstimate(
-        base=BASE_BYTES, worlds=envs * per_env, episodes=episodes,
+        base=BASE_BYTES, worlds=envs * conf.env.slot_bytes(), episodes=episodes,
         actor=conf.runs * (parameters * PARAMETER_BYTES + kept * length * hidden * ACTIVATION_BYTES),
         scores=conf.runs * kept * parameters * (FLOAT64_SCORE_BYTES if getattr(estimator, "solves_in_float64", False)
                                                 else SCORE_BYTES),
@@ -280,9 +267,11 @@ def _onpolicy_memory(conf: Any) -> MemoryEstimate:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0",
-        ...                     episode_length=1000), actor=Conf(hidden=[256, 256]),
-        ...            explorer=Conf(schedule="every_n_steps"), optimizer=Conf(_target_="torch.optim.Adam"),
+        >>> from sde_torchrl.config.schemas.envs import GymEnvConf
+        >>> from sde_torchrl.config.schemas.optimizers import AdamOptimizerConf
+        >>> job = Conf(env=GymEnvConf(id="m:HalfCheetahBulletEnv-v0", episode_length=1000),
+        ...            actor=Conf(hidden=[256, 256]),
+        ...            explorer=Conf(schedule="every_n_steps"), optimizer=AdamOptimizerConf(),
         ...            algorithm=Conf(n_envs=16, n_steps=512, batch_size=128, critic_hidden=None, compile=True),
         ...            eval_episodes=10, final_episodes=0)
         >>> estimate_memory(job).total_gb
@@ -321,9 +310,11 @@ def _sac_memory(conf: Any) -> MemoryEstimate:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> job = Conf(env=Conf(_target_="sde_torchrl.envs.gym.make_gym_env", id="m:HalfCheetahBulletEnv-v0",
-        ...                     episode_length=1000), actor=Conf(hidden=[400, 300]),
-        ...            explorer=Conf(schedule="rollout"), optimizer=Conf(_target_="torch.optim.Adam"),
+        >>> from sde_torchrl.config.schemas.envs import GymEnvConf
+        >>> from sde_torchrl.config.schemas.optimizers import AdamOptimizerConf
+        >>> job = Conf(env=GymEnvConf(id="m:HalfCheetahBulletEnv-v0", episode_length=1000),
+        ...            actor=Conf(hidden=[400, 300]),
+        ...            explorer=Conf(schedule="rollout"), optimizer=AdamOptimizerConf(),
         ...            algorithm=Conf(buffer_size=300_000, batch_size=256, train_freq=8, rounds_per_update=125,
         ...                           compile=True), updates=1000, eval_episodes=10, final_episodes=0)
         >>> estimate_memory(job).total_gb
@@ -353,7 +344,7 @@ def _gym_dimensions(conf: Any) -> tuple[int, int]:
     (:data:`GYM_DIMENSIONS`), the observation with the time feature (``algorithm.time_feature``)."""
     env_id = str(getattr(conf.env, "id", ""))
     observation, action = next((sizes for name, sizes in GYM_DIMENSIONS.items() if name in env_id),
-                               (GYM_STEP_FLOATS // 4, GYM_STEP_FLOATS // 4))
+                               (UNKNOWN_STEP_FLOATS // 4, UNKNOWN_STEP_FLOATS // 4))
     return observation + int(bool(getattr(conf.algorithm, "time_feature", False))), action
 
 
@@ -370,18 +361,16 @@ def _mlp_sizes(layers: list[int]) -> tuple[int, int]:
 
 
 def _optimizer_moments(optimizer: Any) -> int:
-    """Numbers the ``optimizer`` group's optimiser keeps per parameter: Adam its two moments,
-    RMSprop its average of squares, SGD its momentum (none without).
+    """Numbers the ``optimizer`` group's optimiser keeps per parameter, as its schema declares
+    (``moments()``: Adam its two moments, RMSprop its average of squares, SGD its momentum);
+    without an optimizer (SAC's default, Adam's), 2.
 
     Examples:
-        >>> from types import SimpleNamespace as Conf
-        >>> _optimizer_moments(Conf(_target_="torch.optim.Adam")), _optimizer_moments(Conf(_target_="torch.optim.SGD"))
-        (2, 0)
+        >>> from sde_torchrl.config.schemas.optimizers import AdamOptimizerConf, SGDOptimizerConf
+        >>> _optimizer_moments(AdamOptimizerConf()), _optimizer_moments(SGDOptimizerConf()), _optimizer_moments(None)
+        (2, 0, 2)
     """
-    target = str(getattr(optimizer, "_target_", "") or "")
-    if target.endswith("SGD"):
-        return int(bool(getattr(optimizer, "momentum", 0)))
-    return 1 if target.endswith("RMSprop") else 2
+    return optimizer.moments() if optimizer is not None else 2
 
 
 def _network_bytes(conf: Any, actor_layers: list[int], actor_extra: int,
@@ -408,11 +397,10 @@ def _network_bytes(conf: Any, actor_layers: list[int], actor_extra: int,
 
 def _env_bytes(conf: Any, training: int) -> float:
     """The envs of a PPO / A2C / SAC job: ``training`` ones, the ``eval_episodes`` evaluation envs
-    and the final check's (at most ``eval_episodes`` at a time, made beside them): a PyBullet env
-    holds a world (:data:`WORLD_BYTES`), another :data:`GYM_ENV_BYTES`."""
+    and the final check's (at most ``eval_episodes`` at a time, made beside them), each what the
+    env's schema declares (``slot_bytes()``)."""
     check = min(conf.eval_episodes, getattr(conf, "final_episodes", 0) or 0)
-    per_env = WORLD_BYTES if "Bullet" in str(getattr(conf.env, "id", "")) else GYM_ENV_BYTES
-    return (training + conf.eval_episodes + check) * per_env
+    return (training + conf.eval_episodes + check) * conf.env.slot_bytes()
 
 
 def _evaluation_bytes(conf: Any, observation: int, action: int, features: int) -> float:
@@ -428,14 +416,15 @@ def _evaluation_bytes(conf: Any, observation: int, action: int, features: int) -
 
 
 def estimate_minutes(conf: Any) -> float:
-    """Minutes a job needs at :data:`STEPS_PER_SECOND`: every env step of its training episodes
-    (the episode queue's first fill, then ``episodes_per_update`` per update) and evaluations.
+    """Minutes a job needs at its env's ``steps_per_second``: every env step of its training
+    episodes (the episode queue's first fill, then ``episodes_per_update`` per update) and
+    evaluations.
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.ballcatch.batched.make_ballcatch_env", episode_length=500)
+        >>> from sde_torchrl.config.schemas.envs import BallCatchEnvConf
         >>> job = Conf(runs=50, updates=500, episodes_per_update=1, episode_queue=20, eval_episodes=3,
-        ...            eval_period=20, env=env)
+        ...            eval_period=20, env=BallCatchEnvConf())
         >>> round(estimate_minutes(job))
         124
     """
@@ -448,8 +437,7 @@ def estimate_minutes(conf: Any) -> float:
         return steps / (SAC_STEPS_PER_SECOND if sac else ONPOLICY_STEPS_PER_SECOND) / 60
     episodes = max(conf.episode_queue - conf.episodes_per_update, 0) + conf.updates * conf.episodes_per_update \
         + evaluations * conf.eval_episodes
-    rate = STEPS_PER_SECOND["ballcatch" if _dimensions(conf.env)[2] else "other"]
-    return conf.runs * episodes * conf.env.episode_length / rate / 60
+    return conf.runs * episodes * conf.env.episode_length / conf.env.steps_per_second / 60
 
 
 def launcher_request(conf: Any) -> dict[str, int]:
@@ -458,10 +446,9 @@ def launcher_request(conf: Any) -> dict[str, int]:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.ballcatch.batched.make_ballcatch_env", episode_length=500)
+        >>> from sde_torchrl.config.schemas.envs import BallCatchEnvConf
         >>> job = Conf(runs=50, updates=500, episodes_per_update=1, episode_queue=20, eval_episodes=3,
-        ...            eval_period=20, env=env,
-        ...            estimator=Conf(_target_="sde_torchrl.objectives.estimators.ReinforceEstimator"))
+        ...            eval_period=20, env=BallCatchEnvConf(), estimator=Conf())
         >>> launcher_request(job)
         {'mem_gb': 9, 'timeout_min': 162}
     """
@@ -497,9 +484,10 @@ def check_memory(conf: Any) -> MemoryEstimate:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.make_minimize_env", episode_length=15, dim=1)
+        >>> from sde_torchrl.config.schemas.envs import MinimizeEnvConf
+        >>> env = MinimizeEnvConf()
         >>> job = Conf(runs=10**6, episodes_per_update=10, episode_queue=0, eval_episodes=5, env=env,
-        ...            estimator=Conf(_target_=""), max_memory_gb=16)
+        ...            estimator=Conf(), max_memory_gb=16)
         >>> try:
         ...     check_memory(job)
         ... except ArgumentError as error:
@@ -543,8 +531,7 @@ def _smallest(conf: Any) -> dict[str, Any]:
     """Each size setting of the job that is above its smallest allowed value, with that value."""
     smallest: dict[str, Any] = {"runs": 1, "episodes_per_update": 1, "episode_queue": 0, "eval_episodes": 1,
                                 "env.episode_length": 1, "updates": 1}
-    if "minimize" in str(getattr(conf.env, "_target_", "") or ""):
-        smallest["env.dim"] = 1
+    smallest.update({f"env.{key}": value for key, value in conf.env.size_settings.items()})
     hidden = getattr(getattr(conf, "actor", None), "hidden", None)
     if hidden:
         smallest["actor.hidden"] = [1] * len(hidden)
@@ -565,11 +552,12 @@ def _smallest(conf: Any) -> dict[str, Any]:
 
 
 def _changed(conf: Any, key: str, value: Any) -> Any:
-    """A shallow copy of ``conf`` with the dotted ``key`` set to ``value`` (for a what-if estimate)."""
+    """A shallow copy of ``conf`` with the dotted ``key`` set to ``value`` (for a what-if
+    estimate): of the same type, so that what a schema declares stays, frozen or not."""
     head, _, rest = key.partition(".")
-    copy = SimpleNamespace(**vars(conf))
-    setattr(copy, head, _changed(getattr(conf, head), rest, value) if rest else value)
-    return copy
+    changed = copy.copy(conf)
+    object.__setattr__(changed, head, _changed(getattr(conf, head), rest, value) if rest else value)
+    return changed
 
 
 def smallest_job(conf: Any) -> MemoryEstimate:
@@ -578,9 +566,10 @@ def smallest_job(conf: Any) -> MemoryEstimate:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.make_minimize_env", episode_length=15, dim=1)
+        >>> from sde_torchrl.config.schemas.envs import MinimizeEnvConf
+        >>> env = MinimizeEnvConf()
         >>> smallest_job(Conf(runs=4, episodes_per_update=10, episode_queue=0, eval_episodes=5, env=env,
-        ...                   estimator=Conf(_target_=""))).total_gb
+        ...                   estimator=Conf())).total_gb
         0.4
     """
     for key, value in _smallest(conf).items():
@@ -595,9 +584,10 @@ def dominant_setting(conf: Any) -> dict[str, float]:
 
     Examples:
         >>> from types import SimpleNamespace as Conf
-        >>> env = Conf(_target_="sde_torchrl.envs.make_minimize_env", episode_length=15, dim=1)
+        >>> from sde_torchrl.config.schemas.envs import MinimizeEnvConf
+        >>> env = MinimizeEnvConf()
         >>> job = Conf(runs=4, episodes_per_update=10, episode_queue=0, eval_episodes=10**9, env=env,
-        ...            estimator=Conf(_target_=""))
+        ...            estimator=Conf())
         >>> next(iter(dominant_setting(job)))
         'eval_episodes'
     """

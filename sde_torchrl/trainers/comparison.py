@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sde_torchrl.trainers.summary import CATCHES
+from sde_torchrl.envs.outcomes import report_for
 from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
 
 #: Overrides that split one method's runs over jobs rather than tell methods apart.
@@ -14,21 +14,20 @@ SHARDING = ("seed", "first_run")
 
 def job_result(overrides: list[str], summary: dict[str, Any]) -> dict[str, Any]:
     """What a finished job of a multirun reports for the comparison: its overrides, each run's
-    final evaluation (the paper's mean reward per step for ball catching) and, for ball catching,
-    each run's final level and its best policy's level on the fresh balls."""
-    result = {"overrides": [o for o in overrides if not o.startswith("hydra.")],
-              "final_eval": summary.get("final_eval_mean_reward", summary["final_eval_return"])}
-    for key in ("final_eval_level", "best_check_level"):
-        if key in summary:
-            result[key] = summary[key]
-    return result
+    final evaluation (in the paper's mean reward per step where the summary has it) and, where
+    the env has a report (:func:`~sde_torchrl.envs.outcomes.report_for`), what it counts per run
+    (``shares``: a phrase → whether each run achieved it)."""
+    report = report_for(summary.get("env"))
+    return {"overrides": [o for o in overrides if not o.startswith("hydra.")],
+            "final_eval": summary.get("final_eval_mean_reward", summary["final_eval_return"]),
+            "shares": report.shares(summary) if report is not None else {}}
 
 
 def method_label(overrides: list[str], shared: set[str]) -> str:
     """A job's method: its overrides but the shared ones and those of :data:`SHARDING`.
 
     Examples:
-        >>> method_label(["explorer=rex", "seed=3", "+experiment=ballcatch"], {"+experiment=ballcatch"})
+        >>> method_label(["explorer=rex", "seed=3", "+experiment=minimize"], {"+experiment=minimize"})
         'explorer=rex'
     """
     kept = [o for o in overrides if o not in shared and o.split("=", 1)[0].lstrip("+~") not in SHARDING]
@@ -37,8 +36,8 @@ def method_label(overrides: list[str], shared: set[str]) -> str:
 
 def comparison_lines(results: list[dict[str, Any]]) -> list[str]:
     """One line per method of a multirun's finished jobs: its runs, the mean final evaluation
-    with its bootstrap interval over runs and, for ball catching, the runs whose last evaluation
-    is a catch and whose best policy catches on the fresh balls (Wilson intervals).
+    with its bootstrap interval over runs and, for what the env's report counts (its ``shares``,
+    such as the runs whose last evaluation is a catch), how many runs achieved it (Wilson intervals).
 
     Examples:
         >>> jobs = [{"overrides": ["explorer=sde", "seed=0"], "final_eval": [-1.0, -2.0]},
@@ -59,10 +58,9 @@ def comparison_lines(results: list[dict[str, Any]]) -> list[str]:
         runs = len(values)
         line = (f"{label}: {runs} run{'s' if runs > 1 else ''} in {len(jobs)} job{'s' if len(jobs) > 1 else ''}; "
                 f"final evaluation mean {interval.estimate:.3f} [{interval.low:.3f}, {interval.high:.3f}]")
-        for key, what in (("final_eval_level", "last evaluation a catch"),
-                          ("best_check_level", "best policy catches on the fresh balls")):
-            if all(key in job for job in jobs):
-                count = sum(level in CATCHES for job in jobs for level in job[key])
+        for what in jobs[0].get("shares", {}):
+            if all(what in job.get("shares", {}) for job in jobs):
+                count = sum(job["shares"][what].count(True) for job in jobs)
                 share = binomial_interval(count, runs)
                 line += (f"; {what} in {count} ({round(100 * share.estimate)} % "
                          f"[{round(100 * share.low)}, {round(100 * share.high)}])")

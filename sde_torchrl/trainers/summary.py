@@ -9,6 +9,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from sde_torchrl.envs.outcomes import report_for
 from sde_torchrl.jobs.metrics import RECORDS
 
 
@@ -212,141 +213,62 @@ def mean_reward_factor(summary: dict[str, Any]) -> float:
 
 
 def final_levels(summary: dict[str, Any], state: LoopState | None = None) -> dict[str, Any]:
-    """What a ball-catching job reached, for ``summary.json``, in the paper's mean reward per
-    step and its levels (section 4.2, :func:`~sde_torchrl.envs.ballcatch.outcomes.catch_level`);
-    nothing for other tasks. Per run: the final evaluation and its level; with the loop's
-    ``state``, each level's first update among the periodic evaluations (``null``: never
-    reached); with a final check, the level of the final and the best policies over the fresh
-    episodes and how many of those episodes each policy dropped, kept on the hand or held
-    (:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`).
+    """What the env's report (:func:`~sde_torchrl.envs.outcomes.report_for`, by the summary's
+    ``env``) adds to ``summary.json``, such as the levels its runs reached; nothing for an env
+    without a report. With the loop's ``state``, the report also sees the periodic evaluations
+    and what the env reported of the final check's episodes.
 
     Examples:
-        >>> final_levels({"env": "ballcatch", "final_eval_return": [-1.05, -2.5]})
-        {'final_eval_mean_reward': [-1.05, -2.5], 'final_eval_level': ['catch', 'dropped']}
         >>> final_levels({"env": "minimize", "final_eval_return": [-1.0]})
         {}
     """
-    if summary.get("env") != "ballcatch":
+    report = report_for(summary.get("env"))
+    if report is None:
         return {}
-    from sde_torchrl.envs.ballcatch.outcomes import BEHAVIOURS, LEVELS, catch_level
-
-    scale = mean_reward_factor(summary)
-    evals = [scale * value for value in summary["final_eval_return"]]
-    out: dict[str, Any] = {"final_eval_mean_reward": evals, "final_eval_level": [catch_level(value) for value in evals]}
-    if state is not None and state.evals:
-        updates = sorted(state.evals)
-        history = torch.stack([state.evals[k].cpu().double() for k in updates]) * scale  # [evaluations, runs]
-        out["level_first_update"] = [
-            {name: next((updates[i] for i in range(len(updates)) if history[i, r] >= bound), None)
-             for bound, name in LEVELS} for r in range(history.shape[1])]
-    for name in ("final", "best"):
-        if f"{name}_check_return" in summary:
-            values = [scale * value for value in summary[f"{name}_check_return"]]
-            out[f"{name}_check_mean_reward"] = values
-            out[f"{name}_check_level"] = [catch_level(value) for value in values]
-        outcomes = ((state.final_check or {}).get("outcomes") or {}).get(name) if state is not None else None
-        if outcomes is not None:
-            out[f"{name}_check_behaviours"] = [{label: codes.count(i) for i, label in enumerate(BEHAVIOURS)}
-                                               for codes in outcomes["behaviour"]]
-    return out
+    evaluations = {k: v.cpu().double().tolist() for k, v in state.evals.items()} if state is not None else None
+    outcomes = ((state.final_check or {}).get("outcomes") or {}) if state is not None else None
+    return report.entries(summary, mean_reward_factor(summary), evaluations, outcomes)
 
 
 def final_lines(summary: dict[str, Any]) -> list[str]:
     """The lines that end a job's log: the last training return (exploratory episodes, which a
     learner that explores widely keeps below its evaluation), then each run's final deterministic
-    evaluation, the result, last; both in the estimator's return definition. Ball catching says,
-    per run, in the paper's mean reward per step and levels, the best level its evaluations
-    reached and when, and with a final check what the best and the final policies did on the
-    fresh balls; then one line of counts (:func:`final_levels`).
+    evaluation, the result, last; both in the estimator's return definition. An env with a report
+    says what follows the training return its own way.
 
     Examples:
         >>> final_lines({"env": "minimize", "final_eval_return": [-1.23456], "final_return": [-2.0]})
         ['last training return per run: [-2.0]', 'final evaluation per run (no exploration): [-1.235]']
-        >>> lines = final_lines({"env": "ballcatch", "final_eval_return": [-1.05, -2.5], "final_return": [-2.0, -2.9]})
-        >>> lines[1]
-        'final evaluation per run (mean reward per step, no exploration): run 0 -1.050 catch, run 1 -2.500 dropped'
-        >>> lines[2]
-        'levels of the final evaluations: 0 good catch, 1 catch, 0 on the hand, 0 slowed, 1 dropped (of 2 runs)'
     """
     training = f"last training return per run: {[round(value, 3) for value in summary['final_return']]}"
-    reached = final_levels(summary)
-    if not reached:
-        evals = [round(value, 3) for value in summary["final_eval_return"]]
-        lines = [training, f"final evaluation per run (no exploration): {evals}"]
-        if "best_check_return" in summary:
-            best = [round(value, 3) for value in summary["best_check_return"]]
-            final = [round(value, 3) for value in summary["final_check_return"]]
-            lines.append(f"on {summary['check_episodes']} fresh episodes per run: best policy (update "
-                         f"{summary['best_update']}) {best}, final policy {final}")
-        return lines
+    reported = _reported_lines(summary)
+    if reported is not None:
+        return [training, *reported]
+    evals = [round(value, 3) for value in summary["final_eval_return"]]
+    lines = [training, f"final evaluation per run (no exploration): {evals}"]
     if "best_check_return" in summary:
-        return [training, *checked_lines(summary)]
-    from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES
-
-    evals, levels = reached["final_eval_mean_reward"], reached["final_eval_level"]
-    first = summary.get("first_run", 0)
-    runs = ", ".join(f"run {first + i} {value:.3f} {level}"
-                     for i, (value, level) in enumerate(zip(evals, levels, strict=True)))
-    counts = ", ".join(f"{levels.count(name)} {name}" for name in LEVEL_NAMES)
-    return [training, f"final evaluation per run (mean reward per step, no exploration): {runs}",
-            f"levels of the final evaluations: {counts} (of {len(evals)} run{'s' if len(evals) > 1 else ''})"]
-
-
-def checked_lines(summary: dict[str, Any]) -> list[str]:
-    """Per ball-catching run, the best level its evaluations reached and when, and what its
-    best and final policies did on the final check's fresh balls; then the counts.
-
-    Examples:
-        >>> summary = {"env": "ballcatch", "first_run": 0, "final_eval_return": [-1.5], "best_eval_return": [-0.94],
-        ...            "best_update": [379], "check_episodes": 20, "best_check_return": [-1.02],
-        ...            "final_check_return": [-1.49], "level_first_update": [{"good catch": 379, "catch": 259}],
-        ...            "best_check_behaviours": [{"dropped": 2, "kept on the hand": 0, "held": 18}]}
-        >>> for line in checked_lines(summary):  # doctest: +NORMALIZE_WHITESPACE
-        ...     print(line)
-        run 0: reached a good catch at update 379 (a catch at 259); best policy (update 379, evaluated
-        -0.940) on 20 fresh balls: -1.020, a catch (18 held, 0 kept on the hand, 2 dropped); final policy:
-        -1.490, on the hand
-        of 1 run, on 20 fresh balls each: the best policy catches in 1, the final policy in 0; a catch was
-        reached in training by 1
-    """
-    from sde_torchrl.envs.ballcatch.outcomes import LEVEL_NAMES, catch_level
-
-    scale = mean_reward_factor(summary)
-    first, episodes = summary.get("first_run", 0), summary["check_episodes"]
-    lines = []
-    reached_catch = 0
-    for r, (best, final) in enumerate(zip(summary["best_check_return"], summary["final_check_return"], strict=True)):
-        firsts = (summary.get("level_first_update") or [{}] * (r + 1))[r]
-        top = next((name for name in LEVEL_NAMES if firsts.get(name) is not None), None)
-        reached_catch += any(firsts.get(name) is not None for name in CATCHES)
-        if top is None:
-            reached = "reached none of the paper's levels"
-        else:
-            reached = f"reached {_a(top)} at update {firsts[top]}"
-            if top == "good catch" and firsts.get("catch") not in (None, firsts[top]):
-                reached += f" (a catch at {firsts['catch']})"
-        behaviours = (summary.get("best_check_behaviours") or [None] * (r + 1))[r]
-        held = ("" if behaviours is None else
-                f" ({behaviours['held']} held, {behaviours['kept on the hand']} kept on the hand, "
-                f"{behaviours['dropped']} dropped)")
-        best_value, final_value = scale * best, scale * final
-        lines.append(
-            f"run {first + r}: {reached}; best policy (update {summary['best_update'][r]}, evaluated "
-            f"{scale * summary['best_eval_return'][r]:.3f}) on {episodes} fresh balls: {best_value:.3f}, "
-            f"{_a(catch_level(best_value))}{held}; final policy: {final_value:.3f}, {_a(catch_level(final_value))}")
-    runs = len(summary["best_check_return"])
-    catches = {name: sum(catch_level(scale * value) in CATCHES for value in summary[f"{name}_check_return"])
-               for name in ("best", "final")}
-    lines.append(f"of {runs} run{'s' if runs > 1 else ''}, on {episodes} fresh balls each: the best policy catches "
-                 f"in {catches['best']}, the final policy in {catches['final']}; a catch was reached in training by "
-                 f"{reached_catch}")
+        lines.extend(checked_lines(summary))
     return lines
 
 
-#: The levels that count as catching the ball (section 4.2: R >= -1.1).
-CATCHES = ("good catch", "catch")
+def checked_lines(summary: dict[str, Any]) -> list[str]:
+    """What the final check found: the env's report's lines, else the mean returns of the best and
+    the final policies on the fresh episodes.
+
+    Examples:
+        >>> checked_lines({"env": "minimize", "check_episodes": 5, "best_update": [7], "best_check_return": [-1.0],
+        ...                "final_check_return": [-1.25]})
+        ['on 5 fresh episodes per run: best policy (update [7]) [-1.0], final policy [-1.25]']
+    """
+    reported = _reported_lines(summary)
+    if reported is not None:
+        return reported
+    best = [round(value, 3) for value in summary["best_check_return"]]
+    final = [round(value, 3) for value in summary["final_check_return"]]
+    return [f"on {summary['check_episodes']} fresh episodes per run: best policy (update "
+            f"{summary['best_update']}) {best}, final policy {final}"]
 
 
-def _a(level: str) -> str:
-    """A level's name as the lines say it: "a catch", "on the hand", "dropped"."""
-    return f"a {level}" if level in ("good catch", "catch") else level
+def _reported_lines(summary: dict[str, Any]) -> list[str] | None:
+    report = report_for(summary.get("env"))
+    return report.lines(summary, mean_reward_factor(summary)) if report is not None else None

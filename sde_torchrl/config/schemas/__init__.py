@@ -1,29 +1,18 @@
 """The config schemas: the single source of truth for what a config may hold.
 
 Every config group option is backed by a dataclass, registered in Hydra's ``ConfigStore`` under
-``schema/<group>/<option>`` (:mod:`sde_torchrl.config.registration`; the YAML files list it first
-in their defaults and hold only what differs from it), and the top-level config by
-``schema/config``. Hydra then rejects unknown keys and wrong types while composing;
-:func:`~sde_torchrl.config.schemas.train.validate` converts the composed config once into these
-dataclasses, whose ``__post_init__`` checks the values (positive counts, allowed strings, options
-that only make sense together) with :mod:`sde_torchrl.utils.checks`. Every failure becomes one
-line (:mod:`sde_torchrl.config.errors`).
+``schema/<group>/<option>`` (:mod:`sde_torchrl.config.registration`; a YAML file lists it first in
+its defaults and holds only what differs from it), the top-level config under ``schema/config``.
+Hydra rejects unknown keys and wrong types while composing;
+:func:`~sde_torchrl.config.schemas.train.validate` then converts the config once into these
+dataclasses, whose ``__post_init__`` checks the values (:mod:`sde_torchrl.utils.checks`), each
+failure one line (:mod:`sde_torchrl.config.errors`). Allowed strings (:mod:`sde_torchrl.utils.options`)
+are checked strings, not Enums, so that in a multirun a bad value fails its one job, not the sweep.
 
-The allowed strings live in :mod:`sde_torchrl.utils.options`, beside no torch. They are strings
-checked by the schemas, not Enums: Hydra would reject an unknown Enum value while composing,
-which in a multirun stops the whole sweep instead of failing that one job (with its
-``error.txt``).
-
-One module a group, or a few groups that go together:
-
-- :mod:`~sde_torchrl.config.schemas.envs`: ``env``;
-- :mod:`~sde_torchrl.config.schemas.policy`: ``actor`` and ``explorer``;
-- :mod:`~sde_torchrl.config.schemas.estimators`: ``estimator``, one schema per estimator;
-- :mod:`~sde_torchrl.config.schemas.algorithms`: ``algorithm`` (PPO, A2C, SAC);
-- :mod:`~sde_torchrl.config.schemas.optimizers`: ``optimizer``;
-- :mod:`~sde_torchrl.config.schemas.loggers`: ``logger``;
-- :mod:`~sde_torchrl.config.schemas.train`: the top-level
-  :class:`~sde_torchrl.config.schemas.train.TrainConf` and the rules across its groups.
+One module a group or a few that go together: ``envs`` (``env``), ``policy`` (``actor``,
+``explorer``), ``estimators``, ``algorithms`` (PPO, A2C, SAC), ``optimizers``, ``loggers``, and
+``train``: the top-level :class:`~sde_torchrl.config.schemas.train.TrainConf` and the rules across
+its groups.
 
 Examples:
     >>> from sde_torchrl.config.schemas.train import TrainConf

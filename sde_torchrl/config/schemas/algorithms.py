@@ -86,7 +86,7 @@ class OnPolicyConf(Frozen):
 
 
 @dataclass
-class PPOConf(OnPolicyConf):
+class PPOConf(OnPolicyConf, schema="algorithm/ppo"):
     """``algorithm=ppo``: Proximal Policy Optimization with TorchRL's ``ClipPPOLoss`` and ``GAE``
     (:mod:`sde_torchrl.trainers.ppo`); the defaults are Stable-Baselines3's ``PPO`` defaults. The
     shared options: :class:`OnPolicyConf`.
@@ -121,7 +121,7 @@ class PPOConf(OnPolicyConf):
 
 
 @dataclass
-class A2CConf(OnPolicyConf):
+class A2CConf(OnPolicyConf, schema="algorithm/a2c"):
     """``algorithm=a2c``: Advantage Actor-Critic with TorchRL's ``A2CLoss`` and ``GAE``
     (:mod:`sde_torchrl.trainers.a2c`): one gradient step per rollout; the defaults are
     Stable-Baselines3's ``A2C`` defaults (with ``optimizer=rmsprop`` its optimiser). The shared
@@ -138,7 +138,7 @@ class A2CConf(OnPolicyConf):
 
 
 @dataclass
-class SACConf(Frozen):
+class SACConf(Frozen, schema="algorithm/sac"):
     """``algorithm=sac``: Soft Actor-Critic with TorchRL's ``SACLoss`` and ``ReplayBuffer`` on one
     gymnasium env (:mod:`sde_torchrl.trainers.offpolicy`, :mod:`sde_torchrl.trainers.sac`); the
     defaults are Stable-Baselines3's ``SAC`` defaults. ``lr`` and ``optimizer`` (Adam) are the top

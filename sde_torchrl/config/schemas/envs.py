@@ -1,17 +1,25 @@
 """The ``env`` group's schemas: the function-minimisation task, ball catching, any gymnasium env.
 
+Each declares, beside its options, what the layers that never make the env need of it
+(:class:`EnvConf`): its sizes and memory for the estimate before a job is built
+(:mod:`sde_torchrl.jobs.resources`), and its report on a finished job
+(:mod:`sde_torchrl.envs.outcomes`).
+
 Examples:
     >>> MinimizeEnvConf().episode_length, BallCatchEnvConf().episode_length
     (15, 500)
+    >>> MinimizeEnvConf(dim=2).sizes(), BallCatchEnvConf().sizes(), GymEnvConf().sizes()
+    ((2, 2), (3, 4), None)
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, ClassVar, Optional
 
 from sde_torchrl.config.schemas.frozen import Frozen
+from sde_torchrl.envs.outcomes import OutcomeReport, declare_report
 from sde_torchrl.utils.checks import ArgumentError, finite, is_finite_number, is_int, one_of, positive_int
 from sde_torchrl.utils.options import NORMALIZATIONS, REWARD_STATES
 
@@ -22,9 +30,57 @@ from sde_torchrl.utils.options import NORMALIZATIONS, REWARD_STATES
 #: a test checks the two agree.
 ARM_MODELS = ("pybrain", "cup", "pybrain_held", "pybrain_strong_fingers")
 
+#: One pybullet world: ball catching's (the PyBrain arm's 15 hinges, the ball, their contacts; a
+#: PyBullet gymnasium env's is counted the same).
+WORLD_BYTES = 28e6
+#: One gymnasium env (TorchRL's ``GymEnv`` around it): Pendulum-v1, 15-19 kB measured.
+GYM_ENV_BYTES = 20e3
+
 
 @dataclass
-class MinimizeEnvConf(Frozen):
+class EnvConf(Frozen):
+    """What every env schema declares for the layers that never make the env. An env's schema
+    subclasses it and registers under its option (``class MyEnvConf(EnvConf, schema="env/my")``);
+    it must define :meth:`sizes` (a schema that does not is refused when defined) and has a
+    field ``episode_length``.
+
+    Attributes:
+        steps_per_second: env steps per second and core that the time estimate assumes (a class
+            attribute; 20,000 unless declared).
+        size_settings: the env's own size keys with their smallest values, which a job too large
+            for memory may be told to lower (a class attribute; ``{"dim": 1}`` for ``minimize``).
+    """
+
+    steps_per_second: ClassVar[int] = 20_000
+    size_settings: ClassVar[dict[str, Any]] = {}
+
+    def __init_subclass__(cls, schema: str | None = None, **kwargs: Any) -> None:
+        if schema is not None and cls.sizes is EnvConf.sizes:
+            raise TypeError(f"{cls.__name__} (schema {schema}) declares no sizes: an env schema defines "
+                            "sizes(), its (observation, action) sizes, or None where only the made env tells them")
+        super().__init_subclass__(schema=schema, **kwargs)
+        if schema is not None and cls.outcomes is not EnvConf.outcomes:
+            declare_report(schema.rsplit("/", 1)[-1], cls.outcomes)
+
+    def sizes(self) -> tuple[int, int] | None:
+        """The observation and action sizes as the config tells them, before the env is made;
+        ``None``: only the made env tells them (the estimate then assumes a size of its own)."""
+        raise NotImplementedError
+
+    def slot_bytes(self) -> float:
+        """Memory one env of the batch holds besides the steps' tensors, in bytes (a simulator
+        world); 0 unless declared."""
+        return 0.0
+
+    @staticmethod
+    def outcomes() -> OutcomeReport | None:
+        """The env's report on a finished job (:mod:`sde_torchrl.envs.outcomes`); ``None``: its
+        returns alone."""
+        return None
+
+
+@dataclass
+class MinimizeEnvConf(EnvConf, schema="env/minimize"):
     """``env=minimize``: the function-minimisation task (paper section 4.1) as the authors' PyBrain
     code runs it: ``x_{t+1} = x_t + s u_t + N(0, σ_noise²)``, ``r_t = -‖x_t + s u_t‖²``.
 
@@ -53,6 +109,11 @@ class MinimizeEnvConf(Frozen):
     noise_std: float = 0.5
     reward_state: str = "noise_free"
 
+    size_settings: ClassVar[dict[str, Any]] = {"dim": 1}
+
+    def sizes(self) -> tuple[int, int]:
+        return self.dim, self.dim
+
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
         positive_int("env.dim", self.dim)
@@ -63,7 +124,7 @@ class MinimizeEnvConf(Frozen):
 
 
 @dataclass
-class BallCatchEnvConf(Frozen):
+class BallCatchEnvConf(EnvConf, schema="env/ballcatch"):
     """``env=ballcatch``: an arm with a hand catches a ball released above the palm (pybullet,
     paper section 4.2).
 
@@ -89,6 +150,22 @@ class BallCatchEnvConf(Frozen):
     model: str = "pybrain"
     observation: str = "raw"
 
+    steps_per_second: ClassVar[int] = 2000  # 2,400 measured for 2 jobs on 2 cores with tests beside them
+
+    def sizes(self) -> tuple[int, int]:
+        return 3, 4  # the ball's position; shoulder, elbow, wrist and finger torques
+
+    def slot_bytes(self) -> float:
+        return WORLD_BYTES
+
+    @staticmethod
+    def outcomes() -> OutcomeReport:
+        """The paper's catching levels and what the policies did with the ball
+        (:class:`~sde_torchrl.envs.ballcatch.report.CatchReport`)."""
+        from sde_torchrl.envs.ballcatch.report import CatchReport
+
+        return CatchReport()
+
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)
         one_of("env.observation", self.observation, ("raw", "scaled"))
@@ -98,7 +175,7 @@ class BallCatchEnvConf(Frozen):
 
 
 @dataclass
-class GymEnvConf(Frozen):
+class GymEnvConf(EnvConf, schema="env/gym"):
     """``env=gym``: any gymnasium continuous-control env, through TorchRL's ``GymEnv``
     (``env=gym env.id=Pendulum-v1``; README, "Any gymnasium env").
 
@@ -131,6 +208,12 @@ class GymEnvConf(Frozen):
     constant_feature: bool = False
     gym_kwargs: Any = field(default_factory=lambda: {"max_episode_steps": None})
     reset_options: Any = None
+
+    def sizes(self) -> None:
+        return None  # the spaces are read off the env once made
+
+    def slot_bytes(self) -> float:
+        return WORLD_BYTES if "Bullet" in self.id else GYM_ENV_BYTES
 
     def __post_init__(self) -> None:
         positive_int("env.episode_length", self.episode_length)

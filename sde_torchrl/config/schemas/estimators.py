@@ -1,13 +1,14 @@
 """The ``estimator`` group's schemas, one per estimator: REINFORCE, ENAC, GPOMDP and PGPE.
 
-Each option has its own schema, which names its estimator (``_target_``) and the group option it
-is (``option``) and holds the options that estimator takes; a key it does not take is refused
-with the estimator named (``estimator=enac estimator.symmetric=true``: ``estimator.symmetric:
-unknown key (estimator=enac's options: ...)``), and the rules across groups
-(:mod:`sde_torchrl.config.schemas.train`) tell the estimators apart by their schema. The four take
-the same options, those of :class:`~sde_torchrl.objectives.base.GradientEstimator` and the
-authors' variance weighting, which they share through :class:`EstimatorConf`; an option of one
-estimator alone goes into that estimator's schema.
+Each option has its own schema, which names its estimator (``_target_``), registers under its
+option (``class MyEstimatorConf(EstimatorConf, schema="estimator/my")``, which also sets
+``option``) and holds the options that estimator takes; a key it does not take is refused with
+the estimator named (``estimator=enac estimator.symmetric=true``: ``estimator.symmetric: unknown
+key (estimator=enac's options: ...)``). What the layers around an estimator need to know of it,
+the schema declares as class attributes (:class:`EstimatorConf`'s traits): the memory estimate
+and the rules across groups read those, never the estimator's name. The four share the options of
+:class:`~sde_torchrl.objectives.base.GradientEstimator` and the authors' variance weighting
+through :class:`EstimatorConf`; an option of one estimator alone goes into that estimator's schema.
 
 Examples:
     >>> ENACEstimatorConf().option, ENACEstimatorConf()._target_.rsplit(".", 1)[-1]
@@ -17,7 +18,7 @@ Examples:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Optional
+from typing import Any, ClassVar, Optional
 
 from sde_torchrl.config.schemas.frozen import Frozen
 from sde_torchrl.utils.checks import ArgumentError, is_finite_number, one_of
@@ -30,16 +31,24 @@ from sde_torchrl.utils.options import EPISODE_RETURNS
 @dataclass
 class EstimatorConf(Frozen):
     """The options every estimator takes; each estimator's schema below adds its ``_target_``
-    and ``option`` (this one is no group option).
+    and registers as its option (this one is no group option).
+
+    The traits (class attributes, not keys) are ``False`` unless a schema declares them.
 
     Attributes:
-        option: the ``estimator`` group option whose schema this is (a class attribute, not a key).
-        keeps_step_scores: the estimator keeps one score per step and parameter (GPOMDP); a
-            class attribute that the memory estimate (:mod:`sde_torchrl.jobs.resources`) reads,
-            as the two below.
+        option: the ``estimator`` group option whose schema this is, from its ``schema`` name.
+        keeps_step_scores: the estimator keeps one score per step and parameter (GPOMDP); the
+            memory estimate (:mod:`sde_torchrl.jobs.resources`) reads it, and the two below.
         carries_parameter_draws: each step carries its episode's drawn parameters and their
-            noise (PGPE).
+            noise (PGPE): the estimator scores the draws of an explorer that draws the actor's
+            parameters (``explorer=pgpe``), and goes with no other.
         solves_in_float64: the estimator solves a regression on the scores in float64 (ENAC).
+        regresses_on_scores: the estimator regresses the returns on the scores, which fewer
+            episodes than unknowns leave rank-deficient (ENAC: a warning when built).
+        baseline_from_batch: its baseline comes from the update's own episodes, so that one
+            episode's gradient is exactly 0 (REINFORCE, GPOMDP: refused).
+        takes_scores: the estimator takes the top-level ``scores`` (how episodes are scored);
+            ``True`` by default.
         max_grad_norm: bound on each run's gradient norm; ``null``: plain ascent (eq. 1).
         max_grad_entry: the authors' rescale: a run's gradient whose largest (signed) entry
             exceeds this is scaled so that the entry equals it (1000 in their code); ``null``: off.
@@ -61,11 +70,19 @@ class EstimatorConf(Frozen):
     keeps_step_scores: ClassVar[bool] = False
     carries_parameter_draws: ClassVar[bool] = False
     solves_in_float64: ClassVar[bool] = False
+    regresses_on_scores: ClassVar[bool] = False
+    baseline_from_batch: ClassVar[bool] = False
+    takes_scores: ClassVar[bool] = True
     _target_: str
     max_grad_norm: Optional[float] = None
     max_grad_entry: Optional[float] = None
     episode_return: str = "mean"
     variance_weighted: bool = False
+
+    def __init_subclass__(cls, schema: str | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(schema=schema, **kwargs)
+        if schema is not None:
+            cls.option = schema.rsplit("/", 1)[-1]
 
     def __post_init__(self) -> None:
         for key in ("max_grad_norm", "max_grad_entry"):
@@ -76,7 +93,7 @@ class EstimatorConf(Frozen):
 
 
 @dataclass
-class ReinforceEstimatorConf(EstimatorConf):
+class ReinforceEstimatorConf(EstimatorConf, schema="estimator/reinforce"):
     """``estimator=reinforce``: episodic REINFORCE with the optimal per-parameter baseline
     (:class:`~sde_torchrl.objectives.estimators.ReinforceEstimator`); the options are
     :class:`EstimatorConf`'s.
@@ -86,12 +103,12 @@ class ReinforceEstimatorConf(EstimatorConf):
         'reinforce'
     """
 
-    option: ClassVar[str] = "reinforce"
+    baseline_from_batch: ClassVar[bool] = True
     _target_: str = "sde_torchrl.objectives.estimators.ReinforceEstimator"
 
 
 @dataclass
-class ENACEstimatorConf(EstimatorConf):
+class ENACEstimatorConf(EstimatorConf, schema="estimator/enac"):
     """``estimator=enac``: the Episodic Natural Actor-Critic, least squares on ``[ψ, 1]``
     (:class:`~sde_torchrl.objectives.estimators.ENACEstimator`); the options are
     :class:`EstimatorConf`'s.
@@ -101,13 +118,13 @@ class ENACEstimatorConf(EstimatorConf):
         True
     """
 
-    option: ClassVar[str] = "enac"
     solves_in_float64: ClassVar[bool] = True
+    regresses_on_scores: ClassVar[bool] = True
     _target_: str = "sde_torchrl.objectives.estimators.ENACEstimator"
 
 
 @dataclass
-class GPOMDPEstimatorConf(EstimatorConf):
+class GPOMDPEstimatorConf(EstimatorConf, schema="estimator/gpomdp"):
     """``estimator=gpomdp``: GPOMDP, each reward credited to the actions before it, with the
     time-dependent optimal baseline (:class:`~sde_torchrl.objectives.estimators.GPOMDPEstimator`);
     the options are :class:`EstimatorConf`'s (``episode_return=mean`` divides each step's reward
@@ -118,13 +135,13 @@ class GPOMDPEstimatorConf(EstimatorConf):
         'sum'
     """
 
-    option: ClassVar[str] = "gpomdp"
     keeps_step_scores: ClassVar[bool] = True
+    baseline_from_batch: ClassVar[bool] = True
     _target_: str = "sde_torchrl.objectives.estimators.GPOMDPEstimator"
 
 
 @dataclass
-class PGPEEstimatorConf(EstimatorConf):
+class PGPEEstimatorConf(EstimatorConf, schema="estimator/pgpe"):
     """``estimator=pgpe``: PGPE, the likelihood-ratio gradient of ``explorer=pgpe``'s parameter
     distribution with the batch's mean return as baseline
     (:class:`~sde_torchrl.objectives.pgpe.PGPEEstimator`); the options are :class:`EstimatorConf`'s,
@@ -135,6 +152,6 @@ class PGPEEstimatorConf(EstimatorConf):
         'pgpe'
     """
 
-    option: ClassVar[str] = "pgpe"
     carries_parameter_draws: ClassVar[bool] = True
+    takes_scores: ClassVar[bool] = False
     _target_: str = "sde_torchrl.objectives.pgpe.PGPEEstimator"

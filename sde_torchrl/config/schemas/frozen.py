@@ -1,11 +1,13 @@
 """Schemas that a validated config freezes: :func:`~sde_torchrl.config.schemas.train.validate`
 builds the job's config once, and from then on nothing assigns to it.
 
-The schemas cannot be ``@dataclass(frozen=True)``: Hydra composes the config by merging YAML
-files and overrides into nodes typed by them, and OmegaConf makes a frozen dataclass's node
-read-only. So each schema is frozen as an instance, once validated (:func:`freeze`): its fields
-are set, and assigning to one raises :class:`dataclasses.FrozenInstanceError`, as for a frozen
-dataclass.
+The schemas cannot be ``@dataclass(frozen=True)``: OmegaConf makes a frozen dataclass's node
+read-only, and Hydra merges YAML files and overrides into the nodes. So each schema is frozen as
+an instance once validated (:func:`freeze`): assigning to a field then raises
+:class:`dataclasses.FrozenInstanceError`. A schema also registers itself where it is defined:
+``class MyConf(Frozen, schema="env/my")`` puts it into :data:`SCHEMAS`, which
+:func:`~sde_torchrl.config.registration.register_configs` stores in Hydra's ``ConfigStore`` as
+``schema/env/my``.
 
 Examples:
     >>> from dataclasses import dataclass
@@ -29,9 +31,22 @@ T = TypeVar("T")
 #: The instance attribute that marks a frozen schema (outside its fields: not in ``asdict``).
 _FROZEN = "_frozen_"
 
+#: ``<group>/<option>`` (``config`` for the top level) → the schema that declared that name.
+SCHEMAS: dict[str, type] = {}
+
 
 class Frozen:
-    """A schema whose instance :func:`freeze` makes read-only."""
+    """A schema whose instance :func:`freeze` makes read-only.
+
+    Args:
+        schema: in the class statement, the name the schema registers under (:data:`SCHEMAS`);
+            none for a base that no group option uses as it is.
+    """
+
+    def __init_subclass__(cls, schema: str | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if schema is not None:
+            SCHEMAS[schema] = cls
 
     def __setattr__(self, name: str, value: Any) -> None:
         if self.__dict__.get(_FROZEN, False):

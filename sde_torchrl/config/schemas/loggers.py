@@ -36,7 +36,7 @@ class LoggerConf(Frozen):
 
 
 @dataclass
-class CSVLoggerConf(LoggerConf):
+class CSVLoggerConf(LoggerConf, schema="logger/csv"):
     """``logger=csv``: TorchRL's ``CSVLogger``, run-averaged curves under the run directory.
 
     Examples:
@@ -46,7 +46,7 @@ class CSVLoggerConf(LoggerConf):
 
 
 @dataclass
-class TensorboardLoggerConf(LoggerConf):
+class TensorboardLoggerConf(LoggerConf, schema="logger/tensorboard"):
     """``logger=tensorboard``: TorchRL's ``TensorboardLogger``, event files under
     ``<run dir>/<exp_name>`` (needs ``tensorboard``).
 
@@ -63,7 +63,7 @@ class TensorboardLoggerConf(LoggerConf):
 
 
 @dataclass
-class WandbLoggerConf(LoggerConf):
+class WandbLoggerConf(LoggerConf, schema="logger/wandb"):
     """``logger=wandb``: TorchRL's ``WandbLogger``, offline by default (runs land in
     ``<run dir>/wandb``; ``wandb sync`` uploads them later).
 

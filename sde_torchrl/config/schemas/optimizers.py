@@ -20,7 +20,7 @@ from sde_torchrl.utils.options import LR_SCHEDULES
 
 
 @dataclass
-class SGDOptimizerConf(Frozen):
+class SGDOptimizerConf(Frozen, schema="optimizer/sgd"):
     """``optimizer=sgd|momentum``: ``torch.optim.SGD`` on the policy gradient, with ``α = lr``.
     Without momentum it is the paper's plain ascent ``θ ← θ + α g`` (eq. 1); with momentum ``β``
     torch's heavy ball ``v ← β v + g``, ``θ ← θ + α v`` (steps ``1 / (1 - β)`` times longer once
@@ -47,6 +47,10 @@ class SGDOptimizerConf(Frozen):
     final_lr_fraction: float = 0.0
     sigma_lr_factor: float = 1.0
 
+    def moments(self) -> int:
+        """Numbers the optimiser keeps per parameter (the memory estimate's): the momentum's."""
+        return int(bool(self.momentum))
+
     def __post_init__(self) -> None:
         fraction("optimizer.momentum", self.momentum, below_one=True)
         if self.nesterov and self.momentum == 0:
@@ -55,7 +59,7 @@ class SGDOptimizerConf(Frozen):
 
 
 @dataclass
-class AdamOptimizerConf(Frozen):
+class AdamOptimizerConf(Frozen, schema="optimizer/adam"):
     """``optimizer=adam``: ``torch.optim.Adam`` on the policy gradient, with ``α = lr``: a step
     of about ``α`` per parameter whatever the gradient's scale (sums or means of rewards alike).
 
@@ -79,6 +83,10 @@ class AdamOptimizerConf(Frozen):
     final_lr_fraction: float = 0.0
     sigma_lr_factor: float = 1.0
 
+    def moments(self) -> int:
+        """Numbers the optimiser keeps per parameter: its two moment estimates."""
+        return 2
+
     def __post_init__(self) -> None:
         if len(self.betas) != 2:
             raise ArgumentError("optimizer.betas", list(self.betas), "two numbers in [0, 1)")
@@ -89,7 +97,7 @@ class AdamOptimizerConf(Frozen):
 
 
 @dataclass
-class RMSpropOptimizerConf(Frozen):
+class RMSpropOptimizerConf(Frozen, schema="optimizer/rmsprop"):
     """``optimizer=rmsprop``: ``torch.optim.RMSprop`` with ``α = lr`` (torch's defaults; SB3's
     A2C takes it with ``eps=1e-5``).
 
@@ -112,6 +120,10 @@ class RMSpropOptimizerConf(Frozen):
     lr_schedule: str = "constant"
     final_lr_fraction: float = 0.0
     sigma_lr_factor: float = 1.0
+
+    def moments(self) -> int:
+        """Numbers the optimiser keeps per parameter: its average of squares."""
+        return 1
 
     def __post_init__(self) -> None:
         fraction("optimizer.alpha", self.alpha, below_one=True)

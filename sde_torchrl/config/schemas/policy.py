@@ -20,7 +20,7 @@ from sde_torchrl.utils.options import ACTIVATIONS, SHARINGS, SIGMA_TRANSFORMS
 
 
 @dataclass
-class LinearActorConf(Frozen):
+class LinearActorConf(Frozen, schema="actor/linear"):
     """``actor=linear``: ``u = Θ x (+ b)``; the paper's controllers have no bias.
 
     Attributes:
@@ -41,7 +41,7 @@ class LinearActorConf(Frozen):
 
 
 @dataclass
-class MLPActorConf(Frozen):
+class MLPActorConf(Frozen, schema="actor/mlp"):
     """``actor=mlp``: a small multi-layer perceptron; by default the paper's (section 4.1,
     "Parameter dimensionality"): 3 sigmoid hidden units, bias units, ``θ_i ~ U[-1, 0)``.
 
@@ -79,7 +79,7 @@ def _check_init(init: Any) -> None:
 
 
 @dataclass
-class ExplorerConf(Frozen):
+class ExplorerConf(Frozen, schema="explorer/sde"):
     """``explorer=sde|rex|every_n|sde_gauss``: the state-dependent explorer (paper section 3).
 
     Attributes:
@@ -124,7 +124,7 @@ class ExplorerConf(Frozen):
 
 
 @dataclass
-class PGPEExplorerConf(Frozen):
+class PGPEExplorerConf(Frozen, schema="explorer/pgpe"):
     """``explorer=pgpe``: PGPE's parameter sampling, ``θ ~ N(μ, diag(σ²))`` once per episode
     (Sehnke et al. 2010; :class:`~sde_torchrl.modules.pgpe.ParameterExplorer`), with ``estimator=pgpe``.
 
@@ -156,7 +156,7 @@ class PGPEExplorerConf(Frozen):
 
 
 @dataclass
-class GaussianExplorerConf(Frozen):
+class GaussianExplorerConf(Frozen, schema="explorer/gaussian"):
     """``explorer=gaussian``: the plain-Gaussian baseline of ``algorithm=ppo|a2c``: i.i.d. noise with
     a learned state-independent standard deviation per action, ``σ = exp(init_param)`` at the
     start (SB3's PPO and A2C without ``use_sde``; :mod:`sde_torchrl.modules.gaussian`).

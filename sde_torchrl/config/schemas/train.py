@@ -17,14 +17,13 @@ from omegaconf import DictConfig, OmegaConf
 
 from sde_torchrl.config.schemas.algorithms import A2CConf, SACConf
 from sde_torchrl.config.schemas.envs import GymEnvConf
-from sde_torchrl.config.schemas.estimators import GPOMDPEstimatorConf, PGPEEstimatorConf, ReinforceEstimatorConf
-from sde_torchrl.config.schemas.frozen import Frozen, freeze
+from sde_torchrl.config.schemas.estimators import EstimatorConf
+from sde_torchrl.config.schemas.frozen import SCHEMAS, Frozen, freeze
 from sde_torchrl.config.schemas.policy import (
     ExplorerConf,
     GaussianExplorerConf,
     LinearActorConf,
     MLPActorConf,
-    PGPEExplorerConf,
 )
 from sde_torchrl.jobs.resources import check_memory
 from sde_torchrl.trainers.settings import TrainingSettings
@@ -37,7 +36,7 @@ from sde_torchrl.utils.options import ROLLOUT_SCHEDULES, SCORE_METHODS
 
 
 @dataclass
-class TrainConf(Frozen):
+class TrainConf(Frozen, schema="config"):
     """The top-level config (``conf/config.yaml``); the groups are typed by their own schemas.
 
     The one form a job's config takes once composed: :func:`validate` builds it, checked and
@@ -156,8 +155,8 @@ class TrainConf(Frozen):
             raise ArgumentError("explorer", "gaussian", "an SDE or PGPE explorer for the episodic estimators "
                                                         "(explorer=gaussian is the baseline of algorithm=ppo and a2c)")
         if self.estimator is None and self.env is not None:
-            raise ArgumentError("estimator", None, "an estimator (reinforce, enac, gpomdp, pgpe) unless "
-                                                   "algorithm=ppo or a2c")
+            options = ", ".join(schema.option for schema in SCHEMAS.values() if issubclass(schema, EstimatorConf))
+            raise ArgumentError("estimator", None, f"an estimator ({options}) unless algorithm=ppo or a2c")
         _check_can_learn(self)
         _check_pgpe(self)
         _check_scores(self)
@@ -229,7 +228,7 @@ def _check_onpolicy(conf: TrainConf) -> None:
             if not isinstance(conf.actor, MLPActorConf) else ("actor.bias", False)
         raise ArgumentError(key, value, f"actor=mlp with bias with algorithm={name} (SDE's features are its "
                                         "last hidden layer)")
-    if isinstance(conf.explorer, PGPEExplorerConf):
+    if getattr(conf.explorer, "draws_actor_parameters", False):
         raise ArgumentError("explorer", "pgpe", f"an SDE explorer (sde, gsde, ...) or gaussian with algorithm={name}")
     if getattr(conf.optimizer, "sigma_lr_factor", 1.0) != 1:
         raise ArgumentError("optimizer.sigma_lr_factor", conf.optimizer.sigma_lr_factor,
@@ -271,8 +270,8 @@ def _check_pgpe(conf: TrainConf) -> None:
     """``explorer=pgpe`` and ``estimator=pgpe`` only together; symmetric sampling on an even
     ``episodes_per_update`` (pairs ``μ ± ε``); at least two draws (the batch-mean baseline of a
     single draw cancels its return: every gradient would be exactly 0)."""
-    pgpe_explorer = isinstance(conf.explorer, PGPEExplorerConf)
-    pgpe_estimator = isinstance(conf.estimator, PGPEEstimatorConf)
+    pgpe_explorer = bool(getattr(conf.explorer, "draws_actor_parameters", False))
+    pgpe_estimator = bool(getattr(conf.estimator, "carries_parameter_draws", False))
     if pgpe_explorer != pgpe_estimator:
         key = "estimator" if pgpe_explorer else "explorer"
         value = (getattr(getattr(conf, key), "_target_", "") or "").rsplit(".", 1)[-1]
@@ -303,7 +302,7 @@ def _check_scores(conf: TrainConf) -> None:
     """``scores=closed_form`` only for what eqs. 16, 21 and 24 describe: a bias-free linear
     controller of the exploration features (the observation itself) without eq. 22's Gaussian
     part; PGPE's estimator does not read the key."""
-    if conf.scores != "closed_form" or isinstance(conf.estimator, PGPEEstimatorConf):
+    if conf.scores != "closed_form" or not getattr(conf.estimator, "takes_scores", True):
         return
     if not isinstance(conf.actor, LinearActorConf) or conf.actor.bias:
         missing = "actor=linear with actor.bias=false"
@@ -326,15 +325,12 @@ def _check_can_learn(conf: TrainConf) -> None:
     solution it then takes is not zero, only noisy: a warning once the parameters are counted
     (:func:`sde_torchrl.config.build.warn_if_rank_deficient`).
     """
-    if isinstance(conf.estimator, BASELINE_ESTIMATORS) and max(conf.episodes_per_update, conf.episode_queue) < 2:
+    if getattr(conf.estimator, "baseline_from_batch", False) and max(conf.episodes_per_update, conf.episode_queue) < 2:
         raise ArgumentError(
             "episodes_per_update", conf.episodes_per_update,
             f"at least 2 with estimator={conf.estimator.option} (or an episode_queue of 2 or more): over a single "
             "episode the optimal baseline equals its return (GPOMDP's: each reward), so every gradient is exactly 0")
 
-
-#: Estimators whose optimal baseline cancels a single episode's return.
-BASELINE_ESTIMATORS = (ReinforceEstimatorConf, GPOMDPEstimatorConf)
 
 
 def validate(cfg: DictConfig) -> TrainConf:
@@ -383,6 +379,7 @@ def unknown_key(group: str, schema: type | None) -> str:
     group option's own (its ``option``), that option and its keys.
 
     Examples:
+        >>> from sde_torchrl.config.schemas.estimators import PGPEEstimatorConf
         >>> unknown_key("estimator", PGPEEstimatorConf)
         "unknown key (estimator=pgpe's options: max_grad_norm, max_grad_entry, episode_return, variance_weighted)"
         >>> unknown_key("explorer", ExplorerConf)
