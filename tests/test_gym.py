@@ -84,10 +84,10 @@ def test_gym_resume_is_bitwise(tmp_path):
     crashed = gym_trainer(*budget)
     original = crashed.update
 
-    def crash(episodes, k):
+    def crash(k):
         if k == 5:
             raise KeyboardInterrupt
-        return original(episodes, k)
+        return original(k)
 
     crashed.update = crash
     with pytest.raises(KeyboardInterrupt):

@@ -15,10 +15,11 @@ from torchrl.objectives import A2CLoss, ClipPPOLoss
 
 from sde_torchrl.config.build_onpolicy import build_onpolicy_trainer
 from sde_torchrl.config.schemas.train import validate
-from sde_torchrl.trainers.a2c import A2CUpdate, make_a2c_loss
+from sde_torchrl.objectives.actor_critic import make_a2c_loss, make_ppo_loss
+from sde_torchrl.trainers.a2c import A2CUpdate
 from sde_torchrl.trainers.objective import loss_objective
 from sde_torchrl.trainers.optim import make_optimizer
-from sde_torchrl.trainers.ppo import PPOUpdate, make_ppo_loss
+from sde_torchrl.trainers.ppo import PPOUpdate
 
 
 @pytest.fixture(scope="module")

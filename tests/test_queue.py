@@ -12,13 +12,13 @@ from _helpers import build, read_rows
 def test_queue_drops_the_oldest_and_adds_the_newest(tmp_path):
     trainer = build("runs=2", "updates=4", "episodes_per_update=2", "episode_queue=6", "eval_period=0")
     seen = []
-    original = trainer.update
+    original = trainer.estimate
 
     def recording_update(episodes, k):
         seen.append(episodes["observation"].clone())
         return original(episodes, k)
 
-    trainer.update = recording_update
+    trainer.estimate = recording_update
     summary = trainer.train(tmp_path)
     assert [s.shape[:2] for s in seen] == [torch.Size([2, 6])] * 4
     for before, after in zip(seen, seen[1:], strict=False):

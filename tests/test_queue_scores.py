@@ -29,7 +29,7 @@ def _recorded(trainer) -> tuple[list, list]:
     """Records the parameters at every collection, and at every update the episodes with the
     estimates from the kept scores and from rescoring (before the step)."""
     snapshots, updates = [], []
-    collect, update = trainer.collect_scored, trainer.update
+    collect, update = trainer.collect_scored, trainer.estimate
 
     def recording_collect():
         snapshots.append({n: p.detach().clone() for n, p in trainer.estimator.learnable_parameters().items()})
@@ -41,7 +41,7 @@ def _recorded(trainer) -> tuple[list, list]:
         updates.append((episodes.clone(), kept, rescored))
         return update(episodes, k, scores)
 
-    trainer.collect_scored, trainer.update = recording_collect, recording_update
+    trainer.collect_scored, trainer.estimate = recording_collect, recording_update
     return snapshots, updates
 
 

@@ -14,7 +14,7 @@ from _helpers import REPO, build, compose_config, own_stderr_lines, run_cli
 from sde_torchrl.config.errors import describe_error
 from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.jobs.resources import GB, estimate_memory, launcher_request
-from sde_torchrl.trainers import trainer as trainer_module
+from sde_torchrl.trainers.job import Job
 
 
 @pytest.mark.parametrize("override, key", [("runs=1000000", "runs"),
@@ -59,11 +59,11 @@ def test_ballcatch_estimates_grow_with_the_worlds(runs, measured_gb):
 
 
 def test_a_slow_first_update_says_what_it_is_doing(monkeypatch, caplog, tmp_path):
-    monkeypatch.setattr(trainer_module, "FIRST_UPDATE_NOTICE_S", 0.0)
     trainer = build("runs=2", "updates=2", "episodes_per_update=4")
+    trainer.first_update_notice_s = 0.0
     original = trainer.update
-    monkeypatch.setattr(trainer, "update", lambda episodes, k: (time.sleep(0.3), original(episodes, k))[1])
-    with caplog.at_level(logging.INFO, logger="sde_torchrl.trainers.trainer"):
+    monkeypatch.setattr(trainer, "update", lambda k: (time.sleep(0.3), original(k))[1])
+    with caplog.at_level(logging.INFO, logger="sde_torchrl.trainers.job"):
         trainer.train(tmp_path)
     notices = [r.getMessage() for r in caplog.records if "still running" in r.getMessage()]
     assert notices == ["update 1 of 2 still running after 0 s: collecting 4 episodes of 15 steps for each of 2 "
@@ -161,7 +161,7 @@ def test_a_job_says_what_it_does_within_seconds(monkeypatch, caplog):
     from sde_torchrl.envs import gym as gym_module
 
     assert build_module.BUILD_NOTICE_S <= 5 and gym_module.MAKE_PROGRESS_S <= 10
-    assert trainer_module.FIRST_UPDATE_NOTICE_S <= 10
+    assert Job.first_update_notice_s <= 10
     monkeypatch.setattr(build_module, "BUILD_NOTICE_S", 0.0)
     monkeypatch.setattr(gym_module, "MAKE_PROGRESS_S", 0.0)
     made = gym_module.GymEnv

@@ -10,11 +10,12 @@ from _helpers import compose_config
 from tensordict import TensorDict
 from torchrl.data import Bounded
 
-from sde_torchrl.config.build_sac import sde_options
+from sde_torchrl.config.build_onpolicy import sde_options
 from sde_torchrl.config.schemas.train import validate
 from sde_torchrl.modules.sac_actor import CLIP_MEAN, make_sac_networks
+from sde_torchrl.objectives.sac import fresh_loss_noise, make_sac_loss
 from sde_torchrl.trainers import compiler
-from sde_torchrl.trainers.sac import SACUpdate, fresh_loss_noise, make_sac_loss
+from sde_torchrl.trainers.sac import SACUpdate
 
 #: MountainCarContinuous's observation size; its one action lies in [-1, 1].
 OBS_DIM = 2

@@ -190,7 +190,7 @@ def test_reported_returns_and_threshold_use_the_estimators_return_definition(tmp
     summary records it. With the sum over T = 15 steps the start lies 15× the mean's."""
     trainer = build("updates=1", "runs=2", "r_lim=-1e9", f"estimator.episode_return={kind}")
     episodes = trainer.collect()
-    stats = trainer.update(episodes, 0)
+    stats = trainer.estimate(episodes, 0)
     rewards = episodes["next", "reward"].squeeze(-1)
     expected = rewards.sum(-1) if kind == "sum" else rewards.mean(-1)
     torch.testing.assert_close(stats["return_mean"], expected.mean(-1))

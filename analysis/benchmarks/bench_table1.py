@@ -37,7 +37,7 @@ def time_cell(explorer: str, length: int, updates: int, repeats: int, scores: st
     cfg = compose(["+experiment=episode_length_sweep", f"env.episode_length={length}", f"explorer={explorer}",
                    "logger=none", *([f"scores={scores}"] if scores else [])])
     trainer = build_trainer(cfg, tempfile.mkdtemp())
-    trainer.update(trainer.collect(), 0)  # warm-up
+    trainer.estimate(trainer.collect(), 0)  # warm-up
     collect, update, k = [], [], 1
     for _ in range(repeats):  # the job's own sequence of updates, each on fresh episodes
         collected = stepped = 0.0
@@ -45,7 +45,7 @@ def time_cell(explorer: str, length: int, updates: int, repeats: int, scores: st
             start = time.perf_counter()
             episodes = trainer.collect()
             middle = time.perf_counter()
-            trainer.update(episodes, k)
+            trainer.estimate(episodes, k)
             collected, stepped, k = collected + middle - start, stepped + time.perf_counter() - middle, k + 1
         collect.append(collected / updates)
         update.append(stepped / updates)

@@ -27,11 +27,11 @@ def steps_per_second(overrides: list[str], seconds: float) -> float:
     """Env steps per second of whole training updates for the composed config."""
     cfg = compose(["+experiment=minimize", "logger=none", *overrides])
     trainer = build_trainer(cfg)
-    trainer.update(trainer.collect(), 0)  # warm-up
+    trainer.estimate(trainer.collect(), 0)  # warm-up
     steps_per_update = cfg.runs * cfg.episodes_per_update * cfg.env.episode_length
     updates, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        trainer.update(trainer.collect(), updates)
+        trainer.estimate(trainer.collect(), updates)
         updates += 1
     return updates * steps_per_update / (time.perf_counter() - start)
 

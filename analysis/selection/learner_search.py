@@ -111,7 +111,7 @@ def run_job(experiment: str, overrides: list[str]) -> dict:
     initial = None
     try:
         for k in range(cfg.updates):
-            returns = trainer.update(trainer.collect(), k)["return_mean"]
+            returns = trainer.estimate(trainer.collect(), k)["return_mean"]
             initial = returns if initial is None else initial
             for r in (returns > cfg.r_lim).nonzero().flatten().tolist():
                 first[r] = first[r] or trainer.episodes_after(k)

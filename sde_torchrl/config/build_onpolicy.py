@@ -1,7 +1,7 @@
 """From a config with ``algorithm=ppo`` (or ``a2c``) to a ready :class:`~sde_torchrl.trainers.onpolicy.OnPolicyTrainer`.
 
-The pieces, each Stable-Baselines3's counterpart (``analysis/benchmarks/gsde_table/`` trains both sides from one
-composed config):
+The pieces, each Stable-Baselines3's counterpart, so that both can be trained from one composed
+config:
 
 - the envs: ``n_envs`` gymnasium envs (:class:`~sde_torchrl.envs.vector.GymVectorEnv`), the raw
   training returns summed (``RewardSum``) before SB3's running normalisation
@@ -39,10 +39,12 @@ from sde_torchrl.modules.actors import LatentMLPActor, MLPActor
 from sde_torchrl.modules.gaussian import make_gaussian_actor
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import make_sde_actor
-from sde_torchrl.trainers.a2c import A2CUpdate, make_a2c_loss
-from sde_torchrl.trainers.onpolicy import RECORDED_KEYS, OnPolicySettings, OnPolicyTrainer
+from sde_torchrl.objectives.actor_critic import make_a2c_loss, make_ppo_loss
+from sde_torchrl.trainers.a2c import A2CUpdate
+from sde_torchrl.trainers.onpolicy import OnPolicyTrainer
 from sde_torchrl.trainers.optim import make_optimizer
-from sde_torchrl.trainers.ppo import PPOUpdate, make_ppo_loss
+from sde_torchrl.trainers.ppo import PPOUpdate
+from sde_torchrl.trainers.step_job import RECORDED_KEYS, StepSettings
 
 #: The actor's activation names → torch's classes (for the critic).
 ACTIVATION_CLASSES = {"relu": nn.ReLU, "tanh": nn.Tanh, "sigmoid": nn.Sigmoid}
@@ -58,6 +60,30 @@ def make_env(conf: TrainConf, n_envs: int, stream: str) -> GymVectorEnv:
                         time_feature=conf.algorithm.time_feature)
 
 
+def sde_options(explorer: Any) -> dict[str, Any] | None:
+    """``SDEParams``'s keyword arguments from an SDE explorer's config; ``None`` for the Gaussian.
+
+    Examples:
+        >>> sde_options(ExplorerConf(schedule="rollout", init_param=-3.0))["init_param"]
+        -3.0
+    """
+    if not isinstance(explorer, ExplorerConf):
+        return None
+    return {name: value for name, value in asdict(explorer).items() if name not in ("_target_", "squash")}
+
+
+def step_settings(conf: TrainConf, algorithm: str, n_envs: int, n_steps: int, episode_length: int) -> StepSettings:
+    """The loop's settings of a PPO, A2C or SAC job (``n_steps``: steps per env and update)."""
+    return StepSettings(algorithm, updates=conf.updates, n_envs=n_envs, n_steps=n_steps,
+                        eval_period=conf.eval_period, eval_episodes=conf.eval_episodes, episode_length=episode_length,
+                        first_run=conf.first_run, final_episodes=conf.final_episodes)
+
+
+def make_logger(conf: TrainConf, out_dir: str | None) -> Any:
+    """The job's TorchRL logger writing into ``out_dir`` (``None`` without one or without a directory)."""
+    return instantiate(conf.logger, log_dir=out_dir) if conf.logger and out_dir is not None else None
+
+
 def make_policy(conf: TrainConf, obs_dim: int, act_dim: int) -> tuple[nn.Module, SDEParams | None]:
     """The exploring policy of ``conf.explorer`` over ``conf.actor``, and its SDE module (``None``
     for the Gaussian); with ``squash``, tanh onto ``[-1, 1]``."""
@@ -69,8 +95,7 @@ def make_policy(conf: TrainConf, obs_dim: int, act_dim: int) -> tuple[nn.Module,
                                    squash=explorer.squash), None
     assert isinstance(explorer, ExplorerConf)  # the schema's rule (_check_onpolicy)
     actor = LatentMLPActor(obs_dim, act_dim, actor_conf.hidden, feature_key=FEATURE_KEY, **options)
-    sde_options = {name: value for name, value in asdict(explorer).items() if name not in ("_target_", "squash")}
-    sde = SDEParams(act_dim, actor.feature_dim, feature_key=FEATURE_KEY, **sde_options)
+    sde = SDEParams(act_dim, actor.feature_dim, feature_key=FEATURE_KEY, **sde_options(explorer))
     return make_sde_actor(actor, sde, squash=explorer.squash, low=-1.0, high=1.0), sde
 
 
@@ -101,9 +126,10 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
         >>> trainer.update(0)["return_mean"].shape
         torch.Size([1])
     """
-    alg = conf.algorithm
+    alg, a2c, logger = conf.algorithm, isinstance(conf.algorithm, A2CConf), make_logger(conf, out_dir)
     torch.manual_seed(conf.seed)
     base, eval_base = make_env(conf, alg.n_envs, "env"), make_env(conf, conf.eval_episodes, "eval_env")
+    settings = step_settings(conf, "a2c" if a2c else "ppo", alg.n_envs, alg.n_steps, base.episode_length)
     obs_dim, act_dim = base.observation_spec["observation"].shape[-1], base.action_spec.shape[-1]
     policy, sde = make_policy(conf, obs_dim, act_dim)
     critic = make_critic(conf, obs_dim)
@@ -115,7 +141,6 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
     eval_transforms = [t for t in (eval_normalizer, sde.make_tensordict_primer() if sde else None) if t is not None]
     eval_env = TransformedEnv(eval_base, Compose(*eval_transforms))
 
-    a2c = isinstance(alg, A2CConf)
     if a2c:
         loss = make_a2c_loss(policy, critic, ent_coef=alg.ent_coef, vf_coef=alg.vf_coef)
     else:
@@ -131,13 +156,6 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
         update = PPOUpdate(loss, optimizer, n_epochs=alg.n_epochs, batch_size=alg.batch_size,
                            max_grad_norm=alg.max_grad_norm, clip_range_schedule=alg.clip_range_schedule,
                            updates=conf.updates, compile=alg.compile)
-    settings = OnPolicySettings("a2c" if a2c else "ppo", updates=conf.updates, n_envs=alg.n_envs, n_steps=alg.n_steps,
-                                eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
-                                episode_length=base.episode_length, first_run=conf.first_run,
-                                final_episodes=conf.final_episodes)
-    logger: Any = None
-    if conf.logger and out_dir is not None:
-        logger = instantiate(conf.logger, log_dir=out_dir)
     keep = [*RECORDED_KEYS, *advantage.in_keys, *update.in_keys]
 
     def check_env(episodes: int) -> tuple[Any, RunningNormalize | None]:  # the final check's fresh episodes
@@ -150,4 +168,5 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
                            logger=logger, lr_schedule=lr_schedule, check_env=check_env)
 
 
-__all__ = ["build_onpolicy_trainer", "make_critic", "make_env", "make_policy"]
+__all__ = ["build_onpolicy_trainer", "make_critic", "make_env", "make_logger", "make_policy", "sde_options",
+           "step_settings"]

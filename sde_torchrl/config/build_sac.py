@@ -1,7 +1,7 @@
 """From a config with ``algorithm=sac`` to a ready :class:`~sde_torchrl.trainers.offpolicy.SACTrainer`.
 
-The pieces, each Stable-Baselines3's ``SAC`` counterpart (``analysis/benchmarks/gsde_table/`` trains both
-from one config):
+The pieces, each Stable-Baselines3's ``SAC`` counterpart, so that both can be trained from one
+config:
 
 - the envs: one gymnasium env (:class:`~sde_torchrl.envs.vector.GymVectorEnv`), its training
   returns summed (``RewardSum``), then the SDE noise primer; the evaluation envs likewise,
@@ -20,41 +20,23 @@ from dataclasses import asdict
 from typing import Any
 
 import torch
-from hydra.utils import instantiate
 from torchrl.envs import Compose, RewardSum, TransformedEnv
 
 from sde_torchrl.collectors.steps import StepCollector
-from sde_torchrl.config.build_onpolicy import make_env
-from sde_torchrl.config.schemas.policy import ExplorerConf
+from sde_torchrl.config.build_onpolicy import make_env, make_logger, sde_options, step_settings
 from sde_torchrl.config.schemas.train import TrainConf
 from sde_torchrl.modules.sac_actor import make_sac_networks
 from sde_torchrl.modules.sde_actor import action_bounds
+from sde_torchrl.objectives.sac import TRANSITION_KEYS, make_sac_loss
 from sde_torchrl.trainers.offpolicy import OffPolicySchedule, SACTrainer, UniformActions
-from sde_torchrl.trainers.onpolicy import RECORDED_KEYS, OnPolicySettings
-from sde_torchrl.trainers.sac import TRANSITION_KEYS, SACUpdate, make_sac_loss
-
-
-def sde_options(explorer: Any) -> dict[str, Any] | None:
-    """``SDEParams``'s keyword arguments from an SDE explorer's config; ``None`` for the Gaussian.
-
-    Examples:
-        >>> sde_options(ExplorerConf(schedule="rollout", init_param=-3.0))["init_param"]
-        -3.0
-    """
-    if not isinstance(explorer, ExplorerConf):
-        return None
-    return {name: value for name, value in asdict(explorer).items() if name not in ("_target_", "squash")}
+from sde_torchrl.trainers.sac import SACUpdate
+from sde_torchrl.trainers.step_job import RECORDED_KEYS
 
 
 def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer:
-    """Builds envs, networks, loss, optimisers, replay buffer and logger of an ``algorithm=sac`` job.
-
-    Args:
-        conf: the checked config (:func:`~sde_torchrl.config.schemas.train.validate`).
-        out_dir: where the TorchRL logger writes (the run directory).
-
-    Returns:
-        The trainer; call ``train(out_dir)``.
+    """Builds envs, networks, loss, optimisers, replay buffer and logger of an ``algorithm=sac``
+    job from its checked config; the TorchRL logger writes into ``out_dir``. Call ``train(out_dir)``
+    on the trainer it returns.
 
     Examples:
         >>> from sde_torchrl.config.compose import compose
@@ -66,12 +48,13 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
         >>> trainer.update(0)["grad_norm"].tolist(), bool(trainer.update(1)["grad_norm"] > 0)
         ([0.0], True)
     """
-    alg = conf.algorithm
+    alg, options, logger = conf.algorithm, sde_options(conf.explorer), make_logger(conf, out_dir)
     torch.manual_seed(conf.seed)
     base, eval_base = make_env(conf, 1, "env"), make_env(conf, conf.eval_episodes, "eval_env")
+    settings = step_settings(conf, "sac", 1, alg.train_freq * alg.rounds_per_update, base.episode_length)
     obs_dim, action_spec = base.observation_spec["observation"].shape[-1], base.action_spec[0]
     policy, critic, sde = make_sac_networks(obs_dim, action_spec, conf.actor.hidden,
-                                            sde_options=sde_options(conf.explorer), activation=conf.actor.activation)
+                                            sde_options=options, activation=conf.actor.activation)
     primer = sde.make_tensordict_primer() if sde is not None else None
     env = TransformedEnv(base, Compose(RewardSum(in_keys=["reward"], out_keys=["episode_reward"]),
                                        *([primer] if primer is not None else [])))
@@ -81,13 +64,6 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
                                  alg.batch_size, alg.buffer_size)
     update = SACUpdate(loss, sde, lr=conf.lr, tau=alg.tau, optimizer=asdict(conf.optimizer),
                        rounds=conf.updates * alg.rounds_per_update, compile=alg.compile)
-    settings = OnPolicySettings("sac", updates=conf.updates, n_envs=1, n_steps=alg.train_freq * alg.rounds_per_update,
-                                eval_period=conf.eval_period, eval_episodes=conf.eval_episodes,
-                                episode_length=base.episode_length, first_run=conf.first_run,
-                                final_episodes=conf.final_episodes)
-    logger: Any = None
-    if conf.logger and out_dir is not None:
-        logger = instantiate(conf.logger, log_dir=out_dir)
     collector = StepCollector(env, policy, alg.train_freq, primer, keep=[*RECORDED_KEYS, *TRANSITION_KEYS])
 
     def check_env(episodes: int) -> tuple[Any, None]:  # the final check's fresh episodes
@@ -98,4 +74,4 @@ def build_sac_trainer(conf: TrainConf, out_dir: str | None = None) -> SACTrainer
                       schedule, UniformActions(*action_bounds(action_spec)), logger=logger, check_env=check_env)
 
 
-__all__ = ["build_sac_trainer", "sde_options"]
+__all__ = ["build_sac_trainer"]

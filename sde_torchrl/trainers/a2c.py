@@ -14,38 +14,17 @@ import math
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 from torchrl.objectives import A2CLoss
 
-from sde_torchrl.trainers.objective import loss_objective
-
-#: What ``A2CLoss`` reads of the rollout (not the SDE noise ``ξ``: the likelihood does not read it).
-ROLLOUT_KEYS = ("observation", "action", "action_sample", "advantage", "value_target")
-
-
-def make_a2c_loss(policy: nn.Module, critic: nn.Module, *, ent_coef: float, vf_coef: float) -> A2CLoss:
-    """TorchRL's ``A2CLoss`` with SB3's A2C terms: squared-error critic loss weighted by
-    ``vf_coef``, entropy bonus weighted by ``ent_coef`` (none at 0). The loss calls ``policy``
-    and ``critic`` themselves (``functional=False``), as :func:`~sde_torchrl.trainers.ppo.make_ppo_loss`.
-
-    Examples:
-        >>> from torchrl.modules import MLP, ValueOperator
-        >>> from sde_torchrl import MLPActor
-        >>> from sde_torchrl.modules.gaussian import make_gaussian_actor
-        >>> policy = make_gaussian_actor(MLPActor(3, 1, [8], activation="tanh"), 1)
-        >>> critic = ValueOperator(MLP(in_features=3, out_features=1, num_cells=[8]), in_keys=["observation"])
-        >>> type(make_a2c_loss(policy, critic, ent_coef=0.0, vf_coef=0.4)).__name__
-        'A2CLoss'
-    """
-    return A2CLoss(policy, critic, entropy_bonus=ent_coef > 0, entropy_coeff=ent_coef, critic_coeff=vf_coef,
-                   loss_critic_type="l2", functional=False)
+from sde_torchrl.objectives.actor_critic import ROLLOUT_KEYS
+from sde_torchrl.trainers.objective import clipped_step, loss_objective
 
 
 class A2CUpdate:
     """One A2C update of a rollout (with ``advantage`` and ``value_target`` written).
 
     Args:
-        loss: the A2C loss (:func:`make_a2c_loss`).
+        loss: the A2C loss (:func:`~sde_torchrl.objectives.actor_critic.make_a2c_loss`).
         optimizer: over ``loss.parameters()``.
         max_grad_norm: bound on the gradient's norm (``None``: not clipped).
         normalize_advantage: standardise the advantages over the rollout first.
@@ -73,12 +52,7 @@ class A2CUpdate:
         if self.normalize_advantage:
             advantage = flat.get("advantage")
             flat.set("advantage", (advantage - advantage.mean()) / (advantage.std() + 1e-8))
-        objective = self.objective(flat)
-        self.optimizer.zero_grad()
-        objective.backward()
-        norm = torch.nn.utils.clip_grad_norm_(self.parameters, self.max_grad_norm)
-        self.optimizer.step()
-        return float(norm)
+        return float(clipped_step(self.objective(flat), self.optimizer, self.parameters, self.max_grad_norm))
 
 
-__all__ = ["A2CUpdate", "ROLLOUT_KEYS", "make_a2c_loss"]
+__all__ = ["A2CUpdate"]

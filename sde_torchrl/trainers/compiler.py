@@ -58,7 +58,7 @@ def recompute_boolean_masks(joint_graph, joint_inputs):
     ``hardtanh``, ``clamp`` and ``min`` those are their boolean masks (1 byte each, where the
     float inputs they come from are 4). Inductor's CPU code (torch 2.13) stores a boolean tensor many
     times slower than a float one, and at the zoo's batch of 512 those stores took more of the
-    compiled step than its matrix products (``docs/reproduce/sac.md``).
+    compiled step than its matrix products.
     Marking every boolean node ``MUST_RECOMPUTE`` (the tag of selective activation checkpointing)
     keeps the min-cut partitioner but makes it save the float values and recompute the masks,
     fused into the backward's kernels. The step computes the same values (tested against the

@@ -55,6 +55,45 @@ def _finite(value: torch.Tensor) -> bool:
     return bool(torch.isfinite(value).all())
 
 
+def check_finite(update: int, what: str, value: torch.Tensor, runs: int, first_run: int, remedy: str,
+                 name: str | None = None) -> None:
+    """Raises :class:`NonFiniteError` if ``value`` (``what`` at update ``update``; ``name``: the
+    parameter's) is not finite, naming the runs whose slice of it is not (all ``runs`` if it
+    has no run dimension) and showing its offending entries.
+
+    Examples:
+        >>> check_finite(2, "gradient norm", torch.tensor([1.0]), 1, 0, "lower lr")
+        >>> check_finite(2, "gradient norm", torch.tensor([float("inf")]), 1, 0, "lower lr")
+        Traceback (most recent call last):
+        ...
+        sde_torchrl.trainers.guard.NonFiniteError: non-finite gradient norm at update 2 in run 0: [inf]; ...
+    """
+    if value.is_floating_point() and not _finite(value):
+        shown, where = offending_entries(value)
+        bad = list(range(runs))
+        if value.dim() and value.shape[0] == runs:
+            bad = [int(r) for r in (~torch.isfinite(value.detach().reshape(runs, -1)).all(-1)).nonzero().flatten()]
+        raise NonFiniteError(update, what, [first_run + r for r in bad], parameter=name, values=shown, detail=where,
+                             remedy=remedy)
+
+
+def offending_entries(value: torch.Tensor) -> tuple[torch.Tensor, str]:
+    """The non-finite entries of ``value`` and, for a tensor of several entries, how many there
+    are and where the first is.
+
+    Examples:
+        >>> offending_entries(torch.tensor([[1.0, float("inf")], [float("nan"), 2.0]]))
+        (tensor([inf, nan]), ' (2 of 4 entries, the first at [0, 1])')
+        >>> offending_entries(torch.tensor([float("nan")]))
+        (tensor([nan]), '')
+    """
+    bad = ~torch.isfinite(value.detach())
+    if value.numel() == 1:
+        return value.detach().reshape(1), ""
+    first = bad.nonzero()[0].tolist()
+    return value.detach()[bad], f" ({int(bad.sum())} of {value.numel()} entries, the first at {first})"
+
+
 class FiniteGuard:
     """Checks one job's returns, estimates and parameters at every update.
 

@@ -1,5 +1,5 @@
-"""The scalar a TorchRL loss module's optimiser step descends: the sum of its ``loss_*`` terms,
-eager or compiled.
+"""The scalar a TorchRL loss module's optimiser step descends (the sum of its ``loss_*`` terms,
+eager or compiled), and the clipped step down it.
 
 PPO and A2C step on the sum of the terms their loss writes (surrogate, critic, entropy bonus).
 With ``compile=True`` that sum goes through ``torch.compile``, as the ``compile`` option of
@@ -36,7 +36,7 @@ def loss_objective(loss: LossModule, *, compile: bool = False) -> Callable[[Tens
         >>> from torchrl.modules import MLP, ValueOperator
         >>> from sde_torchrl import MLPActor
         >>> from sde_torchrl.modules.gaussian import make_gaussian_actor
-        >>> from sde_torchrl.trainers.a2c import make_a2c_loss
+        >>> from sde_torchrl.objectives.actor_critic import make_a2c_loss
         >>> policy = make_gaussian_actor(MLPActor(3, 1, [8], activation="tanh"), 1)
         >>> critic = ValueOperator(MLP(in_features=3, out_features=1, num_cells=[8]), in_keys=["observation"])
         >>> objective = loss_objective(make_a2c_loss(policy, critic, ent_coef=0.0, vf_coef=0.5))
@@ -53,4 +53,22 @@ def loss_objective(loss: LossModule, *, compile: bool = False) -> Callable[[Tens
     return compiled(objective) if compile else objective
 
 
-__all__ = ["loss_objective"]
+def clipped_step(objective: torch.Tensor, optimizer: torch.optim.Optimizer, parameters: list[torch.Tensor],
+                 max_grad_norm: float) -> torch.Tensor:
+    """One optimiser step down ``objective``, the gradient's norm clipped to ``max_grad_norm``
+    (SB3's ``clip_grad_norm_`` before ``optimizer.step()``); the norm before clipping.
+
+    Examples:
+        >>> w = torch.nn.Parameter(torch.tensor([3.0, 4.0]))
+        >>> norm = clipped_step((w ** 2).sum() / 2, torch.optim.SGD([w], lr=1.0), [w], max_grad_norm=1.0)
+        >>> float(norm), [round(x, 4) for x in w.tolist()]  # w - g / |g| with g = w = (3, 4)
+        (5.0, [2.4, 3.2])
+    """
+    optimizer.zero_grad()
+    objective.backward()
+    norm = torch.nn.utils.clip_grad_norm_(parameters, max_grad_norm)
+    optimizer.step()
+    return norm
+
+
+__all__ = ["clipped_step", "loss_objective"]

@@ -1,26 +1,13 @@
 """The loop of an off-policy algorithm (SAC): collect a few steps into a replay buffer, take
-gradient steps on minibatches sampled from it; with the on-policy jobs' run directory,
-checkpoints and resume.
+gradient steps on minibatches sampled from it; the loop, evaluations, checkpoints and summary
+are every step job's (:class:`~sde_torchrl.trainers.step_job.StepJob`).
 
 As Stable-Baselines3's ``OffPolicyAlgorithm.learn`` with one env: each *round* collects
 ``train_freq`` steps (:class:`~sde_torchrl.collectors.steps.StepCollector`, through episode
-boundaries; with an SDE policy its noise is redrawn as the round starts, or every
-``sde_sample_freq`` steps of the round: SB3's ``collect_rollouts``), adds them to TorchRL's
-``ReplayBuffer`` (uniform sampling with replacement) and, once more than ``learning_starts`` steps
-are collected, takes ``gradient_steps`` gradient steps (:class:`~sde_torchrl.trainers.sac.SACUpdate`).
-Until ``learning_starts`` steps are collected the actions are uniform in the action bounds
-(SB3's warm-up with ``use_sde_at_warmup=False``). One *update* of the run directory (a row of
-``metrics.csv``, a checkpoint boundary) is ``rounds_per_update`` rounds; ``grad_norm`` is the
-mean norm of the actor's gradient over the update's gradient steps (0 before the first), and
-``sigma_min``/``sigma_max`` are SDE's ``σ̂`` (NaN for the Gaussian, whose ``σ`` depends on the state).
-
-A checkpoint holds, besides what an on-policy job's holds (:mod:`~sde_torchrl.trainers.onpolicy`:
-the modules, every random generator, the collector's carried state and the env's replay
-record), the replay buffer's content and write cursor and the three optimisers' states: a
-resumed job samples the same minibatches and writes exactly the rows of an uninterrupted one.
-The buffer holds the transitions' observations, actions, rewards and done flags only
-(:data:`~sde_torchrl.trainers.sac.TRANSITION_KEYS`): on HalfCheetahBullet 300,000 of them take
-about 70 MB in each checkpoint.
+boundaries), adds them to TorchRL's ``ReplayBuffer`` and, once more than ``learning_starts``
+steps are collected, takes ``gradient_steps`` gradient steps
+(:class:`~sde_torchrl.trainers.sac.SACUpdate`). One *update* of the run directory (a row of
+``metrics.csv``, a checkpoint boundary) is ``rounds_per_update`` rounds (:class:`SACTrainer`).
 """
 
 from __future__ import annotations
@@ -33,9 +20,9 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer
 
-from sde_torchrl.trainers.onpolicy import OnPolicyTrainer
-from sde_torchrl.trainers.sac import TRANSITION_KEYS, SACUpdate
-from sde_torchrl.trainers.summary import exploration_state
+from sde_torchrl.objectives.sac import TRANSITION_KEYS
+from sde_torchrl.trainers.sac import SACUpdate
+from sde_torchrl.trainers.step_job import StepJob, StepSettings
 
 
 @dataclass(frozen=True)
@@ -87,8 +74,24 @@ class UniformActions:
         return tensordict.set("action", self.low + (self.high - self.low) * torch.rand(shape))
 
 
-class SACTrainer(OnPolicyTrainer):
-    """Trains one learner with SAC (the module docstring), in the on-policy jobs' run directory.
+class SACTrainer(StepJob):
+    """Trains one learner with SAC (the module docstring).
+
+    With an SDE policy the noise is redrawn as a round starts, or every ``sde_sample_freq`` steps
+    of the round (SB3's ``collect_rollouts``); the buffer samples uniformly with replacement.
+    Until ``learning_starts`` steps are collected the actions are uniform in the action bounds
+    (SB3's warm-up with ``use_sde_at_warmup=False``). ``grad_norm`` is the mean norm of the
+    actor's gradient over the update's gradient steps (0 before the first), and
+    ``sigma_min``/``sigma_max`` are SDE's ``σ̂`` (NaN for the Gaussian, whose ``σ`` depends on
+    the state).
+
+    A checkpoint holds, besides what every step job's holds (the modules, every random
+    generator, the collector's carried state and the env's replay record), the replay buffer's
+    content and write cursor and the three optimisers' states: a resumed job samples the same
+    minibatches and writes exactly the rows of an uninterrupted one. The buffer holds the
+    transitions' observations, actions, rewards and done flags only
+    (:data:`~sde_torchrl.objectives.sac.TRANSITION_KEYS`): on HalfCheetahBullet 300,000 of them
+    take about 70 MB in each checkpoint.
 
     Args:
         collector: collects ``train_freq`` steps of the training env per call.
@@ -96,28 +99,26 @@ class SACTrainer(OnPolicyTrainer):
         policy: the exploring policy (SDE or Gaussian, tanh-squashed).
         loss: the ``SACLoss`` (it holds the critics and the entropy coefficient).
         update: the gradient step (its optimisers are checkpointed through it).
-        settings: the job's :class:`~sde_torchrl.trainers.onpolicy.OnPolicySettings` (``n_steps``:
+        settings: the job's :class:`~sde_torchrl.trainers.step_job.StepSettings` (``n_steps``:
             env steps per update).
         schedule: the job's :class:`OffPolicySchedule`.
         warmup: acts until ``learning_starts`` (:class:`UniformActions`).
-        logger: optional TorchRL logger (``log_scalar``).
-        check_env: makes the final check's env (:class:`~sde_torchrl.trainers.onpolicy.OnPolicyTrainer`).
+        logger, check_env: as :class:`~sde_torchrl.trainers.step_job.StepJob` takes them.
 
     Examples:
         See :func:`sde_torchrl.config.build_sac.build_sac_trainer`.
     """
 
-    #: What a non-finite stop advises: SAC has no gradient clipping; a larger minibatch steadies its steps.
+    #: SAC has no gradient clipping; a larger minibatch steadies its steps.
     nonfinite_remedy = "lower lr or set a larger algorithm.batch_size"
 
     def __init__(self, collector: Any, eval_env: Any, policy: nn.Module, loss: nn.Module, update: SACUpdate,
-                 settings: Any, schedule: OffPolicySchedule, warmup: UniformActions, logger: Any = None,
+                 settings: StepSettings, schedule: OffPolicySchedule, warmup: UniformActions, logger: Any = None,
                  check_env: Any = None) -> None:
-        super().__init__(collector, eval_env, policy, loss, advantage=None, update=update, optimizer=update,
-                         settings=settings, logger=logger, check_env=check_env)
-        #: Everything a checkpoint saves of the learner: the policy, the critics and their targets, α.
-        self.modules = nn.ModuleDict({"policy": policy, "loss": loss})
-        self.schedule, self.warmup = schedule, warmup
+        #: the checkpointed modules: the policy, the critics and their targets, α (in ``loss``)
+        super().__init__(collector, eval_env, policy, {"policy": policy, "loss": loss}, update, settings,
+                         logger=logger, check_env=check_env)
+        self.update_step, self.schedule, self.warmup = update, schedule, warmup
         total = settings.updates * schedule.rounds_per_update
         self.buffer = ReplayBuffer(storage=LazyTensorStorage(min(schedule.buffer_size, total * schedule.train_freq)),
                                    sampler=RandomSampler(), batch_size=schedule.batch_size)
@@ -134,26 +135,22 @@ class SACTrainer(OnPolicyTrainer):
             if r >= self.schedule.rounds_before_learning:  # SB3: more than learning_starts steps collected
                 self.update_step.set_round(r + 1)
                 norms += [self.update_step(self.buffer.sample()) for _ in range(self.schedule.gradient_steps)]
-        self._check(k, "return", torch.tensor([mean]))
+        self.check_return(k, mean)
         grad_norm = torch.stack(norms).mean().reshape(1) if norms else torch.zeros(1)
-        self._check(k, "gradient norm", grad_norm)
-        for name, value in self.modules.state_dict().items():
-            self._check(k, "parameter", value, name)
-        return {"return_mean": torch.tensor([mean]), "grad_norm": grad_norm,
-                "exploration": exploration_state(self.policy, 1)}
+        return self.checked_statistics(k, mean, grad_norm)
 
     def _collect_round(self, r: int) -> float:
         """Round ``r``'s steps into the buffer; the training return after them."""
         self.collector.policy = self.warmup if r < self.schedule.rounds_before_learning else self.policy
         batch = self.collector.rollout()
         self.buffer.extend(batch.reshape(-1).select(*TRANSITION_KEYS))
-        return self._record_returns(batch)
+        return self.record_returns(batch)
 
-    def _rollout_state(self) -> dict[str, Any]:
-        return {**super()._rollout_state(), "buffer": self.buffer.state_dict()}
+    def rollout_state(self) -> dict[str, Any]:
+        return {**super().rollout_state(), "buffer": self.buffer.state_dict()}
 
-    def _restore_rollout(self, rollout: dict[str, Any]) -> None:
-        super()._restore_rollout(rollout)
+    def restore_rollout(self, rollout: dict[str, Any]) -> None:
+        super().restore_rollout(rollout)
         self.buffer.load_state_dict(rollout["buffer"])
 
 

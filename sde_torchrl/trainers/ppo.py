@@ -16,46 +16,19 @@ import math
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 from torchrl.objectives import ClipPPOLoss
 
-from sde_torchrl.trainers.objective import loss_objective
+from sde_torchrl.objectives.actor_critic import MINIBATCH_KEYS
+from sde_torchrl.trainers.objective import clipped_step, loss_objective
 from sde_torchrl.trainers.optim import lr_factor
 from sde_torchrl.utils.checks import positive_int
-
-#: What ``ClipPPOLoss`` reads of a minibatch: not the SDE noise ``ξ``, which the likelihood
-#: (eq. 20) does not read (an ``A × S`` matrix per step, gathered ``n_epochs`` times for nothing).
-MINIBATCH_KEYS = ("observation", "action", "action_sample", "action_log_prob", "advantage", "value_target",
-                  "state_value")
-
-
-def make_ppo_loss(policy: nn.Module, critic: nn.Module, *, clip_range: float, ent_coef: float, vf_coef: float,
-                  normalize_advantage: bool = True) -> ClipPPOLoss:
-    """TorchRL's ``ClipPPOLoss`` with SB3's PPO terms: clipped surrogate, squared-error critic
-    loss weighted by ``vf_coef``, entropy bonus weighted by ``ent_coef`` (none at 0), advantages
-    standardised per minibatch. The loss calls ``policy`` and ``critic`` themselves
-    (``functional=False``): the same numbers as TorchRL's default functional copies, without
-    swapping their parameters in on every call.
-
-    Examples:
-        >>> from torchrl.modules import MLP, ValueOperator
-        >>> from sde_torchrl import MLPActor
-        >>> from sde_torchrl.modules.gaussian import make_gaussian_actor
-        >>> policy = make_gaussian_actor(MLPActor(3, 1, [8], activation="relu"), 1)
-        >>> critic = ValueOperator(MLP(in_features=3, out_features=1, num_cells=[8]), in_keys=["observation"])
-        >>> type(make_ppo_loss(policy, critic, clip_range=0.2, ent_coef=0.0, vf_coef=0.5)).__name__
-        'ClipPPOLoss'
-    """
-    return ClipPPOLoss(policy, critic, clip_epsilon=clip_range, entropy_bonus=ent_coef > 0, entropy_coeff=ent_coef,
-                       critic_coeff=vf_coef, loss_critic_type="l2", normalize_advantage=normalize_advantage,
-                       functional=False)
 
 
 class PPOUpdate:
     """One PPO update of a rollout (with ``advantage`` and ``value_target`` written).
 
     Args:
-        loss: the PPO loss (:func:`make_ppo_loss`).
+        loss: the PPO loss (:func:`~sde_torchrl.objectives.actor_critic.make_ppo_loss`).
         optimizer: over ``loss.parameters()``.
         n_epochs: passes over the rollout.
         batch_size: steps per minibatch.
@@ -92,12 +65,9 @@ class PPOUpdate:
         norms = []
         for _ in range(self.n_epochs):
             for idx in torch.randperm(flat.numel()).split(self.batch_size):
-                objective = self.objective(flat[idx])
-                self.optimizer.zero_grad()
-                objective.backward()
-                norms.append(torch.nn.utils.clip_grad_norm_(self.parameters, self.max_grad_norm))
-                self.optimizer.step()
+                norms.append(clipped_step(self.objective(flat[idx]), self.optimizer, self.parameters,
+                                          self.max_grad_norm))
         return float(torch.stack(norms).mean())
 
 
-__all__ = ["MINIBATCH_KEYS", "PPOUpdate", "make_ppo_loss"]
+__all__ = ["PPOUpdate"]

@@ -10,7 +10,7 @@ from typing import Any
 from sde_torchrl.jobs.metrics import logged_values
 from sde_torchrl.trainers.progress import Progress, RateMeter
 
-log = logging.getLogger("sde_torchrl.trainers.trainer")
+log = logging.getLogger("sde_torchrl.trainers.job")
 #: Between evaluations the log still says how far the job is: at least every this many seconds in
 #: a session's first minute, then at least every :data:`LATER_LINE_S`.
 FIRST_MINUTE_LINE_S, LATER_LINE_S = 10.0, 60.0

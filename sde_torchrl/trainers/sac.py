@@ -5,7 +5,7 @@ Actor-Critic Algorithms and Applications", its clipped double-Q target, reparame
 and learned entropy coefficient with target entropy ``-dim(A)``), each gradient step:
 
 1. with the SDE policy, one fresh standard-normal noise matrix for the whole minibatch and the
-   next-state actions of the critic's target (:func:`fresh_loss_noise`: SB3's
+   next-state actions of the critic's target (:func:`~sde_torchrl.objectives.sac.fresh_loss_noise`: SB3's
    ``actor.reset_noise()`` at each gradient step);
 2. the critic loss and its Adam step: TorchRL's ``Σ_k (Q_k - y)²`` halved to SB3's
    ``½ Σ_k MSE(Q_k, y)``;
@@ -13,17 +13,6 @@ and learned entropy coefficient with target entropy ``-dim(A)``), each gradient 
 4. with ``ent_coef="auto"``, the entropy coefficient's loss and Adam step (the critic and actor
    used the coefficient from before it);
 5. the Polyak update of the target critics with ``tau``.
-
-With ``compile=True`` (``algorithm.compile``) the critic's and the actor's losses, forward and
-backward, go through ``torch.compile`` with
-:func:`~sde_torchrl.trainers.compiler.inductor_recomputing_boolean_masks`, and the Adam steps use
-torch's fused kernel; the noise is drawn outside the compiled graphs, so every random stream is
-the eager step's, and the values agree with it to rounding.
-
-**Why fresh noise.** A replay buffer could hold the ``ξ`` each transition was collected with, but
-the reparameterised SAC gradient needs ``a = μ(s) + (σ̂ ⊙ ξ) x(s)`` with ``ξ ~ N(0, I)``
-independent of ``s``; the stored ``ξ`` steered the episode into ``s``, so it is not, and would
-bias the actor's gradient and its entropy estimate. The buffer therefore holds no noise.
 """
 
 from __future__ import annotations
@@ -33,57 +22,12 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 from torchrl.objectives import SACLoss, SoftUpdate
 
 from sde_torchrl.modules.sde import SDEParams
+from sde_torchrl.objectives.sac import fresh_loss_noise
 from sde_torchrl.trainers.compiler import compiled, inductor_recomputing_boolean_masks
 from sde_torchrl.trainers.optim import LearningRateSchedule, make_optimizer
-
-#: What the SAC losses read of a stored transition (no SDE noise: see the module docstring).
-TRANSITION_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
-                   ("next", "terminated"))
-
-
-def fresh_loss_noise(batch: TensorDictBase, sde: SDEParams) -> None:
-    """Sets one fresh standard-normal ``[A, S]`` noise matrix on every row of a minibatch and of its
-    next states, as SB3's ``actor.reset_noise()`` before each gradient step (its one
-    ``exploration_mat`` serves the whole batch).
-
-    Args:
-        batch: the sampled transitions (``[B]``), modified in place.
-        sde: the policy's :class:`~sde_torchrl.modules.sde.SDEParams`.
-
-    Examples:
-        >>> from tensordict import TensorDict
-        >>> batch = TensorDict({"next": {}}, [4])
-        >>> fresh_loss_noise(batch, SDEParams(2, 3))
-        >>> batch["sde_noise"].shape, torch.equal(batch["sde_noise"][0], batch["next", "sde_noise"][3])
-        (torch.Size([4, 2, 3]), True)
-    """
-    noise = torch.randn(sde.action_dim, sde.feature_dim).expand(*batch.shape, sde.action_dim, sde.feature_dim)
-    batch.set(sde.noise_key, noise)
-    batch.set(("next", sde.noise_key), noise)
-
-
-def make_sac_loss(policy: nn.Module, critic: nn.Module, action_dim: int, *, gamma: float,
-                  ent_coef: float | str = "auto") -> SACLoss:
-    """TorchRL's ``SACLoss`` with SB3's settings: two Q-networks, squared error, target entropy
-    ``-action_dim``, a learned (``"auto"``) or fixed entropy coefficient (SB3's ``auto`` starts at 1).
-
-    Examples:
-        >>> from torchrl.data import Bounded
-        >>> from sde_torchrl.modules.sac_actor import make_sac_networks
-        >>> policy, critic, _ = make_sac_networks(3, Bounded(-1.0, 1.0, shape=(2,)), [8])
-        >>> loss = make_sac_loss(policy, critic, 2, gamma=0.98)
-        >>> loss.target_entropy.item(), loss.log_alpha.item(), loss.fixed_alpha
-        (-2.0, 0.0, False)
-    """
-    auto = ent_coef == "auto"
-    loss = SACLoss(policy, critic, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0 if auto else float(ent_coef),
-                   fixed_alpha=not auto, target_entropy=-float(action_dim))
-    loss.make_value_estimator(gamma=gamma)
-    return loss
 
 
 class SACUpdate:
@@ -91,14 +35,18 @@ class SACUpdate:
     optimisers (critic, actor, entropy coefficient) and their learning rate over training.
 
     Args:
-        loss: the ``SACLoss`` (:func:`make_sac_loss`).
+        loss: the ``SACLoss`` (:func:`~sde_torchrl.objectives.sac.make_sac_loss`).
         sde: the policy's :class:`~sde_torchrl.modules.sde.SDEParams` (``None``: the Gaussian).
         lr: the learning rate of the three optimisers.
         tau: the target critics' Polyak coefficient.
         optimizer: the ``optimizer`` config group's entries (:func:`~sde_torchrl.trainers.optim.make_optimizer`:
             Adam's options and the rate's schedule); ``None``: SB3's plain Adam.
         rounds: how many times :meth:`set_round` is called over the job (the schedule's length).
-        compile: compile the two losses and fuse the Adam steps (the module docstring).
+        compile: (``algorithm.compile``) the critic's and the actor's losses, forward and
+            backward, go through ``torch.compile`` with
+            :func:`~sde_torchrl.trainers.compiler.inductor_recomputing_boolean_masks`, and the Adam
+            steps use torch's fused kernel; the noise is drawn outside the compiled graphs, so
+            every random stream is the eager step's, and the values agree with it to rounding.
 
     Returns (when called with a minibatch):
         The norm of the actor's gradient (a 0-d tensor: no synchronisation per step).
@@ -107,6 +55,7 @@ class SACUpdate:
         >>> from tensordict import TensorDict
         >>> from torchrl.data import Bounded
         >>> from sde_torchrl.modules.sac_actor import make_sac_networks
+        >>> from sde_torchrl.objectives.sac import make_sac_loss
         >>> policy, critic, sde = make_sac_networks(3, Bounded(-1.0, 1.0, shape=(1,)), [8], sde_options={})
         >>> update = SACUpdate(make_sac_loss(policy, critic, 1, gamma=0.99), sde, lr=1e-3, tau=0.02)
         >>> batch = TensorDict({"observation": torch.randn(4, 3), "action": torch.zeros(4, 1), "next": {
@@ -177,4 +126,4 @@ class SACUpdate:
             optim.load_state_dict(state[name])
 
 
-__all__ = ["SACUpdate", "TRANSITION_KEYS", "fresh_loss_noise", "make_sac_loss"]
+__all__ = ["SACUpdate"]

@@ -2,8 +2,8 @@
 
 Hydra's joblib launcher runs a sweep's jobs in loky worker processes, children of the process
 the user started (the sweep's parent). A scheduler or a user stops the sweep with a signal to
-that parent; by default it died at once (exit 143, no word), and the workers, which nobody
-signals, trained on as orphans holding their run directories. Now:
+that parent, which would die at once by default while the workers, which nobody signals, would train
+on as orphans holding their run directories. So:
 
 - the parent (:func:`handle_in_parent`, for a multirun) takes SIGTERM and SIGUSR2 with
   :func:`forward_to_workers`: with loky workers, it keeps the signal
@@ -11,7 +11,7 @@ signals, trained on as orphans holding their run directories. Now:
   it (``SigCgt`` in ``/proc/<pid>/status``: the workers that run a job of this sweep, see below),
   then and every :data:`FORWARD_PERIOD_S` after, so that a worker that takes a job later gets it
   too; the parent waits for the jobs' reports and exits with the signal's code and the resume
-  lines (``train.py``). A parent that runs its jobs itself (the basic launcher) keeps the signal
+  lines (:mod:`sde_torchrl.cli`). A parent that runs its jobs itself (the basic launcher) keeps the signal
   the same way (training stops after its update, no further job starts); one that neither runs
   jobs nor has loky workers (submitit's and Ray's wait on jobs elsewhere) ends as before;
 - a worker (:func:`job_started`, at the start of each job) takes the same signals with

@@ -1,63 +1,48 @@
-"""The training loop: collect whole episodes, estimate, update, evaluate.
+"""The episodic estimators' trainer: collect whole episodes, estimate, update.
 
 Every update collects ``N`` fresh episodes per run (a TensorDict ``[runs, N, T]``; or renews the
-episode queue, :mod:`sde_torchrl.collectors.episode_queue`), turns them into one gradient per run with an
-episodic estimator and takes one optimiser step: with ``SGD(lr=α)``, the paper's plain
+episode queue, :mod:`sde_torchrl.collectors.episode_queue`), turns them into one gradient per run
+with an episodic estimator and takes one optimiser step: with ``SGD(lr=α)``, the paper's plain
 gradient ascent ``θ ← θ + α g`` (eq. 1); momentum, Adam and a decaying rate are options
-(:mod:`sde_torchrl.trainers.optim`). Every
-``eval_period`` updates (and after the last) each run's policy is evaluated without
-exploration. What is around the loop has a module of its own: the non-finite guard
-(:mod:`~sde_torchrl.trainers.guard`), the run directory (:mod:`~sde_torchrl.jobs.run_dir`), checkpoints
-(:mod:`~sde_torchrl.jobs.checkpoint`), the summary (:mod:`~sde_torchrl.trainers.summary`), reporting
-(:mod:`~sde_torchrl.trainers.report`) and stop signals (:mod:`~sde_torchrl.trainers.interrupt`).
+(:mod:`sde_torchrl.trainers.optim`). The non-finite guard (:mod:`~sde_torchrl.trainers.guard`)
+checks every update; the loop, evaluations, checkpoints and summary are every job's
+(:class:`~sde_torchrl.trainers.job.Job`).
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
+from torch import nn
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from sde_torchrl.collectors.episode_queue import EpisodeQueue
 from sde_torchrl.collectors.rollout import collect_episodes
-from sde_torchrl.jobs.checkpoint import job_streams, restore_job, result_config, save_job
-from sde_torchrl.jobs.metrics import MetricRow, metric_rows, recorded_rows, update_statistics
-from sde_torchrl.jobs.run_dir import FinishedRun, RunDirectory, episodes_after
+from sde_torchrl.jobs.checkpoint import job_streams
+from sde_torchrl.jobs.run_dir import RunDirectory, episodes_after
 from sde_torchrl.objectives.estimators import EpisodicEstimator
 from sde_torchrl.objectives.pgpe import PGPEEstimator
-from sde_torchrl.trainers.best import BEST_POLICY, BEST_POLICY_GIF, BestPolicy, write_best_policy
+from sde_torchrl.trainers.best import BEST_POLICY_GIF, BestPolicy
 from sde_torchrl.trainers.final_check import run_final_check
 from sde_torchrl.trainers.guard import FiniteGuard
-from sde_torchrl.trainers.interrupt import DeferredInterrupt
+from sde_torchrl.trainers.job import Job
 from sde_torchrl.trainers.optim import LearningRateSchedule
-from sde_torchrl.trainers.report import Reporter, close_logger
+from sde_torchrl.trainers.report import Reporter
 from sde_torchrl.trainers.settings import TrainingSettings
-from sde_torchrl.trainers.summary import (
-    LoopState,
-    best_and_checked,
-    exploration_state,
-    final_levels,
-    per_step_factor,
-    summarize,
-)
+from sde_torchrl.trainers.summary import LoopState, exploration_state, per_step_factor, summarize
 from sde_torchrl.utils.nonfinite import nonfinite_policy
 
 log = logging.getLogger(__name__)
-#: A session whose first update takes longer than this says what it is doing (a job is silent
-#: until its first update ends: a large one would otherwise say nothing for minutes).
-FIRST_UPDATE_NOTICE_S = 10.0
 
 
-class Trainer:
+class Trainer(Job):
     """Trains ``runs`` independent learners side by side.
 
     Args:
@@ -130,8 +115,8 @@ class Trainer:
         with set_exploration_type(ExplorationType.DETERMINISTIC):
             return self._rollout(self.eval_env)
 
-    def update(self, episodes: TensorDictBase, update: int,
-               scores: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
+    def estimate(self, episodes: TensorDictBase, update: int,
+                 scores: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
         """One estimator pass and one optimiser step (eq. 1 with ``SGD``) at update ``update``'s
         learning rate, guarded against non-finite values; the statistics it returns (per-run
         mean return, gradient norm, exploration state) are on the CPU, whatever the device.
@@ -160,9 +145,51 @@ class Trainer:
                  "exploration": exploration_state(self.policy, self.runs)}
         return {name: value.detach().cpu() for name, value in stats.items()}  # bookkeeping stays on the CPU
 
+    def update(self, k: int) -> dict[str, torch.Tensor]:
+        """Update ``k``: this update's episodes (fresh, or the queue renewed), one estimate and step."""
+        if self.keeps_scores:
+            batch = self.queue.next_batch(self.collect_scored)
+            return self.estimate(batch["episodes"], k, batch["scores"])
+        return self.estimate(self.queue.next_batch(self.collect) if self.queue else self.collect(), k)
+
+    def ends_early(self, state: LoopState, stats: dict[str, torch.Tensor]) -> bool:
+        """Marks the runs whose mean return exceeded ``r_lim``; with ``stop_at_threshold``, ends once all have."""
+        if self.settings.r_lim is not None:
+            state.reached |= stats["return_mean"] > self.settings.r_lim
+        return self.settings.stop_at_threshold and bool(state.reached.all())
+
+    def check_evaluation(self, k: int, returns: torch.Tensor) -> torch.Tensor:
+        return self.guard.check_evaluation(k, returns)
+
     def episodes_after(self, update: int) -> int:
         """Episodes each run has collected by the end of update ``update`` (0-based)."""
         return episodes_after(update, self.settings.episodes_per_update, self.settings.episode_queue)
+
+    def logged_step(self, updates: int) -> int:
+        return self.episodes_after(updates - 1) if updates else 0
+
+    def make_reporter(self, done: int, progress: bool) -> Reporter:
+        s = self.settings
+        return Reporter(self.logger, s.updates, done, self.runs * s.episodes_per_update * s.episode_length, progress,
+                        per_step=per_step_factor(self.estimator.episode_return, s.episode_length))
+
+    def checkpointed(self) -> tuple[nn.Module, dict[str, Any]]:
+        return self.policy, job_streams(self.policy, self.env, self.eval_env)
+
+    def save_extras(self, state: LoopState) -> dict[str, Any]:
+        if self.queue is not None:
+            state.queue = self.queue.state_dict()
+        return {}
+
+    def restore_extras(self, extras: dict[str, Any], state: LoopState) -> None:
+        if self.queue is None:
+            return
+        s = self.settings
+        episodes = [self.runs, s.episode_queue, s.episode_length]
+        if self.keeps_scores:
+            self.queue.load_state_dict(state.queue, episodes[:2], {"episodes": episodes, "scores.step": episodes})
+        else:
+            self.queue.load_state_dict(state.queue, episodes)
 
     def close(self) -> None:
         """Closes both envs (their simulators: 200 ball-catching worlds hold ~5.7 GB), so that a
@@ -170,113 +197,26 @@ class Trainer:
         for env in (self.env, self.eval_env):
             env.close(raise_if_closed=False)
 
-    def train(
-        self, out_dir: str | os.PathLike, labels: dict[str, Any] | None = None, *,
-        checkpoint_period: int = 0, progress: bool = False,
-    ) -> dict[str, Any]:
-        """Runs the job (or resumes it) and writes ``metrics.csv``, ``checkpoint.pt``,
-        ``summary.json``.
-
-        The job holds ``out_dir`` (:meth:`RunDirectory.lock`) until it returns. If ``out_dir``
-        holds a checkpoint, the job resumes from it: ``metrics.csv`` is checked against it, cut
-        back to the checkpointed update and continued, and every random stream continues where
-        it was, so the outputs equal those of an uninterrupted job. A finished job is final
-        (:meth:`RunDirectory.check_job`): with or without its checkpoint, if its files agree
-        nothing is changed and its summary is returned; a finished checkpoint whose summary is
-        missing or disagrees with it only rewrites the summary, once ``metrics.csv`` is checked.
-
-        Args:
-            out_dir: the run directory (Hydra's output directory in ``train.py``).
-            labels: entries that head ``summary.json`` (config choices, seed, the config); its
-                ``config``, the job's resolved config, is the job's identity: the run directory
-                records it and refuses a job of another config
-                (:meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`; the keys outside
-                :data:`~sde_torchrl.jobs.checkpoint.NON_RESULT_KEYS` count). Without it nothing is checked.
-            checkpoint_period: also checkpoint every this many updates (0: only at the end and
-                on Ctrl-C).
-            progress: show a progress bar (:mod:`sde_torchrl.trainers.progress`).
-
-        Returns:
-            The summary (also written to ``summary.json``).
-
-        Raises:
-            NonFiniteError: a non-finite value; ``metrics.csv`` keeps the updates before it.
-            TrainingInterrupted: on Ctrl-C, SIGTERM or SIGUSR2, after saving a checkpoint
-                (:mod:`~sde_torchrl.trainers.interrupt`).
-            CheckpointMismatchError: ``out_dir`` holds another job's checkpoint, or another
-                config's finished job.
-            RunDirectoryInUse: another process holds ``out_dir`` (nothing is changed).
-            DamagedFileError: ``checkpoint.pt`` or ``metrics.csv`` is damaged (nothing is resumed),
-                or the files of a finished job without a checkpoint disagree
-                (:class:`~sde_torchrl.jobs.run_dir.UnfinishedRunError`; nothing is changed).
-        """
-        return train_in_directory(self, out_dir, labels, checkpoint_period, progress)
-
-    def _summary(self, state: LoopState) -> dict[str, Any]:
+    def summarize(self, state: LoopState) -> dict[str, Any]:
         """The job's summary (:func:`~sde_torchrl.trainers.summary.summarize`) and its return definition."""
         return {**summarize(state, self.settings, self.policy, self.episodes_after),
                 "episode_return": self.estimator.episode_return}
 
-    def _loop(self, run_dir: RunDirectory, state: LoopState, period: int, progress: bool) -> None:
-        """Updates from ``state.update`` to the end: collect, estimate and step, evaluate, record."""
-        s = self.settings
-        session_start, session_wall = time.perf_counter(), state.wall_s
-        reporter = Reporter(self.logger, s.updates, state.update,
-                            self.runs * s.episodes_per_update * s.episode_length, progress,
-                            per_step=per_step_factor(self.estimator.episode_return, s.episode_length))
-        notice = threading.Timer(FIRST_UPDATE_NOTICE_S, log.info, [self._first_update_notice(state.update)])
-        notice.daemon = True
-        with run_dir.open_metrics(self._recorded_rows(state)) as metrics, DeferredInterrupt() as interrupt:
-            notice.start()
-            try:
-                for k in range(state.update, s.updates):
-                    if self.keeps_scores:
-                        batch = self.queue.next_batch(self.collect_scored)
-                        stats = self.update(batch["episodes"], k, batch["scores"])
-                    else:
-                        stats = self.update(self.queue.next_batch(self.collect) if self.queue else self.collect(), k)
-                    notice.cancel()
-                    state.add(stats)
-                    if s.r_lim is not None:
-                        state.reached |= stats["return_mean"] > s.r_lim
-                    is_last = k == s.updates - 1 or (s.stop_at_threshold and bool(state.reached.all()))
-                    eval_return = None
-                    if is_last or (s.eval_period and (k + 1) % s.eval_period == 0):
-                        eval_return = state.evals[k] = self.guard.check_evaluation(k, self.evaluate())
-                        self.best.observe(k, eval_return)
-                    statistics = update_statistics(s.first_run, k, self.episodes_after(k), stats, eval_return)
-                    metrics.write(metric_rows(statistics))
-                    state.update, state.finished = k + 1, is_last
-                    state.wall_s = session_wall + time.perf_counter() - session_start
-                    reporter.update(k, self.episodes_after(k), statistics)
-                    if is_last:
-                        break
-                    if interrupt.requested or (period and state.update % period == 0):
-                        metrics.sync()
-                        self._save(run_dir, state)
-                    if interrupt.requested:
-                        interrupt.stop(state.update, run_dir.path)
-            finally:
-                notice.cancel()
-                reporter.close()
-            metrics.sync()
-            if s.final_episodes and state.finished:
-                state.final_check = self._final_check()
-                self._film_best(run_dir, state.final_check)
-        self._save(run_dir, state)
-
-    def _final_check(self) -> dict[str, Any]:
+    def final_check(self, run_dir: RunDirectory) -> dict[str, Any]:
         """The final and the best policies on the same ``final_episodes`` fresh deterministic
-        episodes per run (:func:`~sde_torchrl.trainers.final_check.run_final_check`); the
-        training and evaluation envs are closed first (their simulators are done with)."""
+        episodes per run (:func:`~sde_torchrl.trainers.final_check.run_final_check`), once the
+        training and evaluation envs are closed (their simulators are done with); where the env
+        can film, the best policy filmed (:meth:`film_best`)."""
         for env in (self.env, self.eval_env):
             env.close(raise_if_closed=False)
         log.info("checking the final and the best policies on %d fresh episodes per run", self.settings.final_episodes)
         with set_exploration_type(ExplorationType.DETERMINISTIC), nonfinite_policy("guarded"):
-            return run_final_check(self.check_env, self.settings.final_episodes, self.settings.eval_episodes,
-                                   self.best, self._check_rollout, self.estimator.returns)
+            check = run_final_check(self.check_env, self.settings.final_episodes, self.settings.eval_episodes,
+                                    self.best, self._rollout, self.estimator.returns)
+        self.film_best(run_dir, check)
+        return check
 
-    def _film_best(self, run_dir: RunDirectory, check: dict[str, Any]) -> None:
+    def film_best(self, run_dir: RunDirectory, check: dict[str, Any]) -> None:
         """Where the env can film an episode (ball catching): the run whose best policy did best
         on the fresh episodes, that policy on another fresh episode, as ``best_policy.gif``."""
         returns = [sum(run) / len(run) for run in check["best"]]
@@ -288,57 +228,13 @@ class Trainer:
             log.info("filmed run %d's best policy on another fresh ball (mean reward per step %.3f): %s",
                      self.settings.first_run + run, filmed, run_dir.path / BEST_POLICY_GIF)
 
-    def _check_rollout(self, env: EnvBase) -> TensorDictBase:
-        return collect_episodes(env, self.policy, self.settings.episode_length, fast=self.settings.tensor_rollout)
-
-    def _first_update_notice(self, update: int) -> str:
-        """What the session's first update does, for a job that has been silent for a while."""
+    def first_update_notice(self, update: int) -> str:
         s = self.settings
         fill = self.queue is not None and update == 0
         episodes = s.episode_queue if fill else s.episodes_per_update
-        return (f"update {update + 1} of {s.updates} still running after {FIRST_UPDATE_NOTICE_S:g} s: collecting "
+        return (f"update {update + 1} of {s.updates} still running after {self.first_update_notice_s:g} s: collecting "
                 f"{episodes} episodes of {s.episode_length} steps for each of {self.runs} runs"
                 f"{' (the episode queue is filled first)' if fill else ''}, then estimating the gradient")
-
-    def _recorded_rows(self, state: LoopState) -> list[MetricRow]:
-        """The ``metrics.csv`` rows of the updates ``state`` holds (what a checkpoint recorded)."""
-        return recorded_rows(state.record(), self.settings.first_run, self.episodes_after)
-
-    def _save(self, run_dir: RunDirectory, state: LoopState) -> None:
-        if self.queue is not None:
-            state.queue = self.queue.state_dict()
-        state.best = self.best.state_dict()
-        save_job(run_dir.checkpoint, config=run_dir.config, loop=state.state_dict(), policy=self.policy,
-                 optimizer=self.optimizer, streams=job_streams(self.policy, self.env, self.eval_env))
-
-    def _resume(self, run_dir: RunDirectory) -> LoopState:
-        """A fresh :class:`LoopState`, or the checkpointed one with everything restored."""
-        if not run_dir.has_checkpoint():
-            run_dir.start_new_job()
-            return LoopState(update=0, reached=torch.zeros(self.runs, dtype=torch.bool))
-        loop = restore_job(run_dir.checkpoint, policy=self.policy, optimizer=self.optimizer,
-                           streams=job_streams(self.policy, self.env, self.eval_env), updates=self.settings.updates)
-        state = LoopState.from_state_dict(loop)
-        run_dir.check_metrics(self._recorded_rows(state), state.finished)
-        if state.best is not None:
-            self.best.load_state_dict(state.best)
-        if not state.finished:  # an earlier session's summary (a checkpoint replaced by an older one)
-            run_dir.summary.unlink(missing_ok=True)
-        if self.queue is not None:
-            s = self.settings
-            episodes = [self.runs, s.episode_queue, s.episode_length]
-            if self.keeps_scores:
-                self.queue.load_state_dict(state.queue, episodes[:2], {"episodes": episodes, "scores.step": episodes})
-            else:
-                self.queue.load_state_dict(state.queue, episodes)
-        run_dir.clear_error()
-        if not state.finished:
-            run_dir.truncate_logger_csv(self.episodes_after(state.update - 1) if state.update else 0)
-            log.info("resuming %s after update %d of %d", run_dir.path, state.update, self.settings.updates)
-        else:
-            log.info("%s holds a finished job whose summary.json is missing or disagrees with its checkpoint: "
-                     "rewritten from it", run_dir.path)
-        return state
 
 
 def film_policy(policy: TensorDictSequential, env: EnvBase, run: int, path: str | os.PathLike,
@@ -361,54 +257,3 @@ def film_policy(policy: TensorDictSequential, env: EnvBase, run: int, path: str 
 
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         return base.film(act, path, seed=seed)
-
-
-def train_in_directory(
-    trainer: Any, out_dir: str | os.PathLike, labels: dict[str, Any] | None, checkpoint_period: int,
-    progress: bool,
-) -> dict[str, Any]:
-    """A trainer's job in its run directory, the one way every trainer runs (:meth:`Trainer.train`
-    says what it guarantees): the directory held and checked to hold this job (the one check,
-    :meth:`~sde_torchrl.jobs.run_dir.RunDirectory.check_job`), a finished job left as it is, a
-    checkpoint resumed, the loop run, the logger closed, the summary written.
-
-    Args:
-        trainer: has ``_resume(run_dir)``, ``_loop(run_dir, state, period, progress)``,
-            ``_summary(state)`` and ``logger``; what it records of the job's config it reads off
-            the run directory (``run_dir.config``).
-        out_dir, labels, checkpoint_period, progress: as :meth:`Trainer.train` takes them.
-
-    Returns:
-        The summary (also written to ``summary.json``).
-    """
-    run_dir = RunDirectory(out_dir, result_config((labels or {}).get("config")))
-    with run_dir.lock():
-        done = run_dir.check_job()
-        if done is not None:
-            log.info("%s", finished_line(done))
-            return done.summary
-        state = trainer._resume(run_dir)
-        try:
-            if not state.finished:
-                trainer._loop(run_dir, state, checkpoint_period, progress)
-        finally:
-            close_logger(trainer.logger)
-        if state.best is not None:
-            write_best_policy(run_dir.path / BEST_POLICY, state.best)
-        summary = {**(labels or {}), **trainer._summary(state), **best_and_checked(state)}
-        summary = run_dir.write_summary({**summary, **final_levels(summary, state)})
-    log.info("results in %s", run_dir.path.resolve())
-    return summary
-
-
-def finished_line(job: FinishedRun) -> str:
-    """The one line that reports a finished job found in its directory, and the choices left.
-
-    Examples:
-        >>> from pathlib import Path
-        >>> finished_line(FinishedRun(Path("runs/a"), {"runs": 2, "updates_done": 12}, []))  # doctest: +ELLIPSIS
-        'runs/a holds a finished job (12 updates of 2 runs): nothing was changed; a finished job is final: ...'
-    """
-    return (f"{job.path} holds a finished job ({job.summary['updates_done']} updates of {job.summary['runs']} runs): "
-            "nothing was changed; a finished job is final: to train with other settings (more updates, say), give "
-            "the job another directory; to train this one again from the start, remove its directory first")

@@ -33,7 +33,7 @@ PROFILE_PARTS = {
     "Adam steps": ("optim/adam.py", "step"),
     "target update (SoftUpdate.step)": ("objectives/utils.py", "step"),
     "replay buffer sample": ("replay_buffers/base.py", "sample"),
-    "fresh loss noise": ("trainers/sac.py", "fresh_loss_noise"),
+    "fresh loss noise": ("objectives/sac.py", "fresh_loss_noise"),
 }
 
 
