@@ -24,7 +24,7 @@ import numpy as np
 #: Significant digits of every float in a page's JSON. The pages print at most four (from the
 #: unrounded numbers), so six keep two to spare, while a simulated float's last bits, which differ
 #: between machines (pybullet, float64), are not written; on a rounding boundary they can still move
-#: the sixth digit, so ``tests/test_pages.py`` compares numbers to one unit in it (relative 1e-5).
+#: the sixth digit, so ``tests/study/test_pages.py`` compares numbers to one unit in it (relative 1e-5).
 PAGE_DIGITS = 6
 
 #: One colour and line style per method, in every figure.

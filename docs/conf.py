@@ -3,7 +3,7 @@
 Build (warnings are errors): ``python -m sphinx -W --keep-going -b html docs docs/_build/html``.
 
 Pages are Markdown (MyST). The reproduction pages include the files the analysis scripts write
-(``docs/table1/``, ``docs/ballcatch/``, ``docs/ppo/``) with ``{include}``: those folders are not
+(``docs/table1/``, ``docs/study/ballcatch/``, ``docs/ppo/``) with ``{include}``: those folders are not
 pages of their own. The API reference is generated at build time from ``sde_torchrl.__all__`` by
 the local extension ``_ext/public_api.py``.
 """
@@ -31,7 +31,7 @@ extensions = [
 source_suffix = {".md": "markdown"}
 root_doc = "index"
 # the generated files are included by the reproduction pages, not pages of their own
-exclude_patterns = ["_build", "table1/**", "ballcatch/**", "ppo/**"]
+exclude_patterns = ["_build", "table1/**", "study/ballcatch/**", "ppo/**"]
 
 myst_enable_extensions = ["colon_fence"]
 myst_heading_anchors = 3

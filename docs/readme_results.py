@@ -6,7 +6,7 @@ The README holds a table of at most eight headline results, one per claim, betwe
 result, between the same lines. Both tables have one measure per cell (each method's value and its
 interval in their own columns, the paper's where it states one) and a one-line legend under them.
 This script writes both blocks from ``docs/table1/table1.json``, the ball-catching pages' JSON under
-``docs/ballcatch/`` (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``,
+``docs/study/ballcatch/`` (``{fig5,fig6,methods,reevaluation}.json``, ``fig5_seed3/fig5.json``,
 ``fig6_seed6/fig6.json``, ``checked/checked.json``, ``methods_selected/methods.json``,
 ``methods_seed4/methods.json``, ``selected/fig5.json``), the quick start's earlier run
 (``results/ballcatch/runs/selected/seed0/summary.json``), ``docs/ppo/gsde_table.json``,
@@ -103,16 +103,16 @@ def summary() -> str:
     ours = [row["speedup"] for row in table1]
     paper = [row["paper"]["speedup"] for row in table1]
     faster = sum(row["speedup_significant"] and row["speedup_ci"][0] > 1 for row in table1)
-    fig5, fig6 = _load("ballcatch/fig5.json")["explorers"], _load("ballcatch/fig6.json")["explorers"]
-    methods = _load("ballcatch/methods.json")["explorers"]
-    selected = _load("ballcatch/selected/fig5.json")["explorers"]["sde"]
-    fig5_selected = _load("ballcatch/fig5_seed3/fig5.json")["explorers"]
-    fig6_selected = _load("ballcatch/fig6_seed6/fig6.json")["explorers"]
-    reevaluation = _load("ballcatch/reevaluation.json")["explorers"]
+    fig5, fig6 = _load("study/ballcatch/fig5.json")["explorers"], _load("study/ballcatch/fig6.json")["explorers"]
+    methods = _load("study/ballcatch/methods.json")["explorers"]
+    selected = _load("study/ballcatch/selected/fig5.json")["explorers"]["sde"]
+    fig5_selected = _load("study/ballcatch/fig5_seed3/fig5.json")["explorers"]
+    fig6_selected = _load("study/ballcatch/fig6_seed6/fig6.json")["explorers"]
+    reevaluation = _load("study/ballcatch/reevaluation.json")["explorers"]
     held = {explorer: arms["pybrain_held"] for explorer, arms in reevaluation.items()}
-    methods_selected = _load("ballcatch/methods_selected/methods.json")["explorers"]
+    methods_selected = _load("study/ballcatch/methods_selected/methods.json")["explorers"]
     gpomdp_selected, pgpe_selected = methods_selected["sde+gpomdp"], methods_selected["pgpe"]
-    methods_latest = _load("ballcatch/methods_seed4/methods.json")["explorers"]
+    methods_latest = _load("study/ballcatch/methods_seed4/methods.json")["explorers"]
     quick_start_run = RESULTS / "ballcatch" / "runs" / "selected" / "seed0" / "summary.json"
     quick_start = json.loads(quick_start_run.read_text())["final_eval_return"][0]
     ppo = _load("ppo/gsde_table.json")["cells"]["ppo/halfcheetah/sde"]
@@ -134,8 +134,9 @@ def summary() -> str:
                 paper_share(second, level) if paper else NONE)
 
     table1_page, fig_page = "docs/reproduce/table1.md", "docs/reproduce/fig5_6.md"
-    paper_page, diagnostics_page = "docs/chosen/ballcatch_paper_settings.md", "docs/chosen/ballcatch_diagnostics.md"
-    method_page = "docs/chosen/ballcatch_method.md"
+    paper_page = "docs/study/chosen/ballcatch_paper_settings.md"
+    diagnostics_page = "docs/study/chosen/ballcatch_diagnostics.md"
+    method_page = "docs/study/chosen/ballcatch_method.md"
     methods_page, ppo_page, sac_page = "docs/reproduce/methods.md", "docs/reproduce/ppo.md", "docs/reproduce/sac.md"
     reaching, ending = "runs reaching a catch in training", "runs whose last evaluation is a catch"
     ending_good = "runs whose last evaluation is a good catch"
@@ -210,8 +211,8 @@ def _from_reproduce(page: str) -> str:
     """A page's link from ``docs/reproduce/`` (the results page's folder).
 
     Examples:
-        >>> _from_reproduce("docs/reproduce/table1.md"), _from_reproduce("docs/chosen/ballcatch_method.md")
-        ('table1.md', '../chosen/ballcatch_method.md')
+        >>> _from_reproduce("docs/reproduce/table1.md"), _from_reproduce("docs/study/chosen/ballcatch_method.md")
+        ('table1.md', '../study/chosen/ballcatch_method.md')
     """
     return page.removeprefix("docs/reproduce/") if page.startswith("docs/reproduce/") else f"../{page[5:]}"
 
@@ -224,7 +225,7 @@ def headline() -> str:
     table1 = _load("table1/table1.json")["rows"]
     ours = [row["speedup"] for row in table1]
     paper = [row["paper"]["speedup"] for row in table1]
-    fig5_selected = _load("ballcatch/fig5_seed3/fig5.json")["explorers"]
+    fig5_selected = _load("study/ballcatch/fig5_seed3/fig5.json")["explorers"]
     ppo = _load("ppo/gsde_table.json")["cells"]["ppo/halfcheetah/sde"]
     sac = _load("sac/gsde_table.json")["cells"]["sac/mountaincar/sde"]
     fig_page = "docs/reproduce/fig5_6.md"
@@ -253,9 +254,9 @@ def _checked_rows(page: str) -> list[tuple]:
     """The headline learner (Fig. 6's setting, best policies kept), SDE against REX with the same
     learner: runs reaching a catch in training (beside the paper's Fig. 6 counts), best and final
     policies catching on the fresh balls."""
-    checked = _load("ballcatch/checked/checked.json")["explorers"]
+    checked = _load("study/ballcatch/checked/checked.json")["explorers"]
     sde, rex = checked["sde"], checked["rex"]
-    fig6 = _load("ballcatch/fig6.json")["explorers"]
+    fig6 = _load("study/ballcatch/fig6.json")["explorers"]
     paper = {name: f"{fig6[name]['paper'][CATCH]} %" for name in ("sde", "rex") if CATCH in fig6[name].get("paper", {})}
 
     def share(explorer: dict, key: str) -> tuple[str, str]:

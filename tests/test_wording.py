@@ -26,13 +26,13 @@ BEING_EDITED_ELSEWHERE: frozenset[str] = frozenset()
 
 def scanned_files(root: Path = REPO) -> list[Path]:
     """The pages (``docs/**/*.md``; run records live under ``results/``), ``README.md``, the Python of ``sde_torchrl/``,
-    ``analysis/``, ``train.py`` and the YAML of ``conf/``."""
+    ``analysis/``, ``train.py`` and the YAML of ``conf/`` and ``analysis/conf/``."""
     files = [path for path in sorted((root / "docs").rglob("*.md")) if "_build" not in path.parts]
     files.append(root / "README.md")
     for package in ("sde_torchrl", "analysis"):
         files += [path for path in sorted((root / package).rglob("*.py")) if "runs" not in path.parts]
     files.append(root / "train.py")
-    files += sorted((root / "conf").rglob("*.yaml"))
+    files += sorted((root / "conf").rglob("*.yaml")) + sorted((root / "analysis" / "conf").rglob("*.yaml"))
     return files
 
 

@@ -1,12 +1,12 @@
 """Ball catching: what the arm does at the start of an episode, and what the authors' arm would do.
 
-By the rule in ``docs/ballcatch/arm_start_rule.md``: the palm centre's height and pitch under zero
+By the rule in ``docs/study/ballcatch/arm_start_rule.md``: the palm centre's height and pitch under zero
 torque over the first second in the shipped arm (pybullet), and gravity's static torque about
 each arm joint in the start pose from the figures of PyBrain's ``arm.xode`` (shapes, sizes and
 densities), set against each joint's FMax of 0.5. Writes ``arm_start.json`` and ``arm_start.md``.
 
 Usage:
-    python -m analysis.paper.ballcatch_arm_start --out docs/ballcatch
+    python -m analysis.paper.ballcatch_arm_start --out docs/study/ballcatch
 """
 
 from __future__ import annotations

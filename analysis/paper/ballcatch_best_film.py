@@ -8,7 +8,7 @@ so filming a 50-run job does not build its 200 simulator worlds.
 
 Usage:
     python -m analysis.paper.ballcatch_best_film results/ballcatch/runs/checked/sde \
-        --out docs/ballcatch/checked/best_policy.gif
+        --out docs/study/ballcatch/checked/best_policy.gif
 """
 
 from __future__ import annotations

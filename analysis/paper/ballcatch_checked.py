@@ -11,7 +11,7 @@ SDE − REX with its bootstrap interval over runs; and what the best policies di
 balls (held, kept on the hand, dropped).
 
 Usage:
-    python -m analysis.paper.ballcatch_checked --out docs/ballcatch/checked \
+    python -m analysis.paper.ballcatch_checked --out docs/study/ballcatch/checked \
         results/ballcatch/runs/checked/sde results/ballcatch/runs/checked/rex
 """
 

@@ -12,7 +12,7 @@ simulated once with constant commands), and the median shoulder and elbow comman
 Writes ``controllers.json`` and ``controllers.md``.
 
 Usage:
-    python -m analysis.paper.ballcatch_controllers --out docs/ballcatch \
+    python -m analysis.paper.ballcatch_controllers --out docs/study/ballcatch \
         "REINFORCE + SDE, Fig. 5=results/ballcatch/runs/fig5_seed3/sde" \
         "ENAC + SDE, Fig. 6=results/ballcatch/runs/fig6_seed3/sde"
 """

@@ -14,12 +14,12 @@ need about 28 GB) with the same result.
 Writes ``final_policy.json`` into each job directory: the job's explorer, estimator, first run,
 the episodes and seed, and each run's return as a mean reward per step (the paper's units).
 ``analysis/paper/fig5.py`` reports the counts beside the trainer's when every run has one. The rule
-that fixed ``--episodes 20 --seed 7`` before any run: ``docs/ballcatch/final_policy_rule.md``.
+that fixed ``--episodes 20 --seed 7`` before any run: ``docs/study/ballcatch/final_policy_rule.md``.
 
 With ``--model NAME`` the same policies are evaluated in another arm model (``pybrain_held``: the
 arm joints held level, a diagnostic) and with their behaviour per episode
 (:func:`~sde_torchrl.envs.ballcatch.outcomes.catch_outcomes`), into ``reevaluation_NAME.json``
-(rule: ``docs/ballcatch/reevaluation_rule.md``).
+(rule: ``docs/study/ballcatch/reevaluation_rule.md``).
 
 Usage:
     python -m analysis.paper.ballcatch_final --episodes 20 --seed 7 results/ballcatch/runs/fig5_selected/sde

@@ -14,12 +14,12 @@ job's ``summary.json``) this simulates, in the shipped arm:
   and ENAC; per batch, whether the estimate raises the finger pre-activation at the rest position;
 * **what closing would give**: the deterministic return after steps ``δ u``.
 
-The rule that fixed every number here before any run: ``docs/ballcatch/finger_probe_rule.md``.
+The rule that fixed every number here before any run: ``docs/study/ballcatch/finger_probe_rule.md``.
 Each job's result goes to ``finger_probe.json`` in its directory (kept if present, so the page can
 be rewritten from committed files); the page to ``finger_probe.md`` and ``finger_probe.json``.
 
 Usage:
-    python -m analysis.paper.ballcatch_finger_probe --out docs/ballcatch results/ballcatch/runs/fig5_seed3/sde
+    python -m analysis.paper.ballcatch_finger_probe --out docs/study/ballcatch results/ballcatch/runs/fig5_seed3/sde
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Ball catching: the final policies of a sweep in the shipped arm and with the arm held level,
-by the rule in ``docs/ballcatch/reevaluation_rule.md``.
+by the rule in ``docs/study/ballcatch/reevaluation_rule.md``.
 
 Reads the ``reevaluation_pybrain.json`` and ``reevaluation_pybrain_held.json`` that
 ``analysis/paper/ballcatch_final.py --model ...`` wrote into every job of the sweeps (checking that
@@ -9,7 +9,7 @@ return is a catch and a good catch, the behaviour of every episode (dropped, kep
 held), the mean hold distance, and the rule's verdict on the tilted-palm lead.
 
 Usage:
-    python -m analysis.paper.ballcatch_reevaluation --out docs/ballcatch results/ballcatch/runs/fig5_selected
+    python -m analysis.paper.ballcatch_reevaluation --out docs/study/ballcatch results/ballcatch/runs/fig5_selected
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ the estimator's scores, and writes into ``--out``:
 - ``scores.md``: the same as a page.
 
 Usage:
-    python -m analysis.paper.ballcatch_scores --episodes 100 --seed 3 --out docs/ballcatch
+    python -m analysis.paper.ballcatch_scores --episodes 100 --seed 3 --out docs/study/ballcatch
 """
 
 from __future__ import annotations

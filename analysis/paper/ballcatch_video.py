@@ -8,8 +8,9 @@ on the job's arm in the gymnasium env with pybullet's software renderer and writ
 episode, both as mean rewards per step (the paper's units).
 
 Usage:
-    python -m analysis.paper.ballcatch_video --out docs/ballcatch/sde_best.gif SWEEP_DIR [more shards...]
-    python -m analysis.paper.ballcatch_video --explorer rex --pick median --out docs/ballcatch/rex_typical.gif SWEEP_DIR
+    python -m analysis.paper.ballcatch_video --out docs/study/ballcatch/sde_best.gif SWEEP_DIR [more shards...]
+    python -m analysis.paper.ballcatch_video --explorer rex --pick median \
+        --out docs/study/ballcatch/rex_typical.gif SWEEP_DIR
 """
 
 from __future__ import annotations

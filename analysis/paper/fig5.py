@@ -388,8 +388,8 @@ def write_markdown(result: dict, path: Path) -> None:
     if "final_policy" in result:
         episodes, seed = result["final_policy"]["episodes"], result["final_policy"]["seed"]
         lines += ["", f"The final policy evaluated on {episodes} episodes (seed {seed}; "
-                  "`analysis/paper/ballcatch_final.py`, rule in `docs/ballcatch/final_policy_rule.md`), percent of "
-                  "runs whose mean reward over them reached the level:", ""]
+                  "`analysis/paper/ballcatch_final.py`, rule in `docs/study/ballcatch/final_policy_rule.md`), "
+                  "percent of runs whose mean reward over them reached the level:", ""]
         lines += _table(result, differences, ("final_policy",), paper=False)
     for explorer, counts in result.get("behaviours", {}).items():
         episodes = sum(counts.values())

@@ -1,8 +1,8 @@
 """Reproduce the function-minimisation results: Table 1, Fig. 2 and Fig. 3 of the paper.
 
-Runs the sweeps defined in ``conf/experiment/`` (``noise_sweep``, ``episode_length_sweep``,
-``minimize2d_mlp``: each job trains 30 runs side by side, on the authors' task with the learner
-that ``analysis/selection/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
+Runs the sweeps ``noise_sweep`` and ``episode_length_sweep`` (``analysis/conf/experiment/``) and
+``minimize2d_mlp`` (``conf/experiment/``) (each job trains 30 runs side by side, on the authors' task with the
+learner that ``analysis/selection/learner_search.py`` chose) on a pool of worker processes (``analysis/runner.py``:
 into ``DIR/runs``, a finished job without its checkpoint, which only made reading it slower; a rerun
 skips the finished jobs and resumes the others), or reads finished run
 directories, and writes into ``--out DIR``: ``table1.json``, ``table1.md`` (every cell beside the

@@ -1,5 +1,5 @@
 """The learner selection for ball catching: each method's learner chosen by the rule in
-``docs/ballcatch/learner_selection.md``: the same candidates for every method (8 in round 1, a
+``docs/study/ballcatch/learner_selection.md``: the same candidates for every method (8 in round 1, a
 ninth in round 2), one job of 8 runs each on the tuning seed, the candidate with the most final
 catches chosen per method and round.
 
@@ -11,7 +11,7 @@ catches and mean final evaluation (the paper's mean reward per step), and the ch
 
 Usage:
     python -m analysis.selection.ballcatch_tuning run --out results/ballcatch/tuning [--methods reinforce_sde ...]
-    python -m analysis.selection.ballcatch_tuning report --out docs/ballcatch results/ballcatch/tuning
+    python -m analysis.selection.ballcatch_tuning report --out docs/study/ballcatch results/ballcatch/tuning
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The ball-catching comparisons of the paper (Fig. 5 and 6) on the full budget: 100 runs each of
 SDE and REX, with REINFORCE and with ENAC, on the PyBrain arm; the claims are the README's (from
 the first 50-run shard of each). Slow (the README gives the sweep times):
-``python -m pytest -m slow tests/test_ballcatch_claims.py``."""
+``python -m pytest -m slow tests/study/test_ballcatch_claims.py``."""
 
 from __future__ import annotations
 

@@ -14,7 +14,8 @@ from analysis.paper import ballcatch_arm_start as arm_start
 from analysis.paper import ballcatch_final as final
 from analysis.paper import ballcatch_reevaluation as reevaluation
 
-DOCS = Path(__file__).parents[1] / "docs" / "ballcatch"
+REPO = Path(__file__).resolve().parents[2]
+DOCS = REPO / "docs" / "study" / "ballcatch"
 
 
 def test_the_arm_start_page_is_its_scripts_output_and_the_measurement_holds():
@@ -47,7 +48,7 @@ def test_gravity_torques_agree_with_the_simulators_inverse_dynamics():
         assert abs(simulated) == pytest.approx(by_hand[joint], rel=0.02), joint
 
 
-FIG5_SELECTED = DOCS.parents[1] / "results" / "ballcatch" / "runs" / "fig5_selected"
+FIG5_SELECTED = REPO / "results" / "ballcatch" / "runs" / "fig5_selected"
 
 
 def test_a_committed_reevaluation_is_what_the_code_gives(monkeypatch):
@@ -69,7 +70,7 @@ def test_behaviours_read_the_balls_position_under_a_scaled_observation(monkeypat
     catches (R ≥ −1.1) must not be counted as dropped."""
     from sde_torchrl.jobs.run_dir import finished_runs
 
-    job = finished_runs(DOCS.parents[1] / "results" / "ballcatch" / "runs" / "fig5_seed3" / "rex" / "0")[0]
+    job = finished_runs(REPO / "results" / "ballcatch" / "runs" / "fig5_seed3" / "rex" / "0")[0]
     assert job.summary["config"]["env"]["observation"] == "scaled"
     returns = json.loads((job.path / "final_policy.json").read_text())["final_policy_return"]
     run = next(r for r, value in enumerate(returns) if value >= -1.1)

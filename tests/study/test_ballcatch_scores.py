@@ -21,6 +21,6 @@ def test_the_scores_of_the_trainers_own_episodes_are_the_noise_times_the_state_m
 def test_scores_page_is_what_its_script_writes_from_its_record(tmp_path):
     """``scores.json`` is the record of the measurement (100 episodes, about a minute); the page is
     what the script's writer makes of it, no number typed by hand."""
-    folder = REPO / "docs" / "ballcatch"
+    folder = REPO / "docs" / "study" / "ballcatch"
     scores.write_markdown(json.loads((folder / "scores.json").read_text()), tmp_path / "scores.md")
     assert (tmp_path / "scores.md").read_bytes() == (folder / "scores.md").read_bytes()

@@ -1,5 +1,5 @@
 """The learner selection's jobs and rule (analysis/selection/ballcatch_tuning.py,
-docs/ballcatch/learner_selection.md)."""
+docs/study/ballcatch/learner_selection.md)."""
 
 from __future__ import annotations
 
@@ -161,7 +161,7 @@ def test_selection_counts_catches_then_mean_then_order():
     ("pgpe", "ballcatch_pgpe", 4),
 ])
 def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, round_):
-    """+experiment=ballcatch_reinforce (ballcatch_rex, ...) is the candidate docs/ballcatch/tuning.json chose
+    """+experiment=ballcatch_reinforce (ballcatch_rex, ...) is the candidate docs/study/ballcatch/tuning.json chose
     in the round whose rerun sweep is committed (REINFORCE with SDE and REX and ENAC + REX: round
     3's, which the later rounds kept; PGPE: round 4's; ENAC + SDE and GPOMDP + SDE: round 6's),
     but for the tuning job's own seed, runs and bookkeeping, and the final check a user's job ends
@@ -169,7 +169,7 @@ def test_the_shipped_experiment_is_the_chosen_candidate(method, experiment, roun
     from _helpers import REPO
     from omegaconf import OmegaConf
 
-    numbers = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())
+    numbers = json.loads((REPO / "docs" / "study" / "ballcatch" / "tuning.json").read_text())
     methods = (numbers["round3"] if round_ >= 3 else numbers)["methods"]
     chosen = methods[method][tuning.LATER_ROUNDS[round_][0] if round_ >= 3 else "chosen"]
     tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger", "final_episodes")
@@ -192,7 +192,8 @@ def test_the_rerun_sweep_is_round_three_s_choice_on_the_rules_seed(method, exper
     from _helpers import REPO
     from omegaconf import OmegaConf
 
-    chosen = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())["round3"]["methods"][method]
+    numbers_file = REPO / "docs" / "study" / "ballcatch" / "tuning.json"
+    chosen = json.loads(numbers_file.read_text())["round3"]["methods"][method]
     tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger")
     job = [o for o in tuning.job_overrides(method, chosen["chosen"], round_=3) if o.split("=")[0] not in tuning_only]
     sweep = OmegaConf.to_container(compose_config(f"+experiment={experiment}", f"first_run={shard}"),
@@ -209,7 +210,8 @@ def test_the_round_four_rerun_sweep_is_round_four_s_choice_on_seed_4():
     from _helpers import REPO
     from omegaconf import OmegaConf
 
-    chosen = json.loads((REPO / "docs" / "ballcatch" / "tuning.json").read_text())["round3"]["methods"]["pgpe"]
+    numbers_file = REPO / "docs" / "study" / "ballcatch" / "tuning.json"
+    chosen = json.loads(numbers_file.read_text())["round3"]["methods"]["pgpe"]
     assert chosen["chosen_round4"] != chosen["chosen"]
     tuning_only = ("seed", "runs", "first_run", "eval_period", "checkpoint_period", "logger")
     job = [o for o in tuning.job_overrides("pgpe", chosen["chosen_round4"], round_=4)

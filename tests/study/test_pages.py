@@ -8,7 +8,7 @@ between machines and can move the last digit kept) and everything else exactly.
 
 Every generated page and JSON whose runs are committed is here; Table 1's page is checked against
 the committed ``table1.json`` its script writes from the runs (30 runs per job, no run directory
-committed); the cup arm's (``docs/ballcatch/cup/``, an older format, no runs committed) is not.
+committed); the cup arm's (``docs/study/ballcatch/cup/``, an older format, no runs committed) is not.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from analysis.paper import (
 )
 from analysis.selection import ballcatch_tuning, learner_search
 
-BALLCATCH = REPO / "docs" / "ballcatch"
+BALLCATCH = REPO / "docs" / "study" / "ballcatch"
 RECORDS = REPO / "results" / "ballcatch"  # the committed run records the pages are written from
 #: A number on a page's JSON matches within one unit of the last significant digit written...
 REL_TOL = 10.0 ** (1 - figures.PAGE_DIGITS)
@@ -66,7 +66,7 @@ def differences(written: Any, committed: Any, where: str = "") -> list[str]:
 
 
 def sde_against_rex(script, name: str) -> tuple:
-    """The page ``script`` (fig5 or fig6) writes into ``docs/ballcatch/<name>`` from the sweep pair
+    """The page ``script`` (fig5 or fig6) writes into ``docs/study/ballcatch/<name>`` from the sweep pair
     ``runs/<name>/{sde,rex}``."""
     page = script.__name__.rsplit(".", 1)[-1]
     return (script, [str(RECORDS / "runs" / name / explorer) for explorer in ("sde", "rex")], BALLCATCH / name,

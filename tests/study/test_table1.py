@@ -1,5 +1,5 @@
 """analysis/paper/table1.py: the sweep machinery on a tiny budget (fast), and the paper's claims on
-the full budget (slow: ``python -m pytest -m slow tests/test_table1.py``)."""
+the full budget (slow: ``python -m pytest -m slow tests/study/test_table1.py``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SETTINGS = {("noise", 0.5, 15), ("noise", 1.0, 15), ("noise", 1.5, 15), ("episode_length", 0.5, 5),
             ("episode_length", 0.5, 15), ("episode_length", 0.5, 30), ("episode_length", 0.5, 45),
             ("episode_length", 0.5, 60)}
