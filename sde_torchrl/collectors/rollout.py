@@ -1,75 +1,18 @@
 """Whole-episode collection: :func:`collect_episodes`, the one entry point, and the paths it picks.
 
 Every update needs ``N`` fresh whole episodes of ``T`` steps. ``env.rollout(T, policy,
-break_when_any_done=False)`` gives them for any env and policy, but builds, transforms and stacks
-a TensorDict at every step. Where the env and the policy allow it, the same episodes come from a
-faster path. :func:`collect_episodes` tries the paths in this order and takes the first whose
-eligibility function accepts the env and the policy:
+break_when_any_done=False)`` gives them for any env and policy but builds a TensorDict at every
+step; where the env and the policy allow it, the same episodes come from a faster path.
+:func:`collect_episodes` takes the first path whose eligibility function accepts both:
 
-1. **Linear episodes** (:func:`linear_episode_env`, :func:`linear_episode_rollout`): the policy
-   is a bias-free linear controller ``Θ x`` with no Gaussian noise whose exploration is redrawn
-   once per episode (SDE, the paper's ball-catching controller) or at every step (REX), so
-   each step's action is a linear map known before the episode starts: ``Θ + σ̂ ⊙ ξ`` for the
-   whole episode or ``Θ + σ̂ ⊙ ξ_t`` at step ``t`` (eqs. 17-19, :func:`episode_matrix`); an env
-   that is a :class:`LinearEpisodeEnv` runs every world's whole episode under its maps, and
-   ``loc`` and the likelihoods are computed for all steps at once.
-2. **Tensor stepping** (:func:`tensor_step_env`, :func:`tensor_rollout`): the env is a
-   :class:`TensorStepEnv` (dynamics as tensor functions) and the policy an
-   :class:`~sde_torchrl.modules.sde_actor.SDEActor` over a ``TensorDictModule`` actor; the actor,
-   the SDE sample (:func:`~sde_torchrl.modules.distribution.sde_sample`) and the env's
-   :class:`~sde_torchrl.modules.noise.SDENoisePrimer` are called on tensors at every step and
-   one TensorDict is built at the end.
-3. **Parameter-exploring episodes** (:func:`parameter_step_env`, :func:`parameter_rollout`):
-   the env is a :class:`TensorStepEnv` and the policy PGPE's ``TensorDictSequential(actor,
-   ParameterExplorer(actor))`` (:mod:`sde_torchrl.modules.pgpe`). Each episode's parameters
-   ``θ = μ + σ ⊙ ξ`` are drawn once, before its first step, as the explorer draws them where
-   ``is_init`` is set; then the actor's network (for ``loc``), the controller under ``θ``
-   (:meth:`~sde_torchrl.modules.pgpe.ParameterExplorer.episode_controller`) and the env are
-   called on tensors at every step and one TensorDict is built at the end.
-4. **TorchRL** ``env.rollout``: the reference, for everything else (other transforms, other
-   policies, gymnasium envs).
-
-What every path guarantees, for the same env, policy and random-stream states:
-
-* **The same episodes as** ``env.rollout``: the fast paths draw through the env's noise primer
-  (:meth:`~sde_torchrl.modules.noise.SDENoisePrimer.start` and ``advance``), from its streams
-  (and the env's) in ``env.rollout``'s order, one ``ξ`` per step from the episode start. Tensor
-  stepping agrees with ``env.rollout`` to float32 rounding (``torch.testing.assert_close``'s
-  float32 tolerances; the random draws, hence ``sde_noise``, are identical), on the minimisation
-  task for every schedule, MLP actors, squashing and Gaussian noise, and on the ball-catching
-  worlds: ``tests/test_rollout.py::test_tensor_rollout_equals_env_rollout`` and
-  ``::test_tensor_rollout_equals_env_rollout_on_the_ball_catching_worlds``. Linear episodes draw
-  the same ``ξ`` (per episode or per step) bit for bit and leave the streams where tensor
-  stepping leaves them (``::test_episode_matrix_is_theta_plus_sigma_noise_and_draws_like_the_primer``);
-  the ball-catching worlds evaluate the maps in float64 where tensor stepping rounds to
-  float32, so before the ball reaches the hand ``observation``, ``is_init``, ``done`` and
-  ``truncated`` are identical and ``loc``, ``action_sample``, ``action``, the next observation
-  and the reward agree to 1e-4, and mean episode rewards to 0.02 over 120 steps
-  (``::test_linear_episode_rollout_gives_the_tensor_rollout_episodes``, SDE and REX, random and
-  deterministic exploration); on the minimisation task ``Θ x + Θ̂ x`` becomes ``(Θ + Θ̂) x``,
-  which agrees to float32 rounding
-  (``::test_linear_minimize_episodes_are_the_tensor_rollout_episodes``). Parameter-exploring
-  episodes draw PGPE's ``ξ`` from the explorer's streams as ``env.rollout`` does (the random
-  draws of the env's primer, which the explorer replaces at every episode start, are not made)
-  and compute the same numbers:
-  every key they write equals ``env.rollout``'s bit for bit
-  (``::test_parameter_rollout_equals_env_rollout``).
-* **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the observation (the
-  features), the ``SDEParams``' ``loc_key``, the policy's ``action_key``, ``log_prob_key`` and
-  (squashed) ``sample_key``, ``is_init`` and, unless exploration is deterministic, the noise
-  (``noise_key``, and ``gaussian_noise_key`` with eq. 22's part); under ``next``:
-  ``observation``, ``reward``, ``done`` and ``truncated``; for PGPE, the explorer's keys
-  (``loc``, ``action``, ``action_sample``, ``pgpe_parameters`` and, unless exploration is
-  deterministic, ``pgpe_noise``) in place of the SDE policy's. The fast paths write nothing else
-  (``env.rollout`` adds, e.g., ``terminated``, ``step_count``, ``σ̂`` and the env's extra
-  observations).
-* **A fallback that is never wrong**: an env wrapped in a transform the fast paths do not
-  reproduce, or a policy they do not know, goes to ``env.rollout``
-  (``::test_envs_or_policies_it_cannot_reproduce_fall_back``,
-  ``::test_linear_episode_path_needs_a_bias_free_linear_map_fixed_per_episode``,
-  ``::test_linear_episode_path_needs_an_env_that_runs_linear_episodes``,
-  ``::test_parameter_path_needs_pgpes_policy_and_an_init_tracker``,
-  ``tests/test_gym.py::test_collection_falls_back_to_env_rollout``), and ``fast=False`` forces it.
+1. **Linear episodes** (:func:`linear_episode_env`, :func:`linear_episode_rollout`): a bias-free
+   linear controller whose exploration is redrawn per episode (SDE) or per step (REX), so every
+   action is a map known in advance, ``Θ + σ̂ ⊙ ξ`` (eqs. 17-19, :func:`episode_matrix`).
+2. **Tensor stepping** (:func:`tensor_step_env`, :func:`tensor_rollout`): a :class:`TensorStepEnv`
+   and an :class:`~sde_torchrl.modules.sde_actor.SDEActor`, called on tensors at every step.
+3. **Parameter-exploring episodes** (:func:`parameter_step_env`, :func:`parameter_rollout`): a
+   :class:`TensorStepEnv` and PGPE's policy (:mod:`sde_torchrl.modules.pgpe`).
+4. **TorchRL** ``env.rollout``: the reference, for everything else.
 """
 
 from __future__ import annotations
@@ -142,11 +85,35 @@ def collect_episodes(
 ) -> TensorDictBase:
     """Fresh whole episodes of ``steps`` steps, one per batch element of ``env``.
 
-    Takes the fastest path that gives ``env.rollout``'s episodes (see the module docstring for
-    what each path guarantees), else ``env.rollout(steps, policy, break_when_any_done=False)``.
-    Runs under ``torch.no_grad()``, a fast path under ``torch.inference_mode()`` (its episodes
-    cloned out of it); the exploration type in force (e.g.
-    ``set_exploration_type(ExplorationType.DETERMINISTIC)``) applies.
+    Takes the fastest path that gives ``env.rollout``'s episodes (the module docstring lists
+    them), else ``env.rollout(steps, policy, break_when_any_done=False)``. Runs under
+    ``torch.no_grad()``, a fast path under ``torch.inference_mode()`` (its episodes cloned out of
+    it); the exploration type in force (e.g. ``set_exploration_type(ExplorationType.DETERMINISTIC)``)
+    applies. For the same env, policy and random-stream states every path guarantees:
+
+    * **The same episodes as** ``env.rollout``: the fast paths draw through the env's noise primer
+      (:meth:`~sde_torchrl.modules.noise.SDENoisePrimer.start` and ``advance``), from its streams
+      (and the env's) in ``env.rollout``'s order, one ``ξ`` per step from the episode start.
+      Tensor stepping agrees to float32 rounding, its random draws (hence ``sde_noise``)
+      identical. Linear episodes draw the same ``ξ`` bit for bit; the ball-catching worlds
+      evaluate the maps in float64, so before the ball reaches the hand the observations and
+      flags are identical and ``loc``, the actions, the next observation and the reward agree
+      to 1e-4 (mean episode rewards to 0.02 over 120 steps); on the minimisation task
+      ``Θ x + Θ̂ x`` becomes ``(Θ + Θ̂) x``, equal to float32 rounding. Parameter-exploring
+      episodes draw PGPE's ``ξ`` from the explorer's streams and write every key bit for bit
+      as ``env.rollout`` does (the env primer's draws, which the explorer replaces at every
+      episode start, are not made).
+    * **The keys the estimators and the trainer read**, shaped ``[*batch, T]``: the observation
+      (the features), the ``SDEParams``' ``loc_key``, the policy's ``action_key``,
+      ``log_prob_key`` and (squashed) ``sample_key``, ``is_init`` and, unless exploration is
+      deterministic, the noise (``noise_key``, and ``gaussian_noise_key`` with eq. 22's part);
+      under ``next``: ``observation``, ``reward``, ``done`` and ``truncated``; for PGPE, the
+      explorer's keys (``loc``, ``action``, ``action_sample``, ``pgpe_parameters`` and, unless
+      exploration is deterministic, ``pgpe_noise``) in place of the SDE policy's. The fast paths
+      write nothing else (``env.rollout`` adds, e.g., ``terminated``, ``step_count``, ``σ̂`` and
+      the env's extra observations).
+    * **A fallback that is never wrong**: an env wrapped in a transform the fast paths do not
+      reproduce, or a policy they do not know, goes to ``env.rollout``; ``fast=False`` forces it.
 
     Args:
         env: the (batched) env, reset by the collection.
@@ -235,7 +202,7 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
         primer: the env's noise primer (:func:`noise_primer`).
 
     Returns:
-        TensorDict ``[*batch, T]`` with the keys listed in the module docstring.
+        TensorDict ``[*batch, T]`` with the keys listed in :func:`collect_episodes`.
     """
     (actor,), sde = policy.actor_modules, policy.sde
     batch = env.batch_size
@@ -424,7 +391,7 @@ def parameter_rollout(env: TensorStepEnv, policy: TensorDictSequential, steps: i
         steps: episode length ``T``.
 
     Returns:
-        TensorDict ``[*batch, T]`` with the keys listed in the module docstring.
+        TensorDict ``[*batch, T]`` with the keys listed in :func:`collect_episodes`.
 
     Examples:
         >>> from tensordict.nn import TensorDictSequential

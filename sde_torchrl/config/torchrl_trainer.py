@@ -6,17 +6,14 @@ TorchRL's trainer configs (``torchrl.trainers.algorithms.configs``: ``PPOTrainer
 :func:`register_torchrl_configs` adds the option ``sde`` beside it (:class:`SDEModelConfig`):
 the squashed SDE policy of :func:`~sde_torchrl.modules.sde_actor.make_sde_actor`, built by
 :func:`make_sde_model` from the same fields, so a ``tanh_normal`` block (network, keys, bounds)
-works unchanged.
+works unchanged. :func:`check_sde_models` checks every ``sde`` model of a composed config before
+anything is built, naming each refused one by its key.
 
-The noise matrix lives in the env, drawn by the policy's own
-:class:`~sde_torchrl.modules.noise.SDENoisePrimer` (``sde.make_tensordict_primer()``). TorchRL's
-collectors append it when asked: ``auto_register_policy_transforms: true`` in the collector's
-config (TorchRL's default from 0.15 on). There is no separate ``transform`` option for it: the
-primer must match the policy's dimensions, schedule and keys, which the policy already knows.
-
-:func:`check_sde_models` checks the settings of every ``sde`` model of a composed config before
-anything is built, naming each refused one by its key (``models.policy_model.init_param=nan: ...``),
-as ``train.py``'s schemas do for this repository's own configs.
+The noise matrix is drawn in the env by the policy's own
+:class:`~sde_torchrl.modules.noise.SDENoisePrimer` (``sde.make_tensordict_primer()``), which
+TorchRL's collectors append with ``auto_register_policy_transforms: true`` (their default from
+TorchRL 0.15 on); no separate ``transform`` option: the primer must match the policy's
+dimensions, schedule and keys, which the policy already knows.
 """
 
 from __future__ import annotations
@@ -34,6 +31,7 @@ from torch import nn
 from torchrl.trainers.algorithms.configs.common import _normalize_hydra_key
 from torchrl.trainers.algorithms.configs.modules import ModelConfig
 
+from sde_torchrl.modules.noise import DEFAULT_SCHEDULE
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import SDEActor, make_sde_actor
 from sde_torchrl.utils.checks import ArgumentError, float32_number, is_int, noise_schedule, one_of
@@ -82,7 +80,7 @@ class SDEModelConfig(ModelConfig):
     action_dim: int | None = None
     feature_dim: int | None = None
     feature_key: Any = None
-    schedule: str = "episode"
+    schedule: str = DEFAULT_SCHEDULE
     every_n: int | None = None
     rollout_steps: int | None = None
     sharing: str = "element"
@@ -293,7 +291,7 @@ def check_sde_settings(settings: Mapping[str, Any], prefix: str = "") -> None:
         if value is not None and not (is_int(value) and value >= 1):
             raise ArgumentError(prefix + name, value, "null (read from the network) or a positive integer")
     if any(name in settings for name in ("schedule", "every_n", "rollout_steps")):
-        noise_schedule(settings.get("schedule", "episode"), settings.get("every_n"), prefix,
+        noise_schedule(settings.get("schedule", DEFAULT_SCHEDULE), settings.get("every_n"), prefix,
                        rollout_steps=settings.get("rollout_steps"))
     for name, allowed in (("sharing", SHARINGS), ("sigma_transform", SIGMA_TRANSFORMS)):
         if name in settings:

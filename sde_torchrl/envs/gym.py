@@ -2,28 +2,9 @@
 
 ``env=gym env.id=Pendulum-v1`` trains on any registered gymnasium env with a continuous
 (``Box``) action space. Each batch element is a TorchRL ``GymEnv``; :class:`GymRunsEnv` steps
-them side by side and gives the trainer the ``[runs, episodes]`` batch it expects.
-
-Per-run randomness: every reset reseeds each episode's env with a seed drawn from its run's
-stream (:class:`~sde_torchrl.utils.rng.RunStreams`, like :class:`~sde_torchrl.envs.MinimizeEnv`), so
-run ``r`` of a batched job sees the start states a single job with ``first_run=r`` sees, and a
-checkpoint of the streams resumes the env exactly: each env is reset once when it is made
-(:func:`~sde_torchrl.envs.vector.first_reset`), so that an episode depends on its seed and
-actions alone, not on the env's past (a PyBullet env's first reset is unlike its later ones).
-
-Fixed horizon: the episodic estimators want ``T`` steps per episode. An episode that ends
-earlier (the task terminates, or gymnasium's time limit truncates it) is held in an absorbing
-state until step ``T``: observation frozen, reward 0, the env not stepped.
-
-Two options matter for SDE, whose exploration ``Θ̂ x`` scales with the features ``|x|``:
-
-* ``normalize_obs``: ``"bounds"`` maps a bounded observation space to ``[-1, 1]``;
-  ``"stats"`` standardises with the mean and standard deviation of ``norm_init_steps`` steps
-  of uniformly random actions (seeded, the same for every job and run). Both are fixed
-  TorchRL ``ObservationNorm`` transforms: no running statistics to checkpoint, and training and
-  evaluation see the same features.
-* ``constant_feature``: append a constant 1 to the explorer's features (``sde_features``), so
-  that the exploration does not vanish where the observation is near 0.
+them side by side with per-run seeds and a fixed horizon, and :func:`make_gym_env` adds the
+transforms that matter for SDE, whose exploration ``Θ̂ x`` scales with the features ``|x|``:
+a fixed observation normalisation and a constant feature.
 """
 
 from __future__ import annotations
@@ -56,6 +37,17 @@ MAKE_PROGRESS_S = 10.0
 
 class GymRunsEnv(EnvBase):
     """``runs × episodes`` copies of a gymnasium env as one TorchRL env of batch ``[runs, episodes]``.
+
+    Per-run randomness: every reset reseeds each episode's env with a seed drawn from its run's
+    stream (:class:`~sde_torchrl.utils.rng.RunStreams`, like :class:`~sde_torchrl.envs.MinimizeEnv`),
+    so run ``r`` of a batched job sees the start states a single job with ``first_run=r`` sees,
+    and a checkpoint of the streams resumes the env exactly: each env is reset once when it is
+    made (:func:`~sde_torchrl.envs.vector.first_reset`), so that an episode depends on its seed
+    and actions alone, not on the env's past (a PyBullet env's first reset is unlike its later ones).
+
+    Fixed horizon: the episodic estimators want ``T`` steps per episode. An episode that ends
+    earlier (the task terminates, or gymnasium's time limit truncates it) is held in an absorbing
+    state until step ``T``: observation frozen, reward 0, the env not stepped.
 
     Args:
         env_id: a registered gymnasium id (``"Pendulum-v1"``; ``"module:Env-v0"`` imports
@@ -279,9 +271,14 @@ def make_gym_env(
         runs: independent runs.
         first_run: global index of the first run.
         stream: ``"env"`` or ``"eval_env"``.
-        normalize_obs: ``None``, ``"bounds"`` or ``"stats"`` (see the module docstring).
+        normalize_obs: ``None``; ``"bounds"`` maps a bounded observation space to ``[-1, 1]``;
+            ``"stats"`` standardises with the mean and standard deviation of ``norm_init_steps``
+            steps of uniformly random actions (seeded, the same for every job and run). Both are
+            fixed TorchRL ``ObservationNorm`` transforms: no running statistics to checkpoint,
+            and training and evaluation see the same features.
         norm_init_steps: random steps for ``"stats"``.
-        constant_feature: add ``sde_features = [observation, 1]`` for the explorer.
+        constant_feature: add ``sde_features = [observation, 1]`` for the explorer, so that the
+            exploration does not vanish where the observation is near 0.
         gym_kwargs: passed to ``gymnasium.make``.
         reset_options: passed to every reset (``options=``), e.g. a start-state range.
         seed: job seed (``None``: 0).

@@ -4,24 +4,9 @@
 :class:`~sde_torchrl.envs.gym.GymRunsEnv` (whole episodes of a fixed length for the episodic
 estimators), an episode here ends where the env ends it (terminated, or truncated by its time
 limit or at ``episode_length`` steps) and the caller resets the done envs alone, as TorchRL's
-``step_and_maybe_reset`` does; rollouts then run through episode boundaries, as SB3's do.
-
-Two choices follow Stable-Baselines3: the env steps with the action clipped to its bounds while
-the batch keeps the sampled one (pybullet's locomotion envs charge their costs on the action
-they are given), and each episode starts from a seed, drawn from the job's ``env`` stream
-(:class:`~sde_torchrl.utils.rng.RunStreams`) at every reset. With ``time_feature`` the
-observation ends with ``1 - t / episode_length`` (sb3-contrib's ``TimeFeatureWrapper``).
-
-A simulator's state mid-episode cannot in general be saved; what determines it can:
-:meth:`GymVectorEnv.replay_state` holds, per env, its episode's seed and the actions stepped
-since, and :meth:`GymVectorEnv.restore_replay` resets fresh envs with those seeds and steps them
-again, then checks that they arrive at the recorded observations, bit for bit. That holds for
-envs whose ``reset(seed=...)`` fixes their whole state (the classic-control envs and the PyBullet
-locomotion envs, checked on ``HalfCheetahBulletEnv-v0``); an env for which it does not is
-refused on resume, by name, instead of resumed to other numbers.
-
-That an episode depends on its seed and actions alone also needs each env reset once when it is
-made (:func:`first_reset`): a PyBullet env's first reset is unlike its later ones.
+``step_and_maybe_reset`` does; rollouts then run through episode boundaries, as SB3's do. A
+simulator's state mid-episode cannot in general be saved, so a job resumes the envs by replaying
+each episode's seed and actions (:meth:`GymVectorEnv.restore_replay`).
 """
 
 from __future__ import annotations
@@ -48,6 +33,12 @@ class ReplayMismatchError(RuntimeError):
 
 class GymVectorEnv(EnvBase):
     """``n_envs`` copies of a gymnasium env as one TorchRL env of batch ``[n_envs]``.
+
+    Two choices follow Stable-Baselines3: the env steps with the action clipped to its bounds
+    while the batch keeps the sampled one (pybullet's locomotion envs charge their costs on the
+    action they are given), and each episode starts from a seed, drawn from the job's ``env``
+    stream (:class:`~sde_torchrl.utils.rng.RunStreams`) at every reset. With ``time_feature`` the
+    observation ends with ``1 - t / episode_length`` (sb3-contrib's ``TimeFeatureWrapper``).
 
     Args:
         env_id: a gymnasium id (``"Pendulum-v1"``; ``"module:Env-v0"`` imports ``module`` first).
@@ -181,6 +172,14 @@ class GymVectorEnv(EnvBase):
 
     def restore_replay(self, state: dict[str, Any]) -> None:
         """Resets each env with its recorded seed and steps it with its recorded actions.
+
+        :meth:`replay_state` holds, per env, its episode's seed and the actions stepped since;
+        this resets fresh envs with those seeds, steps them again and checks that they arrive at
+        the recorded observations, bit for bit. That holds for envs whose ``reset(seed=...)``
+        fixes their whole state (the classic-control envs and the PyBullet locomotion envs); an
+        env for which it does not is refused on resume, by name, instead of resumed to other
+        numbers. It also needs each env reset once when it is made (:func:`first_reset`): a
+        PyBullet env's first reset is unlike its later ones.
 
         Raises:
             ReplayMismatchError: an env did not arrive at its recorded observation, bit for bit.

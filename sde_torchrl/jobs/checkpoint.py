@@ -2,29 +2,18 @@
 
 A job's state between two updates is: the policy and optimiser state dicts, the number of
 updates done, every random generator it draws from (the explorer's and the envs' per-run
-:class:`~sde_torchrl.utils.rng.RunStreams`; Python's, NumPy's, torch's and any initialised
-accelerator's global generators, as TorchRL's :class:`~torchrl.checkpoint.GlobalRNGState` captures
-them) and the bookkeeping the summary is computed from. Restoring all of it and continuing produces exactly
-the numbers an uninterrupted job produces (on CPU).
+:class:`~sde_torchrl.utils.rng.RunStreams`; the global generators, as TorchRL's
+:class:`~torchrl.checkpoint.GlobalRNGState` captures them) and the bookkeeping the summary is
+computed from. Restoring all of it and continuing produces exactly the numbers an uninterrupted
+job produces (on CPU). :func:`save_job` and :func:`restore_job` write and read that state: the
+file is replaced atomically, and its content carries a checksum (:func:`content_digest`) verified
+on load, so a damaged file raises :class:`~sde_torchrl.utils.files.DamagedFileError` rather than
+resuming from wrong numbers; ``torch.load(..., weights_only=True)`` still reads it.
 
-:func:`save_job` and :func:`restore_job` write and read that whole state; the checkpoint file is
-replaced atomically, so a reader (or a resumed job) sees the previous complete file or the new one.
-Its content carries a checksum (:func:`content_digest`, key ``sha256``), verified on load: a
-damaged file raises :class:`~sde_torchrl.utils.files.DamagedFileError` rather than resuming from
-wrong numbers. The checksum covers the loaded content (every tensor's bytes, dtype and shape,
-every plain value), not the zip container, so what it accepts is exactly what was saved, and
-``torch.load("checkpoint.pt", weights_only=True)`` still reads the file.
-
-Why the file is ours and not a :class:`torchrl.checkpoint.Checkpoint` (read in TorchRL 0.14.1):
-its save replaces an existing checkpoint in two renames (the old one aside, then the new one in),
-so a kill between them leaves no checkpoint under its name, and nothing is fsynced; its manifest
-lists file names but no checksums, so a damaged tensor payload loads without a word; its load
-restores each component in place as it reads it, where a resume must first check the whole file
-(checksum, config, fit to the job) and change nothing if any check fails; and it writes a
-directory tree or a zip of per-tensor files, not one file ``torch.load`` reads.
-:class:`~torchrl.checkpoint.CheckpointRotation` rotates such checkpoints only (named by step,
-newest chosen by manifest, so a damaged newest one is still chosen): :func:`keep_previous` keeps
-the one before, as a copy (never a hard link: damaging one file must not damage both).
+The file is not a :class:`torchrl.checkpoint.Checkpoint`: that one's save leaves no checkpoint if
+killed between its two renames, its manifest has no checksums, its load changes each component
+as it reads it (a resume must check the whole file first and change nothing if a check fails),
+and it writes a directory or zip of per-tensor files, not one file.
 """
 
 from __future__ import annotations
@@ -288,7 +277,8 @@ def keep_previous(path: Path, previous: Path) -> None:
     """Makes ``previous`` a durable copy of ``path``, replacing it atomically: at every moment
     one of the two is a complete checkpoint. A copy, not a hard link: a job killed between this
     and the next checkpoint's rename would otherwise leave both names on one file, and damaging
-    one would damage both.
+    one would damage both. (TorchRL's :class:`~torchrl.checkpoint.CheckpointRotation` rotates
+    only its own checkpoints, and picks the newest by manifest even when that one is damaged.)
 
     Examples:
         >>> import tempfile

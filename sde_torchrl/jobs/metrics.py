@@ -12,12 +12,7 @@ any) under which its run-averaged curve is logged. Everything else follows from 
 - the logger's values, :func:`logged_values`.
 
 The statistics a job keeps for every update (in :class:`~sde_torchrl.trainers.summary.LoopState`
-and in a checkpoint's ``loop``) are declared beside them, :data:`RECORDS`: a metric computed from
-them needs nothing else. Adding one is adding a :class:`Metric` at the end of :data:`METRICS`
-(not required: the files written before it lack its column, and still read). A metric that needs a
-statistic the update does not yet return also needs that statistic returned by the trainer's
-update and a :class:`Record` of it, which changes the checkpoint's record
-(:data:`~sde_torchrl.jobs.checkpoint.FORMAT`).
+and in a checkpoint's ``loop``) are declared beside them, :data:`RECORDS`.
 """
 
 from __future__ import annotations
@@ -100,7 +95,11 @@ RECORDS = (
     Record("exploration", "explorations", (3,)),
 )
 
-#: ``metrics.csv``'s columns, in order (see :func:`update_statistics` for the statistics).
+#: ``metrics.csv``'s columns, in order (see :func:`update_statistics` for the statistics). A new
+#: metric computed from :data:`RECORDS` is a :class:`Metric` added at the end (the files written
+#: before it lack its column, and still read); one that needs a statistic the update does not yet
+#: return also needs that statistic returned by the trainer's update and a :class:`Record` of it,
+#: which changes the checkpoint's record (:data:`~sde_torchrl.jobs.checkpoint.FORMAT`).
 METRICS = (
     Metric("run", lambda s: range(s["first_run"], s["first_run"] + s["runs"]), int, required=True),
     Metric("update", itemgetter("update"), int, required=True),

@@ -1,38 +1,18 @@
 """A job's run directory: which files it holds, and how each is written and checked.
 
 - ``.lock``: held by the one process working in the directory (:mod:`sde_torchrl.jobs.lock`);
-- ``metrics.csv``: one row per (run, update), flushed as written (:class:`MetricsFile`); on
-  resume, its rows up to the checkpoint must be exactly those the checkpoint recorded
-  (:meth:`RunDirectory.check_metrics`), and a missing one is rebuilt from the checkpoint;
+- ``metrics.csv``: one row per (run, update), flushed as written (:class:`MetricsFile`), its
+  columns declared in :mod:`sde_torchrl.jobs.metrics`; read back by :func:`read_metrics`;
 - ``summary.json``: strict JSON (no NaN or infinity), written atomically at the end;
-- ``job_config.json``: the config the rows were written under, with its digest, so that a rerun
-  with another config is refused before the first checkpoint as after it (:meth:`RunDirectory.check_job`,
-  the one check that a directory holds this job); it is checked wherever it is read
-  (:func:`read_job_config`), and rows without it are refused, never overwritten;
+- ``job_config.json``: the config the rows were written under, with its digest
+  (:meth:`RunDirectory.check_job`, the one check that a directory holds this job);
 - ``checkpoint.pt`` and the one before it, ``checkpoint.prev.pt``: see :mod:`sde_torchrl.jobs.checkpoint`;
-- ``error.txt``: only for a failed job (written by ``train.py``);
+- ``error.txt``: only for a failed job;
 - ``*/scalars/*.csv``: the TorchRL CSV logger's curves, cut back on resume.
 
-A finished job is final: ``summary.json`` records the SHA-256 of ``metrics.csv`` and of its own
-entries, and :func:`check_finished` is the one check that its files agree (the job runs it
-before doing anything in a directory that holds a summary, the reader before reading one). Those
-two files are its result; its checkpoint decides nothing: one that is damaged, unfinished or of
-another job is named in one line and left alone, and the job is never trained again from it
-(only when the summary and the rows disagree does a finished checkpoint rebuild them). A rerun
-of the same config finds it finished and changes nothing; another config is refused; a
-finished job is never removed or trained again by a job (:meth:`RunDirectory.start_new_job`
-refuses to): starting over means removing the directory. A directory without a summary or a
-checkpoint starts a new job: :meth:`RunDirectory.start_new_job` removes the outputs of an
-earlier, unfinished or failed job there, so that no stale file is mistaken for this job's.
-
-The columns of ``metrics.csv`` are declared once, in :mod:`sde_torchrl.jobs.metrics`. Read back,
-beside the writer: :func:`read_metrics` is the one parser of ``metrics.csv`` (typed
-:class:`~sde_torchrl.jobs.metrics.MetricRow` rows), and :func:`read_finished_run` /
-:func:`finished_runs` the one reader of a finished job (summary, config and rows), which refuses
-a directory a live job holds or whose files disagree; :func:`finished_runs` finds a sweep's jobs
-by the files a job writes (:data:`JOB_FILES`), so that a job killed before its first row is
-named, not skipped, and by the sweep's own job list (:mod:`sde_torchrl.jobs.sweeps`), so that a
-job that never started is named too. The analysis scripts read run directories through them only.
+A finished job is final (:class:`RunDirectory` says what that means; :func:`check_finished` is
+the one check that its files agree). :func:`read_finished_run` and :func:`finished_runs` are the
+one reader of finished jobs, the analysis scripts' way in.
 """
 
 from __future__ import annotations
@@ -139,6 +119,24 @@ def read_metrics_text(text: str) -> list[MetricRow]:
 
 class RunDirectory:
     """The files of one job, and the one check that they are this job's (:meth:`check_job`).
+
+    On resume, the rows of ``metrics.csv`` up to the checkpoint must be exactly those the
+    checkpoint recorded (:meth:`check_metrics`), and a missing file is rebuilt from the
+    checkpoint. ``job_config.json`` makes a rerun with another config refused before the first
+    checkpoint as after it; it is checked wherever it is read
+    (:func:`read_job_config`), and rows without it are refused, never overwritten.
+
+    A finished job is final: ``summary.json`` records the SHA-256 of ``metrics.csv`` and of its
+    own entries, and :func:`check_finished` is the one check that its files agree (the job runs
+    it before doing anything in a directory that holds a summary, the reader before reading
+    one). Those two files are its result; its checkpoint decides nothing: one that is damaged,
+    unfinished or of another job is named in one line and left alone, and the job is never
+    trained again from it (only when the summary and the rows disagree does a finished
+    checkpoint rebuild them). A rerun of the same config finds it finished and changes nothing;
+    another config is refused; :meth:`start_new_job` refuses to remove or retrain a finished
+    job: starting over means removing the directory. A directory without a summary or a
+    checkpoint starts a new job: :meth:`start_new_job` removes the outputs of an earlier,
+    unfinished or failed job there, so that no stale file is mistaken for this job's.
 
     Args:
         path: the directory (created if missing).
@@ -739,7 +737,10 @@ def finished_runs(*directories: str | os.PathLike, finished_only: bool = False) 
     :func:`read_finished_run`, directory by directory in path order: a job that is not finished
     (killed, live, failed, with files that disagree, or, listed by its sweep's record, never
     started) refuses the whole set, naming it, rather than giving results with a run missing
-    or cut short, unless ``finished_only``.
+    or cut short, unless ``finished_only``. Jobs are found by the files a job writes
+    (:data:`JOB_FILES`), so that a job killed before its first row is named, not skipped, and by
+    the sweep's own job list (:mod:`sde_torchrl.jobs.sweeps`), so that a job that never started
+    is named too.
 
     Args:
         directories: sweep or run directories (shards of one sweep may be given together).

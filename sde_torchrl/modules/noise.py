@@ -1,29 +1,15 @@
 """SDE's noise: the one place the noise matrix ``ξ`` (and eq. 22's ``ε``) is drawn, and its schedule.
 
-The exploration matrix is ``Θ̂ = σ̂ ⊙ ξ`` with ``ξ ~ N(0, I)`` (eq. 18), held for a whole
-episode (SDE), redrawn at every step (REX, the paper's random-exploration baseline, section 4.1)
-or every ``n`` steps of an episode; or, counted as Stable-Baselines3 counts its
-``sde_sample_freq``, held across episode boundaries and redrawn every ``n`` steps of a rollout
-(``every_n_steps``) or once per rollout (``rollout``). :class:`SDENoisePrimer`, an env transform,
-keeps ``ξ`` in the tensordict and owns that schedule; its tensor-level methods
-(:meth:`~SDENoisePrimer.start`, :meth:`~SDENoisePrimer.advance`) are what the fast collection
-paths call, so every way of collecting draws the same numbers. :func:`draw_noise` is the draw.
-
-The stream is consumed the same way under every schedule: one ``ξ`` (then one ``ε`` with eq.
-22's part) per step from an episode's start, the first at the reset, each later one after a
-step that some episode of the batch goes on from. The schedule only decides which draws are
-used: SDE keeps the first for the episode, REX uses each. Two learners on the same seed thus see
-the same numbers whatever their schedule (the SB3-style schedules below also draw after a step
-that ends every episode, since their ``ξ`` goes on through the reset).
-
-SB3's counting (``every_n_steps``, ``rollout``): ``sde_age`` then holds the number of steps
-collected since the rollout began (modulo ``rollout_steps`` when given), and the reset of done
-envs during a collection (TorchRL's ``maybe_reset``, which passes the reset flags) keeps ``ξ``
-and the count (the primer holds what it last wrote); an explicit reset (``env.reset()``, the
-start of ``env.rollout`` or of a ``Collector``) starts a new rollout. ``ξ`` is redrawn before step ``t`` of the
-rollout when ``t % n == 0`` (``every_n_steps``), at ``t = 0`` when the rollout length is known
-(``rollout_steps``), or by :meth:`SDENoisePrimer.resample`: SB3's ``reset_noise`` at the start
-of ``collect_rollouts`` and every ``sde_sample_freq`` steps of it.
+The exploration matrix is ``Θ̂ = σ̂ ⊙ ξ`` with ``ξ ~ N(0, I)`` (eq. 18). :class:`SDENoisePrimer`,
+an env transform, keeps ``ξ`` in the tensordict and owns its schedule: held for a whole episode
+(SDE), redrawn at every step (REX, the paper's random-exploration baseline, section 4.1) or every
+``n`` steps of an episode; or counted over a rollout across episode boundaries, as
+Stable-Baselines3 counts its ``sde_sample_freq`` (``every_n_steps``, ``rollout``). Its
+tensor-level methods (:meth:`~SDENoisePrimer.start`, :meth:`~SDENoisePrimer.advance`) are what
+the fast collection paths call, so every way of collecting draws the same numbers;
+:func:`draw_noise` is the draw. The schedule's and the keys' defaults (:data:`DEFAULT_SCHEDULE`,
+:data:`NOISE_KEY` and the keys after it) are defined here, for
+:class:`~sde_torchrl.modules.sde.SDEParams` too.
 """
 
 from __future__ import annotations
@@ -43,6 +29,13 @@ from sde_torchrl.utils.options import ROLLOUT_SCHEDULES
 from sde_torchrl.utils.rng import RunStreams, draw_normal
 
 _DETERMINISTIC = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+
+#: The default schedule of :class:`SDENoisePrimer` and :class:`~sde_torchrl.modules.sde.SDEParams`:
+#: ``ξ`` held for a whole episode, the paper's SDE.
+DEFAULT_SCHEDULE = "episode"
+#: The tensordict keys of the carried noise, by default: ``ξ``, eq. (22)'s ``ε`` and the schedule's
+#: step count (``sde_age``).
+NOISE_KEY, GAUSSIAN_NOISE_KEY, AGE_KEY = "sde_noise", "sde_gaussian_noise", "sde_age"
 
 #: What to do when a policy finds no noise in its input.
 ADD_PRIMER = (
@@ -97,14 +90,24 @@ class SDENoisePrimer(TensorDictPrimer):
     every step. Under deterministic exploration nothing is drawn. Being a ``TensorDictPrimer``,
     TorchRL's ``Collector`` recognises it and does not add it twice.
 
+    The random stream is consumed the same way under every schedule: one ``ξ`` (then one ``ε``
+    with eq. 22's part) per step from an episode's start, the first at the reset, each later one
+    after a step that some episode of the batch goes on from. The schedule only decides which
+    draws are used (SDE keeps the first for the episode, REX uses each), so two learners on the
+    same seed see the same numbers whatever their schedule (the SB3-style schedules also draw
+    after a step that ends every episode, since their ``ξ`` goes on through the reset).
+
     SB3's ``sde_sample_freq`` counts collected steps over a rollout, not over an episode; the
     schedules ``"every_n_steps"`` (``sde_sample_freq=n``) and ``"rollout"``
     (``sde_sample_freq=-1``) do the same: ``ξ`` and the count (``sde_age``, steps since the
     rollout began) go on through episode boundaries, and ``ξ`` is redrawn before the rollout's
     steps ``0, n, 2n, ...`` (``"every_n_steps"``) and, with ``rollout_steps=R``, before every
-    ``R``-th step (a new rollout: the count restarts). With TorchRL's ``Collector`` set
-    ``rollout_steps = frames_per_batch // num_envs``; in a hand-written loop, call
-    :meth:`resample` at the start of each rollout instead.
+    ``R``-th step (a new rollout: the count restarts). The reset of done envs during a
+    collection (TorchRL's ``maybe_reset``) keeps ``ξ`` and the count; an explicit reset
+    (``env.reset()``, the start of ``env.rollout`` or of a ``Collector``) starts a new rollout.
+    With TorchRL's ``Collector`` set ``rollout_steps = frames_per_batch // num_envs``; in a
+    hand-written loop, call :meth:`resample` at the start of each rollout instead (SB3's
+    ``reset_noise``).
 
     Args:
         action_dim: ``A``.
@@ -144,13 +147,13 @@ class SDENoisePrimer(TensorDictPrimer):
         action_dim: int,
         feature_dim: int,
         *,
-        schedule: str = "episode",
+        schedule: str = DEFAULT_SCHEDULE,
         every_n: int | None = None,
         rollout_steps: int | None = None,
         gaussian: bool = False,
-        noise_key: NestedKey = "sde_noise",
-        gaussian_noise_key: NestedKey = "sde_gaussian_noise",
-        age_key: NestedKey = "sde_age",
+        noise_key: NestedKey = NOISE_KEY,
+        gaussian_noise_key: NestedKey = GAUSSIAN_NOISE_KEY,
+        age_key: NestedKey = AGE_KEY,
         dtype: torch.dtype = torch.float32,
         streams: RunStreams | None = None,
         done_key: NestedKey = "done",

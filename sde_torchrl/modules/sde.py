@@ -22,7 +22,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from sde_torchrl.modules.distribution import gaussian_log_prob, sde_variance
-from sde_torchrl.modules.noise import SDENoisePrimer
+from sde_torchrl.modules.noise import AGE_KEY, DEFAULT_SCHEDULE, GAUSSIAN_NOISE_KEY, NOISE_KEY, SDENoisePrimer
 from sde_torchrl.utils.checks import noise_schedule, one_of, positive_int
 from sde_torchrl.utils.options import SHARINGS, SIGMA_TRANSFORMS
 from sde_torchrl.utils.rng import RunStreams
@@ -128,15 +128,6 @@ class SDEParams(TensorDictModuleBase):
     Args:
         action_dim: ``A``, size of the action.
         feature_dim: ``S``, size of the exploration features ``x``.
-        schedule: when the primer redraws ``ξ``: ``"episode"`` (SDE), ``"step"`` (REX) or
-            ``"every_n"`` steps of an episode, always at a reset; or counted over a rollout
-            whatever the episode boundaries, as SB3's ``sde_sample_freq``: ``"every_n_steps"``
-            (``sde_sample_freq=n``) or ``"rollout"`` (``sde_sample_freq=-1``)
-            (:class:`~sde_torchrl.modules.noise.SDENoisePrimer`).
-        every_n: redraw period for ``"every_n"`` and ``"every_n_steps"``.
-        rollout_steps: steps per rollout for ``"every_n_steps"`` and ``"rollout"`` (TorchRL's
-            ``Collector``: ``frames_per_batch // num_envs``), or ``None`` (redraw with
-            ``primer.resample(tensordict)``).
         sharing: one ``σ̂`` per matrix element (``"element"``, ``A×S``), per action
             (``"action"``, ``A``), one for all (``"single"``) (paper section 2.3, footnote 1), or
             one per feature shared over the actions (``"feature"``, ``S``: SB3's ``full_std=False``).
@@ -148,6 +139,16 @@ class SDEParams(TensorDictModuleBase):
         learn_sigma: ``p`` (and ``q``) as learnable parameters, or as fixed buffers.
         runs: independent runs stacked along a leading parameter dimension, or ``None`` for a
             single, unstacked learner.
+        schedule: when the primer redraws ``ξ``: ``"episode"`` (SDE), ``"step"`` (REX) or
+            ``"every_n"`` steps of an episode, always at a reset; or counted over a rollout
+            whatever the episode boundaries, as SB3's ``sde_sample_freq``: ``"every_n_steps"``
+            (``sde_sample_freq=n``) or ``"rollout"`` (``sde_sample_freq=-1``). This and the two
+            below are the primer's (:class:`~sde_torchrl.modules.noise.SDENoisePrimer`), checked
+            here already and handed to it as they are.
+        every_n: redraw period for ``"every_n"`` and ``"every_n_steps"``.
+        rollout_steps: steps per rollout for ``"every_n_steps"`` and ``"rollout"`` (TorchRL's
+            ``Collector``: ``frames_per_batch // num_envs``), or ``None`` (redraw with
+            ``primer.resample(tensordict)``).
         loc_key: where the actor writes the controller's mean.
         feature_key: the features ``x`` that ``Θ̂`` sees (the observation by default; a latent
             layer for gSDE-style features).
@@ -186,20 +187,20 @@ class SDEParams(TensorDictModuleBase):
         action_dim: int,
         feature_dim: int,
         *,
-        schedule: str = "episode",
-        every_n: int | None = None,
-        rollout_steps: int | None = None,
         sharing: str = "element",
         sigma_transform: str = "expln",
         init_param: float = -2.0,
         gaussian_init_param: float | None = None,
         learn_sigma: bool = True,
         runs: int | None = None,
+        schedule: str = DEFAULT_SCHEDULE,
+        every_n: int | None = None,
+        rollout_steps: int | None = None,
         loc_key: NestedKey = "loc",
         feature_key: NestedKey = "observation",
-        noise_key: NestedKey = "sde_noise",
-        gaussian_noise_key: NestedKey = "sde_gaussian_noise",
-        age_key: NestedKey = "sde_age",
+        noise_key: NestedKey = NOISE_KEY,
+        gaussian_noise_key: NestedKey = GAUSSIAN_NOISE_KEY,
+        age_key: NestedKey = AGE_KEY,
         sigma_key: NestedKey = "sde_sigma_hat",
         gaussian_scale_key: NestedKey = "sde_gaussian_scale",
     ) -> None:

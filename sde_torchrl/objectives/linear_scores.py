@@ -12,9 +12,9 @@ with ``μ = Θ x`` and ``σ_j² = Σ_i (x_i σ̂_ji)²``. With the authors' vari
 action's log-likelihood is multiplied by its constant ``σ_j²``, which multiplies both by ``σ_j²``.
 :func:`linear_scores` evaluates them for whole batches of episodes in a few tensor operations;
 :func:`~sde_torchrl.objectives.estimators.episode_scores` differentiates the same likelihood with
-``vmap(grad(...))`` for any actor. The two agree to float rounding
-(``tests/test_linear_scores.py``), not bit for bit: the estimators take the closed form when
-built with ``scores="closed_form"`` (the top-level ``scores=closed_form`` of a config).
+``vmap(grad(...))`` for any actor. The two agree to float rounding, not bit for bit: the
+estimators take the closed form when built with ``scores="closed_form"`` (the top-level
+``scores=closed_form`` of a config).
 """
 
 from __future__ import annotations

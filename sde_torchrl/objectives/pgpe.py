@@ -3,25 +3,11 @@
 PGPE (Sehnke, Osendorfer, Rückstieß, Graves, Peters, Schmidhuber, Neural Networks 23(4), 2010,
 section 2) maximises ``J(μ, σ) = E_{θ ~ N(μ, diag(σ²))}[R(θ)]`` by the likelihood-ratio
 gradient of the parameter distribution, estimated from ``N`` episodes run with ``θ_n``:
-
-``∇_ρ J ≈ (1/N) Σ_n ∇_ρ log p(θ_n | ρ) (R_n − b)``, with
-``∂ log p / ∂μ_i = (θ_i − μ_i) / σ_i²`` and ``∂ log p / ∂σ_i = ((θ_i − μ_i)² − σ_i²) / σ_i³``
-
-(section 2.2, "sampling with a baseline"). The baseline ``b`` here is the mean return of the
-batch (per run), not the moving average of the paper's algorithms: the estimate then depends
-on the batch alone, so that runs stack and jobs resume bit for bit with no estimator state. It
-includes each episode's own return, which scales the expected gradient by ``(N − 1)/N``.
-
-Symmetric sampling (section 2.3): the episodes come in pairs ``θ± = μ ± ε``; with ``P = N/2``
-pairs and their returns ``r±``,
-
-``g_μi = (1/P) Σ_k ε_ki (r+_k − r−_k) / (2 σ_i²)`` (no baseline needed), and
-``g_σi = (1/P) Σ_k ((r+_k + r−_k)/2 − b) (ε_ki² − σ_i²) / σ_i³``, ``b`` the mean of the ``(r+ + r−)/2``.
-
-``variance_weighted`` multiplies both by ``σ_i²``: the paper's step sizes ``α_i = α σ_i²``,
-which turn these into its update rules ``Δμ_i = α ε_i (r+ − r−)/2`` and
-``Δσ_i = α ((r+ + r−)/2 − b)(ε_i² − σ_i²)/σ_i`` (likewise ``Δμ_i = α (r − b)(θ_i − μ_i)`` without
-symmetry): the counterpart of the authors' variance-weighted SDE scores (``EpisodeLogLikelihood``).
+``∇_ρ J ≈ (1/N) Σ_n ∇_ρ log p(θ_n | ρ) (R_n − b)`` (section 2.2, "sampling with a baseline":
+:func:`pgpe_gradient`, the scores :func:`parameter_scores`), or from pairs ``θ± = μ ± ε``
+(section 2.3, symmetric sampling: :func:`symmetric_pgpe_gradient`). :class:`PGPEEstimator`
+reads the episodes of a :class:`~sde_torchrl.modules.pgpe.ParameterExplorer` and gives what the
+other estimators give.
 """
 
 from __future__ import annotations
@@ -47,7 +33,12 @@ from sde_torchrl.utils.nonfinite import GUARDED_FIX, check_finite
 
 
 def batch_mean_baseline(returns: torch.Tensor) -> torch.Tensor:
-    """The baseline ``b``: the mean of ``returns`` ``[*runs, N]`` over the batch, ``[*runs]``."""
+    """The baseline ``b``: the mean of ``returns`` ``[*runs, N]`` over the batch, ``[*runs]``.
+
+    Not the moving average of the paper's algorithms: the estimate then depends on the batch
+    alone, so that runs stack and jobs resume bit for bit with no estimator state. It includes
+    each episode's own return, which scales the expected gradient by ``(N − 1)/N``.
+    """
     return returns.mean(-1)
 
 
@@ -151,7 +142,11 @@ def kept_pgpe_gradient(
 
 def _weighted(g_mu: torch.Tensor, g_sigma: torch.Tensor, sigma: torch.Tensor,
               variance_weighted: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """Both gradients times ``σ²`` (``α_i = α σ_i²``) if ``variance_weighted``."""
+    """Both gradients times ``σ²`` (``α_i = α σ_i²``) if ``variance_weighted``: the paper's step
+    sizes, which turn the estimates into its update rules ``Δμ_i = α ε_i (r+ − r−)/2`` and
+    ``Δσ_i = α ((r+ + r−)/2 − b)(ε_i² − σ_i²)/σ_i`` (``Δμ_i = α (r − b)(θ_i − μ_i)`` without
+    symmetry): the counterpart of the authors' variance-weighted SDE scores
+    (``EpisodeLogLikelihood``)."""
     if not variance_weighted:
         return g_mu, g_sigma
     variance = sigma.square()
@@ -190,7 +185,8 @@ class PGPEEstimator(GradientEstimator):
         max_grad_norm: bound on each run's gradient norm (``None``: plain ascent).
         max_grad_entry: rescale a run's gradient whose largest (signed) entry exceeds this.
         episode_return: ``"mean"`` or ``"sum"`` of an episode's rewards.
-        variance_weighted: the paper's step sizes ``α_i = α σ_i²`` (module docstring).
+        variance_weighted: the paper's step sizes ``α_i = α σ_i²``, which give its update rules
+            (``Δμ_i = α ε_i (r+ − r−)/2`` with symmetric sampling).
 
     NaN or infinity in the episodes raise :class:`NonFiniteEpisodesError` under the non-finite
     policy ``"raise"`` (the default) and give NaN estimates for the runs concerned under

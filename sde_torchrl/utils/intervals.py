@@ -5,13 +5,10 @@ Two kinds, each in one function, both computed by SciPy:
 * :func:`bootstrap_interval`: the percentile bootstrap over runs (Efron & Tibshirani 1993,
   ch. 13) of any statistic of one or more independent samples (a mean episode count over runs;
   a speed-up, the ratio of two methods' means; a difference of two means, whose interval
-  excluding 0 makes the difference significant at that level). The resamples and the statistic's
-  bootstrap distribution are :func:`scipy.stats.bootstrap`'s (one vectorised batch, deterministic
-  given the seed); the ends are ours, one line: order statistics of that distribution (Efron &
-  Tibshirani's percentile interval), where SciPy interpolates linearly between two of them.
-  Interpolated ends would move every committed page's numbers (within Monte Carlo error) for
-  no gain in accuracy, and warn when some resamples' statistic is infinite ("episodes until a
-  level is first reached" when it never is).
+  excluding 0 makes the difference significant at that level). The resamples are
+  :func:`scipy.stats.bootstrap`'s (deterministic given the seed); the ends are order statistics
+  of the bootstrap distribution (Efron & Tibshirani's percentile interval), not SciPy's
+  interpolated ones, which warn when some resamples' statistic is infinite.
 * :func:`binomial_interval`: the Wilson score interval (Wilson 1927) of a proportion ``k / n``
   (the runs, out of ``n``, that catch the ball), which stays inside ``[0, 1]`` and is not empty
   at ``k = 0`` or ``k = n``: :meth:`scipy.stats.binomtest`'s ``proportion_ci(method="wilson")``.

@@ -1,55 +1,11 @@
 """The ball-catching arms: what differs between them (:class:`ArmModel`, :data:`ARM_MODELS`) and
 each one's hand-written catching controller (:func:`scripted_weights`).
 
-Two models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`):
-
-* ``"cup"``: a fixed pedestal carries a three-joint arm (shoulder, elbow, wrist; all
-  hinges about the same horizontal axis, so the arm moves forward-backward and up-down in the
-  x-z plane). The wrist carries a 1 x 1 x 0.1 palm with four two-joint fingers, one on each palm
-  edge. One actuator drives all eight finger joints (proximal joints with its full torque,
-  distal joints with 0.4 of it, a fixed transmission), so it can only open or close the hand. A
-  ball of radius 0.45 is released 5 units above the palm centre (``assets/ballcatch.urdf``).
-
-  - The arm starts in the catching pose, which is also the pose that the *upper* joint limits
-    define: upper arm and forearm horizontal, palm tilted 0.15 rad outwards. Positive torques
-    lift the arm into those limits and hold it there; with zero torque the arm falls under
-    gravity and the ball drops past it to the ground.
-  - Because the palm is tilted, a ball landing on an open hand rolls outwards onto the outer
-    finger and stops against its bent-up tip, about 1.4 from the palm centre ("kept on the
-    fingers but hasn't learned to close the hand", the paper's R ~ -1.5 regime; here about
-    -1.36). Closing the hand holds the ball on the palm, inside the cup of closed fingers
-    (closing limits proximal 1.2, distal 1.0 rad leave an opening of radius about 0.55 for the
-    0.45 ball), whether it closes before the ball arrives or after it has landed (return about
-    -0.93): the paper's "catch" is "closing the hand and holding the ball".
-  - Torque control only: pybullet's default velocity motors are disabled (force 0) and the
-    action in ``[-1, 1]^4`` is scaled by :data:`MAX_TORQUES` (shoulder, elbow, wrist, fingers).
-
-* ``"pybrain"`` (default, :data:`DEFAULT_MODEL`): the arm of the authors' library of the paper's time, after PyBrain's
-  ``arm.xode`` (``assets/arm_pybrain.urdf``, whose comment gives the geometry): a fixed torso,
-  upper arm hanging from the shoulder, forearm pointing forward, palm facing up with its centre
-  0.5 above the ground at (3.5, 0, 0.5) (the origin is on the ground below the shoulder), a
-  thumb and three fingers. Where the paper and ``arm.xode`` differ, ``arm.xode`` is followed:
-  the palm is 0.2 thick (paper 0.1; with the 0.4 ball the paper's minimum distance 0.5 holds)
-  and each finger has three hinges (paper two). Every joint has ODE's joint friction (a velocity
-  motor with target 0 and a small maximum force, :attr:`ArmModel.joint_friction`) and the
-  action's torques act on top of it (pybullet adds ``TORQUE_CONTROL`` torques to the velocity
-  motors: a 0.4 torque does not move a hinge whose motor holds 0.5, a 1.0 torque moves it as a
-  free 0.5 would). Contacts have ODE's friction 8 and bounce 0.2 (pybullet multiplies the two
-  bodies' coefficients, so each body gets their square roots), no body damping, a ball of
-  radius 0.4 and density 10. The hand rests 0.5 above the ground: with zero torque the arm
-  sinks onto it, the ball lands on the open palm, rolls over the fingers and drops (the paper's
-  R ~ -2); closing the hand holds it; pulling back drops it at once.
-
-* ``"pybrain_held"``: model ``"pybrain"`` with shoulder, elbow and wrist held at their start
-  angles (position-held joints; the action's arm torques are ignored), so the palm stays level at
-  height 0.5 whatever the controller does. A diagnostic (how a policy's hand does on a level
-  palm), not the paper's task.
-
-* ``"pybrain_strong_fingers"``: model ``"pybrain"`` with twice the finger actuator's maximum
-  torque (:data:`STRONG_FINGER_TORQUES`), so the same command closes the hand twice as hard. A
-  diagnostic (does the finger actuator's size hold learners back?), not the paper's task.
-
-Plain data (no pybullet): the physics that reads it is :mod:`~sde_torchrl.envs.ballcatch.world`.
+Four models share the task rules (:mod:`~sde_torchrl.envs.ballcatch.task`): ``"pybrain"`` (the
+default, after the arm of the paper's authors' library), ``"cup"`` (a three-joint arm with a
+four-finger cupped hand) and two diagnostics built on ``"pybrain"``, ``"pybrain_held"`` and
+``"pybrain_strong_fingers"``; :data:`ARM_MODELS` describes each. Plain data (no pybullet): the
+physics that reads it is :mod:`~sde_torchrl.envs.ballcatch.world`.
 """
 
 from __future__ import annotations
@@ -232,11 +188,42 @@ ARM_MODELS = {
     "pybrain_held": replace(_PORTED_ARMS["pybrain"], hold_arm=True),
     "pybrain_strong_fingers": replace(_PORTED_ARMS["pybrain"], max_torques=STRONG_FINGER_TORQUES),
 }
-"""The arm models: ``"cup"`` (``assets/ballcatch.urdf``), ``"pybrain"`` (after PyBrain's
-``arm.xode``, ``assets/arm_pybrain.urdf``) and two diagnostics: ``"pybrain_held"`` (its arm
-joints held at the start angles) and ``"pybrain_strong_fingers"`` (its finger actuator doubled).
-Every finger joint of model "pybrain" gets the whole finger torque, as PyBrain's one-value
-actuator for several joints applies its value to each."""
+"""The arm models, by name.
+
+* ``"pybrain"`` (default, :data:`DEFAULT_MODEL`): the arm of the authors' library of the paper's
+  time, after PyBrain's ``arm.xode`` (``assets/arm_pybrain.urdf``, whose comment gives the
+  geometry): a fixed torso, upper arm hanging from the shoulder, forearm pointing forward, palm
+  facing up with its centre 0.5 above the ground at (3.5, 0, 0.5) (the origin is on the ground
+  below the shoulder), a thumb and three fingers. Where the paper and ``arm.xode`` differ,
+  ``arm.xode`` is followed: the palm is 0.2 thick (paper 0.1) and each finger has three hinges
+  (paper two). Every joint has ODE's joint friction (a velocity motor with target 0 and a small
+  maximum force, :attr:`ArmModel.joint_friction`) and the action's torques act on top of it
+  (pybullet adds ``TORQUE_CONTROL`` torques to the velocity motors). Every finger joint gets the
+  whole finger torque, as PyBrain's one-value actuator for several joints applies its value to
+  each. Contacts have ODE's friction 8 and bounce 0.2 (pybullet multiplies the two bodies'
+  coefficients, so each body gets their square roots), no body damping, a ball of radius 0.4
+  and density 10. With zero torque the arm sinks until the hand rests on the ground, the ball
+  lands on the open palm, rolls over the fingers and drops (the paper's R ~ -2); closing the
+  hand holds it; pulling back drops it at once.
+* ``"cup"`` (``assets/ballcatch.urdf``): a fixed pedestal carries a three-joint arm (shoulder,
+  elbow, wrist, all hinges about one horizontal axis, so the arm moves in the x-z plane); the
+  wrist carries a 1 x 1 x 0.1 palm with four two-joint fingers, one on each palm edge. One
+  actuator drives all eight finger joints (proximal joints with its full torque, distal ones
+  with :data:`DISTAL_TORQUE_RATIO` of it), so it can only open or close the hand. A ball of
+  radius 0.45 is released 5 units above the palm centre. The arm starts in the pose its upper
+  joint limits define (upper arm and forearm horizontal, palm tilted 0.15 rad outwards):
+  positive torques hold it there, with zero torque it falls. On an open hand the ball rolls onto
+  the outer finger and stops against its bent-up tip (return about -1.36, the paper's "kept on
+  the fingers" regime); closing the hand, before or after the ball lands, holds it on the palm
+  (about -0.93). Torque control only: pybullet's velocity motors are disabled and the action in
+  ``[-1, 1]^4`` is scaled by :data:`MAX_TORQUES`.
+* ``"pybrain_held"``: ``"pybrain"`` with shoulder, elbow and wrist held at their start angles
+  (the action's arm torques are ignored), so the palm stays level at height 0.5. A diagnostic
+  (how a policy's hand does on a level palm), not the paper's task.
+* ``"pybrain_strong_fingers"``: ``"pybrain"`` with the finger actuator's maximum torque doubled
+  (:data:`STRONG_FINGER_TORQUES`). A diagnostic (does the finger actuator's size hold learners
+  back?), not the paper's task.
+"""
 
 SCRIPTED_WEIGHTS = np.array(
     [
