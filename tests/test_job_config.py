@@ -22,9 +22,8 @@ from sde_torchrl.jobs.checkpoint import CheckpointMismatchError
 from sde_torchrl.jobs.run_dir import RunDirectory, read_finished_run, read_job_config
 from sde_torchrl.utils.files import DamagedFileError
 
-#: The library's experiments (conf/experiment/) and the study's (analysis/conf/experiment/).
-EXPERIMENTS = sorted(path.stem for tree in (REPO / "conf", REPO / "analysis" / "conf")
-                     for path in (tree / "experiment").glob("*.yaml"))
+#: The library's experiments (conf/experiment/; the study's: tests/study/test_study_configs.py).
+EXPERIMENTS = sorted(path.stem for path in (REPO / "conf" / "experiment").glob("*.yaml"))
 #: Jobs beside the experiments: the other groups' options.
 OTHERS = [("algorithm=ppo", "env=gym", "explorer=gsde"),
           ("algorithm=sac", "env=gym", "explorer=gaussian"),

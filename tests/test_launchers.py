@@ -46,26 +46,27 @@ def test_submitit_local_executor_shards_equal_one_process(tmp_path):
 
 
 def test_slurm_config_composes_for_submitit(tmp_path):
-    """The shipped Slurm config is a submitit_slurm launcher with our per-shard resources."""
+    """The shipped Slurm config is a submitit_slurm launcher with our per-shard resources: here
+    for a ball-catching shard of 50 runs (one shard of the study's Fig. 5 sweep)."""
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     result = subprocess.run(
-        [sys.executable, "train.py", "+experiment=ballcatch_paper_sweep", "hydra/launcher=slurm", "--cfg", "all",
-         "--resolve"], cwd=REPO, capture_output=True, text=True, timeout=120,
+        [sys.executable, "train.py", "+experiment=ballcatch_paper", "runs=50", "hydra/launcher=slurm", "--cfg",
+         "all", "--resolve"], cwd=REPO, capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "SlurmLauncher" in result.stdout and "cpus_per_task: 1" in result.stdout
     assert "mem_gb: 9" in result.stdout and "timeout_min: 162" in result.stdout
 
 
-#: The study's sweeps (analysis/conf/experiment/, on Hydra's search path in a clone).
-SWEEPS = sorted(p.stem for p in (REPO / "analysis" / "conf" / "experiment").glob("*sweep.yaml"))
+#: The library's experiments (conf/experiment/; the study's sweeps: tests/study/test_study_launchers.py),
+#: and a ball-catching shard of 50 runs (as the study's Fig. 5 sweep splits its jobs).
+JOBS = [(f"+experiment={p.stem}",) for p in sorted((REPO / "conf" / "experiment").glob("*.yaml"))]
+JOBS.append(("+experiment=ballcatch_paper", "runs=50"))
 
 
-@pytest.mark.parametrize("launcher", ["slurm", "ray_cluster"])
-@pytest.mark.parametrize("sweep", SWEEPS)
-def test_every_sweep_requests_what_its_shards_are_estimated_to_use(sweep, launcher):
-    """Each sweep composed with each cluster launcher asks, per shard, for at least the memory
-    and the time that shard is estimated to need (sde_torchrl/jobs/resources.py)."""
+def requests_cover_the_estimates(overrides: list[str], launcher: str) -> None:
+    """The job of ``overrides`` composed with the cluster ``launcher`` asks, per shard, for at least
+    the memory and the time that shard is estimated to need (sde_torchrl/jobs/resources.py)."""
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher" if launcher == "slurm"
                         else "hydra_plugins.hydra_ray_launcher")
     from omegaconf import OmegaConf
@@ -74,7 +75,7 @@ def test_every_sweep_requests_what_its_shards_are_estimated_to_use(sweep, launch
     from sde_torchrl.config.schemas.train import validate
     from sde_torchrl.jobs.resources import GB, estimate_memory, estimate_minutes
 
-    overrides = [f"+experiment={sweep}", f"hydra/launcher={launcher}", "max_memory_gb=1000"]
+    overrides = [*overrides, f"hydra/launcher={launcher}", "max_memory_gb=1000"]
     request = OmegaConf.to_container(compose(overrides, return_hydra_config=True).hydra.launcher, resolve=True)
     job = validate(compose(overrides))
     if launcher == "slurm":
@@ -82,6 +83,14 @@ def test_every_sweep_requests_what_its_shards_are_estimated_to_use(sweep, launch
         assert request["timeout_min"] >= estimate_minutes(job)
     else:
         assert request["ray"]["remote"]["memory"] >= estimate_memory(job).total
+
+
+@pytest.mark.parametrize("launcher", ["slurm", "ray_cluster"])
+@pytest.mark.parametrize("job", JOBS, ids=" ".join)
+def test_every_experiment_requests_what_its_shards_are_estimated_to_use(job, launcher):
+    """Each experiment composed with each cluster launcher asks, per shard, for at least the
+    memory and the time that shard is estimated to need."""
+    requests_cover_the_estimates(list(job), launcher)
 
 
 @pytest.fixture()

@@ -121,8 +121,9 @@ def test_the_config_key_reaches_the_estimator_and_refuses_an_mlp(tmp_path):
     from sde_torchrl.config.schemas.train import validate
     from sde_torchrl.utils.checks import ArgumentError
 
-    trainer = build_trainer(compose(["+experiment=noise_sweep", "runs=2", "logger=none"]), str(tmp_path / "a"))
-    assert trainer.estimator.closed_form  # the Table 1 sweeps set it
+    closed_form = ["+experiment=minimize", "scores=closed_form", "runs=2", "logger=none"]
+    trainer = build_trainer(compose(closed_form), str(tmp_path / "a"))
+    assert trainer.estimator.closed_form
     trainer.close()
     with pytest.raises(ArgumentError, match="scores=numeric: one of autograd, closed_form"):
         validate(compose(["scores=numeric"]))
@@ -131,6 +132,5 @@ def test_the_config_key_reaches_the_estimator_and_refuses_an_mlp(tmp_path):
                                (["explorer.gaussian_init_param=-1"], "no Gaussian part")):
         with pytest.raises(ArgumentError, match=f"scores=closed_form: autograd, or closed_form with {missing}"):
             validate(compose(["scores=closed_form", *overrides]))
-    pgpe = build_trainer(compose(["+experiment=noise_sweep", "explorer=pgpe", "estimator=pgpe", "runs=2",
-                                  "logger=none"]), str(tmp_path / "c"))
+    pgpe = build_trainer(compose([*closed_form, "explorer=pgpe", "estimator=pgpe"]), str(tmp_path / "c"))
     pgpe.close()  # PGPE's estimator, always in closed form, does not take the key
