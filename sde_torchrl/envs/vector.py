@@ -39,6 +39,9 @@ class GymVectorEnv(EnvBase):
     action they are given), and each episode starts from a seed, drawn from the job's ``env``
     stream (:class:`~sde_torchrl.utils.rng.RunStreams`) at every reset. With ``time_feature`` the
     observation ends with ``1 - t / episode_length`` (sb3-contrib's ``TimeFeatureWrapper``).
+    It takes TorchRL's partial steps: a step whose ``"_step"`` mask is off for an env leaves that
+    env as it is, so ``rollout(..., break_when_all_done=True)`` steps each env to its episode's
+    end and no further (an evaluation's episodes).
 
     Args:
         env_id: a gymnasium id (``"Pendulum-v1"``; ``"module:Env-v0"`` imports ``module`` first).
@@ -62,6 +65,10 @@ class GymVectorEnv(EnvBase):
         >>> td = env.rollout(12, break_when_any_done=False)
         >>> td.batch_size, int(td["next", "truncated"].sum())
         (torch.Size([3, 12]), 6)
+        >>> once = GymVectorEnv("Pendulum-v1", n_envs=2, episode_length=5).rollout(
+        ...     12, break_when_any_done=False, break_when_all_done=True)
+        >>> once.batch_size, int(once["next", "truncated"][:, -1].sum())
+        (torch.Size([2, 5]), 2)
         >>> timed = GymVectorEnv("Pendulum-v1", n_envs=1, episode_length=4, time_feature=True)
         >>> timed.rollout(3)["next", "observation"][0, :, -1].tolist()
         [0.75, 0.5, 0.25]
@@ -139,7 +146,10 @@ class GymVectorEnv(EnvBase):
         n = len(self.envs)
         reward = np.zeros((n, 1), dtype=np.float32)
         terminated, truncated = np.zeros((n, 1), dtype=bool), np.zeros((n, 1), dtype=bool)
-        for i, env in enumerate(self.envs):
+        stepping = tensordict.get("_step", None)  # a rollout that stops each env at its episode's end
+        active = range(n) if stepping is None else stepping.reshape(n).nonzero().flatten().tolist()
+        for i in active:
+            env = self.envs[i]
             obs, reward[i], terminated[i], truncated[i], _ = env.step(actions[i])
             self._actions[i].append(actions[i])
             check_env_output(self.env_id, f"step {len(self._actions[i])} of env {i}'s episode (seed {self._seeds[i]})",

@@ -181,13 +181,15 @@ class StepJob(Job):
         return first_episode_returns(episodes).mean().reshape(1)
 
     def deterministic_episodes(self, env: EnvBase, frozen: RunningNormalize | None) -> TensorDictBase:
-        """One deterministic episode per env of ``env`` (``[envs, T]``, steps past its end
-        included), its normalisation ``frozen`` at the training statistics."""
+        """One deterministic episode per env of ``env``, ``[envs, T]``: each env is stepped to its
+        episode's end and no further (its rows after it repeat its last), the rollout ends with
+        the longest episode; its normalisation ``frozen`` at the training statistics."""
         if frozen is not None:
             stats = {k: v for k, v in self.normalizer.state_dict().items() if k != "returns"}
             frozen.load_state_dict(stats, strict=False)
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False)
+            return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False,
+                               break_when_all_done=True)
 
     def final_check(self, run_dir: RunDirectory) -> dict[str, Any]:
         frozen: dict[int, RunningNormalize | None] = {}
