@@ -6,7 +6,6 @@ from __future__ import annotations
 from typing import Any
 
 from sde_torchrl.envs.outcomes import report_for
-from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval
 
 #: Overrides that split one method's runs over jobs rather than tell methods apart.
 SHARDING = ("seed", "first_run")
@@ -45,6 +44,8 @@ def comparison_lines(results: list[dict[str, Any]]) -> list[str]:
         >>> comparison_lines(jobs)[1]
         'explorer=rex: 1 run in 1 job; final evaluation mean -3.000 [-3.000, -3.000]'
     """
+    from sde_torchrl.utils.intervals import binomial_interval, bootstrap_interval  # scipy: only to compare
+
     if not results:
         return []
     shared = set.intersection(*(set(result["overrides"]) for result in results))
