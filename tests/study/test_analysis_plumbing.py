@@ -12,7 +12,7 @@ import pytest
 from _helpers import REPO
 
 from analysis import figures, runner
-from analysis.benchmarks import common
+from analysis.benchmarks import common, time_split
 from analysis.benchmarks.bench_ppo import speed as ppo_speed
 from analysis.benchmarks.bench_ppo import timing as ppo_timing
 from analysis.benchmarks.gsde_table import cells as gsde_cells
@@ -130,6 +130,7 @@ def test_figure_helpers():
 
 @pytest.mark.parametrize("module", [
     runner, figures, ballcatch_tuning, fig5, ballcatch_scores, common, ppo_speed, ppo_timing, gsde_cells, gsde_report,
+    time_split,
 ], ids=lambda module: module.__name__)
 def test_docstring_examples_of_the_analysis_modules_run(module):
     import doctest
