@@ -10,7 +10,7 @@ later goes to ``late imports``, and ``torch.compile``'s own timer moves compilat
 that triggered it into ``compile warm-up``. Start-up runs from the parent's spawn to the timed
 functions' modules imported, exit from the child's last timed line to the parent seeing it end, so
 the rows add up to the process's wall time.
-Writes ``<out>/<cell>.json`` and ``<out>/<cell>.md``.
+Writes the page ``<out>/<cell>.md`` and its record ``<record>/<cell>.json`` (the measured seconds).
 
 Examples:
     python -m analysis.benchmarks.time_split --algorithm a2c --env hopper --fraction 0.01 --seed 0 \\
@@ -275,7 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fraction", type=float, required=True, help="fraction of the experiment's budget, in (0, 1]")
     parser.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
                         help="a train.py override, both sides (repeatable)")
-    parser.add_argument("--out", type=Path, required=True, help="folder of <cell>.json and <cell>.md")
+    parser.add_argument("--out", type=Path, required=True, help="folder of the page, <cell>.md")
+    parser.add_argument("--record", type=Path, default=Path("results/time_split"),
+                        help="folder of the record, <cell>.json (default: results/time_split)")
     args = parser.parse_args(argv)
     cell = Cell(args.algorithm, args.env, args.noise, args.seed)
     try:  # one config, both sides
@@ -291,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         for side in ("ours", "sb3"):  # one at a time
             record[side] = run_side(side, {**spec, "out": tmp}, Path(tmp))
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{cell.name}.json").write_text(json.dumps(record, indent=1) + "\n")
+    args.record.mkdir(parents=True, exist_ok=True)
+    (args.record / f"{cell.name}.json").write_text(json.dumps(record, indent=1) + "\n")
     page = markdown(record)
     (args.out / f"{cell.name}.md").write_text(page)
     sys.stdout.write(page)

@@ -17,7 +17,7 @@ def test_a_tiny_training_splits_into_phases_that_add_up_to_each_process(tmp_path
     pytest.importorskip("stable_baselines3")
     pytest.importorskip("pybullet_envs_gymnasium")
     argv = ["--algorithm", "a2c", "--env", "hopper", "--fraction", "0.0005", "--override", "eval_episodes=2",
-            "--out", str(tmp_path)]
+            "--out", str(tmp_path), "--record", str(tmp_path)]
     start = time.time()
     assert time_split.main(argv) == 0
     elapsed = time.time() - start
