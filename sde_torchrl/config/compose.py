@@ -1,9 +1,9 @@
 """The library's Hydra config composed in Python, as ``train.py`` and ``sde-train`` compose it.
 
-For tests and the ``analysis/`` scripts, which build trainers or read sweep parameters without
-going through the command line. The config tree ships inside the package (``sde_torchrl/conf/``; a
-clone's top-level ``conf/`` links to it); in a clone, Hydra's search path also holds the study's
-tree, ``analysis/conf/`` (``hydra_plugins/sde_torchrl_study/``), for its sweeps and rounds.
+For tests and scripts that build trainers or read sweep parameters without going through the
+command line. The config tree ships inside the package (``sde_torchrl/conf/``; a clone's top-level
+``conf/`` links to it); trees of one's own join it through Hydra's search path (a
+``SearchPathPlugin``), as the paper's reproduction adds its sweeps.
 """
 
 from __future__ import annotations

@@ -21,8 +21,7 @@ from sde_torchrl.config.schemas.train import TrainConf
 #: The groups a user chooses from, in the order a job is put together, and what each chooses.
 GROUPS = {
     "experiment": "a whole job at once (add it with +experiment=NAME): the paper's experiments (run a sweep "
-                  "with -m), PPO, A2C and SAC on the PyBullet tasks; a clone adds the study's sweeps "
-                  "(analysis/conf/experiment/)",
+                  "with -m), PPO, A2C and SAC on the PyBullet tasks",
     "env": "the task",
     "actor": "the controller that gives the action's mean",
     "explorer": "how the policy explores: SDE, REX, PGPE, gSDE or plain Gaussian noise",

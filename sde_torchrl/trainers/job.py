@@ -256,12 +256,13 @@ class Job(ABC):
         return recorded_rows(state.record(), self.settings.first_run, self.episodes_after)
 
     def _notice(self, update: int) -> threading.Timer:
-        """A started timer that logs :meth:`first_update_notice` if the session's first update runs long."""
+        """A timer that logs :meth:`first_update_notice` if the session's first update runs long
+        (started only where the trainer has a notice; cancelling an unstarted one is harmless)."""
         text = self.first_update_notice(update)
-        delay, say = (self.first_update_notice_s, log.info) if text else (0.0, lambda _: None)
-        notice = threading.Timer(delay, say, [text])
+        notice = threading.Timer(self.first_update_notice_s, log.info, [text])
         notice.daemon = True
-        notice.start()
+        if text:
+            notice.start()
         return notice
 
 
