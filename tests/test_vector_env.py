@@ -54,7 +54,7 @@ def test_running_normalize_is_vecnormalizes_rule():
         np.testing.assert_allclose(out["observation"].numpy(), expected_obs, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(out["reward"][:, 0].numpy(), expected_reward, rtol=1e-6)
         returns[done[:, 0]] = 0
-    far = norm._norm(torch.tensor([[1e6, -1e6]]))
+    far = norm.normalize(torch.tensor([[1e6, -1e6]]))
     assert far.tolist() == [[CLIP, -CLIP]]  # clipped at 10
 
 
@@ -68,7 +68,7 @@ def test_a_frozen_copy_normalises_with_the_same_statistics_and_leaves_rewards_ra
     out = frozen._step(TensorDict({}, [3]), step.clone())
     assert torch.equal(frozen.obs_mean, before)  # no update
     assert torch.equal(out["reward"], step["reward"])
-    torch.testing.assert_close(out["observation"], norm._norm(step["observation"]))
+    torch.testing.assert_close(out["observation"], norm.normalize(step["observation"]))
 
 
 def test_the_vector_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_one():

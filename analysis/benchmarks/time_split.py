@@ -51,8 +51,8 @@ OURS = (
     ("sde_torchrl.config.build_sac", "build_sac_trainer", "model construction"),
     ("sde_torchrl.collectors.steps", "StepCollector.rollout", "collection"),
     ("sde_torchrl.trainers.offpolicy", "SACTrainer._collect_round", "collection"),  # and the replay buffer's extend
-    ("sde_torchrl.envs.normalize", "RunningNormalize._step", "normalisation"),
-    ("sde_torchrl.envs.normalize", "RunningNormalize._reset", "normalisation"),
+    ("sde_torchrl.envs.normalize", "RunningNormalize.observe", "normalisation"),
+    ("sde_torchrl.envs.normalize", "RunningNormalize.normalize", "normalisation"),
     ("torchrl.objectives.value", "GAE.forward", "advantage (GAE)"),  # with the critic's values of the rollout
     ("sde_torchrl.trainers.ppo", "PPOUpdate.__call__", "update"),
     ("sde_torchrl.trainers.a2c", "A2CUpdate.__call__", "update"),

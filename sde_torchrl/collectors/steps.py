@@ -26,6 +26,7 @@ from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from sde_torchrl.collectors.fused_steps import fused_env, fused_rollout, tensor_policy
 from sde_torchrl.modules.noise import SDENoisePrimer
 from sde_torchrl.utils.checks import positive_int
 from sde_torchrl.utils.options import ROLLOUT_SCHEDULES
@@ -46,6 +47,9 @@ class StepCollector:
             hold ``A × S`` matrices per step (the noise ``ξ``, ``σ̂`` expanded to the batch) that
             none of them reads, and stacking those is most of a rollout's memory. The carried
             state the next rollout starts from keeps everything.
+        fast: take the tensor path (:mod:`~sde_torchrl.collectors.fused_steps`) where it applies:
+            the same steps without TorchRL's per-step tensordicts; ``False``: always
+            ``step_and_maybe_reset``.
 
     Examples:
         >>> from torchrl.envs import GymEnv
@@ -61,12 +65,14 @@ class StepCollector:
     """
 
     def __init__(self, env: EnvBase, policy: Any, steps: int, primer: SDENoisePrimer | None = None,
-                 keep: Sequence[NestedKey] | None = None) -> None:
+                 keep: Sequence[NestedKey] | None = None, fast: bool = True) -> None:
         self.env, self.policy, self.steps = env, policy, positive_int("steps", steps)
         self.keep = None if keep is None else list(dict.fromkeys(keep))
         self.resample = (primer if primer is not None and primer.schedule in ROLLOUT_SCHEDULES
                          and primer.rollout_steps is None else None)
         self.primer = primer
+        self.fast = fast
+        self.fused = fused_env(env) if fast else None
         self.carried: TensorDictBase | None = None
 
     @torch.no_grad()
@@ -77,8 +83,12 @@ class StepCollector:
             self.carried = self.env.reset()
         elif self.resample is not None:
             self.resample.resample(self.carried)
-        rows = []
         with set_exploration_type(ExplorationType.RANDOM):
+            if self.fused is not None:
+                act = tensor_policy(self.policy)  # the policy may be swapped between rollouts (SAC's warm-up)
+                rollout, self.carried = fused_rollout(self.fused, act, self.carried, self.steps, self.keep)
+                return rollout
+            rows = []
             for _ in range(self.steps):
                 step, self.carried = self.env.step_and_maybe_reset(self.policy(self.carried))
                 rows.append(step if self.keep is None else step.select(*self.keep, strict=False))
@@ -95,7 +105,7 @@ class StepCollector:
         carried = state["carried"]
         self.carried = None if carried is None else TensorDict(carried, batch_size=self.env.batch_size)
         if self.carried is not None and self.primer is not None:
-            self.primer._hold(self.carried)  # SB3-style counting keeps ξ through the next partial reset
+            self.primer.hold(self.carried)  # SB3-style counting keeps ξ through the next partial reset
 
 
 __all__ = ["StepCollector"]

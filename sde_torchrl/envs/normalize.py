@@ -81,26 +81,43 @@ class RunningNormalize(Transform):
         copy.update_stats = False
         return copy
 
-    def _norm(self, obs: torch.Tensor) -> torch.Tensor:
+    def normalize(self, obs: torch.Tensor) -> torch.Tensor:
+        """``obs`` standardised with the current statistics and clipped (what a reset writes)."""
         scaled = (obs.double() - self.obs_mean) / (self.obs_var + EPS).sqrt()
         return scaled.clamp(-CLIP, CLIP).to(obs.dtype)
 
+    def observe(self, obs: torch.Tensor, reward: torch.Tensor, done: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One step of every env: updates the statistics (unless frozen) and each env's running
+        return, and gives the normalised observation and scaled reward (what a step writes).
+
+        Examples:
+            >>> norm = RunningNormalize(2, n_envs=3, gamma=0.99)
+            >>> obs, reward = norm.observe(torch.randn(3, 2), torch.ones(3, 1), torch.zeros(3, 1, dtype=torch.bool))
+            >>> obs.shape, reward.shape, round(float(norm.obs_count))
+            (torch.Size([3, 2]), torch.Size([3, 1]), 3)
+        """
+        if self.update_stats:
+            self._update(self.obs_mean, self.obs_var, self.obs_count, obs)
+        normalized = self.normalize(obs)
+        if not self.normalize_reward:
+            return normalized, reward
+        self.returns.mul_(self.gamma).add_(reward.double())
+        if self.update_stats:
+            self._update(self.ret_mean, self.ret_var, self.ret_count, self.returns)
+        scaled = (reward.double() / (self.ret_var + EPS).sqrt()).clamp(-CLIP, CLIP).to(reward.dtype)
+        self.returns.masked_fill_(done, 0.0)
+        return normalized, scaled
+
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        tensordict_reset.set("observation", self._norm(tensordict_reset.get("observation")))
+        tensordict_reset.set("observation", self.normalize(tensordict_reset.get("observation")))
         return tensordict_reset
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        obs, reward = next_tensordict.get("observation"), next_tensordict.get("reward")
-        if self.update_stats:
-            self._update(self.obs_mean, self.obs_var, self.obs_count, obs)
-        next_tensordict.set("observation", self._norm(obs))
-        if self.normalize_reward:
-            self.returns.mul_(self.gamma).add_(reward.double())
-            if self.update_stats:
-                self._update(self.ret_mean, self.ret_var, self.ret_count, self.returns)
-            scaled = (reward.double() / (self.ret_var + EPS).sqrt()).clamp(-CLIP, CLIP)
-            next_tensordict.set("reward", scaled.to(reward.dtype))
-            self.returns.masked_fill_(next_tensordict.get("done"), 0.0)
+        obs, reward = self.observe(next_tensordict.get("observation"), next_tensordict.get("reward"),
+                                   next_tensordict.get("done"))
+        next_tensordict.set("observation", obs)
+        next_tensordict.set("reward", reward)
         return next_tensordict
 
     @staticmethod

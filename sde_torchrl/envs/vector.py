@@ -120,14 +120,22 @@ class GymVectorEnv(EnvBase):
         return (halves[:, 0] * 2**24 + halves[:, 1]).tolist()
 
     def _reset(self, tensordict: TensorDictBase | None, **kwargs: Any) -> TensorDictBase:
-        seeds = self._episode_seeds()
-        mask = [True] * len(self.envs)
+        mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(len(self.envs), -1).any(-1).tolist()
-        for i, reset in enumerate(mask):
+        return TensorDict({"observation": torch.as_tensor(self.reset_arrays(mask))}, batch_size=self.batch_size)
+
+    def reset_arrays(self, mask: list[bool] | None = None) -> np.ndarray:
+        """Resets the envs where ``mask`` is true (``None``: all), each with a fresh episode seed,
+        and returns every env's observation, ``[n_envs, obs_dim]`` (a copy): what a reset writes.
+
+        The seeds are drawn for every env at every reset, whichever are reset.
+        """
+        seeds = self._episode_seeds()
+        for i, reset in enumerate([True] * len(self.envs) if mask is None else mask):
             if reset:
                 self._last_obs[i] = self._observe(i, self._start(i, seeds[i]))
-        return TensorDict({"observation": torch.as_tensor(self._last_obs.copy())}, batch_size=self.batch_size)
+        return self._last_obs.copy()
 
     def _observe(self, i: int, obs: np.ndarray) -> np.ndarray:
         """Env ``i``'s observation, with the time feature if asked."""
@@ -142,26 +150,41 @@ class GymVectorEnv(EnvBase):
         return obs
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        actions = np.clip(tensordict.get("action").detach().cpu().numpy(), self.low, self.high)
+        stepping = tensordict.get("_step", None)  # a rollout that stops each env at its episode's end
+        active = None if stepping is None else stepping.reshape(len(self.envs)).nonzero().flatten().tolist()
+        obs, reward, terminated, truncated = self.step_arrays(tensordict.get("action").detach().cpu().numpy(), active)
+        return TensorDict({
+            "observation": torch.as_tensor(obs), "reward": torch.as_tensor(reward),
+            "done": torch.as_tensor(terminated | truncated), "terminated": torch.as_tensor(terminated),
+            "truncated": torch.as_tensor(truncated),
+        }, batch_size=self.batch_size)
+
+    def step_arrays(self, actions: np.ndarray, active: list[int] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Steps the envs (those in ``active``; ``None``: all) with ``actions`` clipped to the
+        bounds: what a step writes, as arrays ``(observation [n, obs_dim] (a copy), reward
+        [n, 1], terminated [n, 1], truncated [n, 1])``; an env not stepped keeps its
+        observation, with reward 0 and both flags false.
+
+        Examples:
+            >>> env = GymVectorEnv("Pendulum-v1", n_envs=2)
+            >>> _ = env.reset()
+            >>> [a.shape for a in env.step_arrays(np.zeros((2, 1), dtype=np.float32))]
+            [(2, 3), (2, 1), (2, 1), (2, 1)]
+        """
+        actions = np.clip(actions, self.low, self.high)
         n = len(self.envs)
         reward = np.zeros((n, 1), dtype=np.float32)
         terminated, truncated = np.zeros((n, 1), dtype=bool), np.zeros((n, 1), dtype=bool)
-        stepping = tensordict.get("_step", None)  # a rollout that stops each env at its episode's end
-        active = range(n) if stepping is None else stepping.reshape(n).nonzero().flatten().tolist()
-        for i in active:
-            env = self.envs[i]
-            obs, reward[i], terminated[i], truncated[i], _ = env.step(actions[i])
+        for i in range(n) if active is None else active:
+            obs, reward[i], terminated[i], truncated[i], _ = self.envs[i].step(actions[i])
             self._actions[i].append(actions[i])
             check_env_output(self.env_id, f"step {len(self._actions[i])} of env {i}'s episode (seed {self._seeds[i]})",
                              obs, reward[i], actions[i])
             self._last_obs[i] = self._observe(i, obs)
             if self.episode_length is not None and len(self._actions[i]) >= self.episode_length:
                 truncated[i] = True
-        return TensorDict({
-            "observation": torch.as_tensor(self._last_obs.copy()), "reward": torch.as_tensor(reward),
-            "done": torch.as_tensor(terminated | truncated), "terminated": torch.as_tensor(terminated),
-            "truncated": torch.as_tensor(truncated),
-        }, batch_size=self.batch_size)
+        return self._last_obs.copy(), reward, terminated, truncated
 
     def replay_state(self) -> dict[str, Any]:
         """What puts fresh envs where these are: per env, the seed of its episode, the actions

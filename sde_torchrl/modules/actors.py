@@ -72,10 +72,12 @@ class BatchedLinear(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.shape[-1] != self.in_features:
             raise ValueError(f"input has {x.shape[-1]} features, expected {self.in_features}")
-        batch_dims = x.dim() - 1
+        if self.runs is None and x.dim() >= 2:  # the product stacked_matvec forms, without its reshapes
+            y = x @ self.weight.T
+            return y if self.bias is None else y + self.bias
         y = stacked_matvec(self.weight, x, self.run_dims)
         if self.bias is not None:
-            y = y + align(self.bias, self.run_dims, batch_dims)
+            y = y + align(self.bias, self.run_dims, x.dim() - 1)
         return y
 
 
@@ -236,11 +238,16 @@ class LatentMLPActor(TensorDictModuleBase):
         self.feature_dim = hidden[-1] if len(hidden) else in_features
         self.in_keys, self.out_keys = [in_key], [loc_key, feature_key]
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        features, loc = self.net.hidden_and_output(tensordict.get(self.in_keys[0]))
+    def loc_and_features(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The mean and the exploration features of ``observation``: what :meth:`forward` writes."""
+        features, loc = self.net.hidden_and_output(observation)
         if self.clip_loc is not None:
             loc = torch.nn.functional.hardtanh(loc, -self.clip_loc, self.clip_loc)
+        return loc, features if self.learn_features else features.detach()
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        loc, features = self.loc_and_features(tensordict.get(self.in_keys[0]))
         loc_key, feature_key = self.out_keys
         tensordict.set(loc_key, loc)
-        tensordict.set(feature_key, features if self.learn_features else features.detach())
+        tensordict.set(feature_key, features)
         return tensordict

@@ -330,8 +330,49 @@ class SDENoisePrimer(TensorDictPrimer):
         tensordict.set(self.noise_key, fresh)
         if age is not None:
             tensordict.set(self.age_key, age)
-        self._hold(tensordict)
+        self.hold(tensordict)
         return tensordict
+
+    def reset_noise(
+        self, reset: torch.Tensor, noise: torch.Tensor, gaussian: torch.Tensor | None, age: torch.Tensor | None,
+        held: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """The noise after a reset of the envs where ``reset`` (``[*batch]`` booleans): fresh
+        draws there, ``noise``, ``gaussian`` and ``age`` elsewhere (what a reset writes).
+
+        ``held``: the ``(ξ, count)`` that the SB3-style schedules keep through a reset of done
+        envs during a collection (the step's), used in place of the fresh ones. The fresh draws
+        are made either way, so the random stream does not depend on it.
+
+        Examples:
+            >>> primer = SDENoisePrimer(1, 2)
+            >>> noise = torch.zeros(3, 1, 2)
+            >>> fresh, _, _ = primer.reset_noise(torch.tensor([True, False, False]), noise, None, None)
+            >>> bool((fresh[0] != 0).all()), bool((fresh[1:] == 0).all())
+            (True, True)
+        """
+        fresh, fresh_gaussian, fresh_age = self.start(noise.shape[:-2], noise.device)
+        if held is not None and self.counts_rollout:  # SB3: a boundary changes neither ξ nor the count
+            fresh, fresh_age = held
+        noise = torch.where(expand_as_right(reset, fresh), fresh, noise)
+        if fresh_gaussian is not None:
+            gaussian = torch.where(expand_as_right(reset, fresh_gaussian), fresh_gaussian, gaussian)
+        if fresh_age is not None:
+            age = torch.where(expand_as_right(reset, fresh_age), fresh_age, age)
+        return noise, gaussian, age
+
+    def step_noise(
+        self, noise: torch.Tensor, gaussian: torch.Tensor | None, age: torch.Tensor | None,
+        done: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None] | None:
+        """The noise after a step whose done flags are ``done`` (what a step writes):
+        :meth:`advance`, or ``None`` (nothing drawn, the noise left as it is) when every episode
+        has ended and the schedule does not count over a rollout (the reset draws then), or when
+        exploration is deterministic."""
+        all_done = done is not None and bool(done.all()) and not self.counts_rollout
+        if deterministic_exploration() or all_done:
+            return None
+        return self.advance(noise, gaussian, age)
 
     # --------------------------------------------------------------------- the env transform
     def _reset_func(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -339,39 +380,30 @@ class SDENoisePrimer(TensorDictPrimer):
         noise = tensordict_reset.get(self.noise_key, None)
         if noise is None or deterministic_exploration():  # absent when no env is reset
             return tensordict_reset
-        reset = _get_reset(self.reset_key, tensordict)
-        fresh, gaussian, age = self.start(noise.shape[:-2], noise.device)
-        carried = self._carried(tensordict, noise.shape)
-        if carried is not None:  # SB3's counting: an episode boundary changes neither ξ nor the count
-            fresh, age = carried
-        tensordict_reset.set(self.noise_key, torch.where(expand_as_right(reset, fresh), fresh, noise))
-        if gaussian is not None:
-            old = tensordict_reset.get(self.gaussian_noise_key)
-            tensordict_reset.set(self.gaussian_noise_key, torch.where(expand_as_right(reset, gaussian), gaussian, old))
-        if age is not None:
-            tensordict_reset.set(self.age_key, torch.where(expand_as_right(reset, age), age,
-                                                           tensordict_reset.get(self.age_key)))
-        self._hold(tensordict_reset)
+        noise, gaussian, age = self.reset_noise(
+            _get_reset(self.reset_key, tensordict), noise, tensordict_reset.get(self.gaussian_noise_key, None),
+            tensordict_reset.get(self.age_key, None), self._carried(tensordict, noise.shape))
+        self._write(tensordict_reset, noise, gaussian, age)
         return tensordict_reset
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         next_tensordict = super()._step(tensordict, next_tensordict)  # carries the noise (and age) over
-        done = next_tensordict.get(self.done_key, None)
-        all_done = done is not None and bool(done.all()) and not self.counts_rollout  # else the reset keeps ξ
-        if deterministic_exploration() or all_done:
-            return next_tensordict
-        noise, gaussian, age = self.advance(next_tensordict.get(self.noise_key),
-                                            next_tensordict.get(self.gaussian_noise_key, None),
-                                            next_tensordict.get(self.age_key, None))
-        next_tensordict.set(self.noise_key, noise)
-        if gaussian is not None:
-            next_tensordict.set(self.gaussian_noise_key, gaussian)
-        if age is not None:
-            next_tensordict.set(self.age_key, age)
-        self._hold(next_tensordict)
+        drawn = self.step_noise(next_tensordict.get(self.noise_key), next_tensordict.get(self.gaussian_noise_key, None),
+                                next_tensordict.get(self.age_key, None), next_tensordict.get(self.done_key, None))
+        if drawn is not None:
+            self._write(next_tensordict, *drawn)
         return next_tensordict
 
-    def _hold(self, tensordict: TensorDictBase) -> None:
+    def _write(self, tensordict: TensorDictBase, noise: torch.Tensor, gaussian: torch.Tensor | None,
+               age: torch.Tensor | None) -> None:
+        tensordict.set(self.noise_key, noise)
+        if gaussian is not None:
+            tensordict.set(self.gaussian_noise_key, gaussian)
+        if age is not None:
+            tensordict.set(self.age_key, age)
+        self.hold(tensordict)
+
+    def hold(self, tensordict: TensorDictBase) -> None:
         """Keeps the ``(ξ, count)`` just written (SB3-style schedules): TorchRL resets done envs
         from their reset flags alone (``maybe_reset``), so the reset must find them here."""
         if self.counts_rollout:

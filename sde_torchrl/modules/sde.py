@@ -255,13 +255,21 @@ class SDEParams(TensorDictModuleBase):
                         f"(out_keys=[{self.loc_key!r}]), or pass loc_key= to SDEParams")
         features = self._get(tensordict, self.feature_key, "pass feature_key= to SDEParams")
         self._check_shapes(loc, features)
+        sigma, scale = self.batch_params(loc)
+        tensordict.set(self.sigma_key, sigma)
+        if scale is not None:
+            tensordict.set(self.gaussian_scale_key, scale)
+        return tensordict
+
+    def batch_params(self, loc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``σ̂`` expanded to ``loc``'s batch, ``[*batch, A, S]``, and ``σ_gauss`` to ``[*batch, A]``
+        (``None`` for pure SDE), in ``loc``'s dtype: what :meth:`forward` writes."""
         batch, batch_dims = loc.shape[:-1], loc.dim() - 1
         sigma = align(self.sde_sigma, self.run_dims, batch_dims).to(loc.dtype)
-        tensordict.set(self.sigma_key, sigma.expand(*batch, self.action_dim, self.feature_dim))
-        if self.has_gaussian:
-            scale = self.gaussian_scale(batch_dims).to(loc.dtype)
-            tensordict.set(self.gaussian_scale_key, scale.expand(*batch, self.action_dim))
-        return tensordict
+        if not self.has_gaussian:
+            return sigma.expand(*batch, self.action_dim, self.feature_dim), None
+        scale = self.gaussian_scale(batch_dims).to(loc.dtype)
+        return sigma.expand(*batch, self.action_dim, self.feature_dim), scale.expand(*batch, self.action_dim)
 
     @staticmethod
     def _get(tensordict: TensorDictBase, key: NestedKey, fix: str) -> torch.Tensor:

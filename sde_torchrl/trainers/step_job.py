@@ -25,6 +25,7 @@ from torch import nn
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from sde_torchrl.collectors.fused_steps import deterministic_policy, fused_env, fused_episodes
 from sde_torchrl.collectors.steps import StepCollector
 from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.jobs.checkpoint import job_streams
@@ -191,6 +192,9 @@ class StepJob(Job):
             stats = {k: v for k, v in self.normalizer.state_dict().items() if k != "returns"}
             frozen.load_state_dict(stats, strict=False)
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            fused = fused_env(env) if self.collector.fast else None
+            if fused is not None:  # the same episodes without TorchRL's per-step tensordicts
+                return fused_episodes(fused, deterministic_policy(self.policy), self.settings.episode_length)
             return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False,
                                break_when_all_done=True)
 

@@ -1,0 +1,260 @@
+"""Step collection on tensors: the steps of ``env.step_and_maybe_reset(policy(td))`` without
+TorchRL's per-step tensordict machinery, for the envs and policies whose parts it knows.
+
+:class:`~sde_torchrl.collectors.steps.StepCollector` takes this path for a
+:class:`~sde_torchrl.envs.vector.GymVectorEnv` wrapped in no transforms but ``RewardSum``,
+:class:`~sde_torchrl.envs.normalize.RunningNormalize` and
+:class:`~sde_torchrl.modules.noise.SDENoisePrimer`, in that order (what the PPO and A2C builders
+make). Each step calls the same parts the reference path calls through TorchRL, on tensors: the
+gymnasium envs (:meth:`~sde_torchrl.envs.vector.GymVectorEnv.step_arrays`, ``reset_arrays``),
+the episode sum, the normaliser (``observe``, ``normalize``), the noise schedule (``step_noise``,
+``reset_noise``) and the policy, which an unsquashed :class:`~sde_torchrl.modules.sde_actor.SDEActor`
+over a :class:`~sde_torchrl.modules.actors.LatentMLPActor` computes on tensors
+(:func:`tensor_policy`) and any other policy on a small tensordict. The rollout and the carried
+state are assembled once per rollout, with the same keys and numbers as the reference path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey, expand_as_right
+from torchrl.envs import Compose, EnvBase, RewardSum, TransformedEnv
+
+from sde_torchrl.envs.normalize import RunningNormalize
+from sde_torchrl.envs.vector import GymVectorEnv
+from sde_torchrl.modules.actors import LatentMLPActor
+from sde_torchrl.modules.distribution import sde_sample_and_log_prob
+from sde_torchrl.modules.noise import SDENoisePrimer
+from sde_torchrl.modules.sde_actor import SDEActor
+
+#: A policy on tensors: the carried entries in, the entries it writes out.
+TensorPolicy = Callable[[dict[NestedKey, torch.Tensor]], dict[NestedKey, torch.Tensor]]
+#: The flags every step writes.
+FLAGS = ("done", "terminated", "truncated")
+#: The transforms this path reproduces, in the order it applies them.
+_KNOWN = (RewardSum, RunningNormalize, SDENoisePrimer)
+
+
+@dataclass(frozen=True)
+class FusedEnv:
+    """The parts of an env that :func:`fused_rollout` steps: the gymnasium envs, and the
+    episode sum (its key), the normaliser and the noise primer where the env has them."""
+
+    base: GymVectorEnv
+    episode_key: str | None
+    normalizer: RunningNormalize | None
+    primer: SDENoisePrimer | None
+
+
+def fused_env(env: EnvBase) -> FusedEnv | None:
+    """``env``'s parts for :func:`fused_rollout`, or ``None`` where the path does not apply (another
+    base env, another transform, another order, a sum of other keys)."""
+    transforms: list = []
+    base = env
+    while isinstance(base, TransformedEnv):
+        transforms = [*_flatten(base.transform), *transforms]
+        base = base.base_env
+    if not isinstance(base, GymVectorEnv):
+        return None
+    kinds = [next((i for i, kind in enumerate(_KNOWN) if type(t) is kind), None) for t in transforms]
+    if None in kinds or kinds != sorted(set(kinds)):
+        return None
+    parts = dict(zip(kinds, transforms, strict=True))
+    reward_sum = parts.get(0)
+    if reward_sum is not None and (list(reward_sum.in_keys) != ["reward"] or len(reward_sum.out_keys) != 1
+                                   or not isinstance(reward_sum.out_keys[0], str)):
+        return None
+    return FusedEnv(base, None if reward_sum is None else reward_sum.out_keys[0], parts.get(1), parts.get(2))
+
+
+def tensor_policy(policy: object) -> TensorPolicy:
+    """``policy`` as a function of the carried entries: on tensors for an unsquashed
+    :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
+    :class:`~sde_torchrl.modules.actors.LatentMLPActor` (the numbers its ``forward`` writes),
+    else the policy called on a tensordict of them."""
+    if isinstance(policy, SDEActor) and not policy.squash and len(policy.actor_modules) == 1:
+        (actor,), sde = policy.actor_modules, policy.sde
+        if isinstance(actor, LatentMLPActor) and list(actor.out_keys) == [sde.loc_key, sde.feature_key]:
+            return _sde_policy(policy, actor)
+    return _tensordict_policy(policy)
+
+
+def deterministic_policy(policy: object) -> TensorPolicy:
+    """``policy``'s deterministic action as a function of the carried entries (under
+    ``ExplorationType.DETERMINISTIC``): the mean ``loc`` of an unsquashed
+    :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
+    :class:`~sde_torchrl.modules.actors.LatentMLPActor`, else the policy's on a tensordict."""
+    if isinstance(policy, SDEActor) and not policy.squash and len(policy.actor_modules) == 1:
+        (actor,), sde = policy.actor_modules, policy.sde
+        if isinstance(actor, LatentMLPActor) and list(actor.out_keys) == [sde.loc_key, sde.feature_key]:
+            return lambda carried: {policy.action_key: actor.loc_and_features(carried[actor.in_keys[0]])[0]}
+    return _tensordict_policy(policy)
+
+
+def _tensordict_policy(policy: object) -> TensorPolicy:
+    def call(carried: dict[NestedKey, torch.Tensor]) -> dict[NestedKey, torch.Tensor]:
+        return dict(policy(TensorDict(carried, batch_size=next(iter(carried.values())).shape[:1])).items())
+
+    return call
+
+
+def _sde_policy(policy: SDEActor, actor: LatentMLPActor) -> TensorPolicy:
+    sde = policy.sde
+    keys = sde.dist_keys
+
+    def act(carried: dict[NestedKey, torch.Tensor]) -> dict[NestedKey, torch.Tensor]:
+        loc, features = actor.loc_and_features(carried[actor.in_keys[0]])
+        sigma, scale = sde.batch_params(loc)
+        out = {sde.loc_key: loc, sde.feature_key: features, sde.sigma_key: sigma}
+        gaussian = None
+        if scale is not None:
+            out[sde.gaussian_scale_key], gaussian = scale, carried[keys["gaussian_noise"]]
+        action, log_prob = sde_sample_and_log_prob(loc, sigma, features, carried[keys["noise"]], scale, gaussian)
+        out[policy.action_key], out[policy.log_prob_key] = action, log_prob
+        return out
+
+    return act
+
+
+def fused_rollout(
+    env: FusedEnv, act: TensorPolicy, carried: TensorDictBase, steps: int, keep: Sequence[NestedKey] | None
+) -> tuple[TensorDict, TensorDict]:
+    """``steps`` steps of every env from ``carried``, resetting the done envs alone.
+
+    Args:
+        env: the env's parts (:func:`fused_env`).
+        act: the policy on tensors (:func:`tensor_policy`).
+        carried: where the rollout starts (a reset's or the last step's output, the policy's
+            entries of that step included).
+        steps: steps per env.
+        keep: the keys to keep of each step (``None``: all).
+
+    Returns:
+        ``(rollout [n_envs, steps], carried)``: what ``steps`` calls of
+        ``env.step_and_maybe_reset(policy(td))`` give, stacked, and the state after them.
+    """
+    batch = carried.batch_size
+    state: dict[NestedKey, torch.Tensor] = dict(carried.items())
+    primer, normalizer = env.primer, env.normalizer
+    noise_keys = () if primer is None else tuple(
+        key for key in (primer.noise_key, primer.gaussian_noise_key, primer.age_key) if key in state)
+    wanted = None if keep is None else set(keep)
+    columns: dict[NestedKey, list[torch.Tensor]] = {}
+
+    def record(key: NestedKey, value: torch.Tensor) -> None:
+        if wanted is None or key in wanted:
+            columns.setdefault(key, []).append(value)
+
+    for _ in range(steps):
+        state.update(act(state))
+        for key, value in state.items():
+            record(key, value)
+        obs, reward, terminated, truncated = (torch.as_tensor(a) for a in env.base.step_arrays(
+            state["action"].detach().cpu().numpy()))
+        done = terminated | truncated
+        after: dict[NestedKey, torch.Tensor] = {"observation": obs, "reward": reward, "done": done,
+                                                "terminated": terminated, "truncated": truncated}
+        if env.episode_key is not None:
+            after[env.episode_key] = state[env.episode_key] + reward
+        if normalizer is not None:
+            after["observation"], after["reward"] = normalizer.observe(obs, reward, done)
+        if primer is not None:
+            noise = [state.get(key) for key in (primer.noise_key, primer.gaussian_noise_key, primer.age_key)]
+            drawn = primer.step_noise(*noise, done)
+            after.update({key: state[key] for key in noise_keys})
+            if drawn is not None:
+                after.update({key: value for key, value in zip(
+                    (primer.noise_key, primer.gaussian_noise_key, primer.age_key), drawn, strict=True)
+                    if value is not None})
+        for key, value in after.items():
+            record(("next", key), value)
+        del after["reward"]
+        state.update(after)
+        if bool(done.any()):
+            _reset_done(env, state, done.reshape(batch), noise_keys)
+    rollout = TensorDict({key: torch.stack(values, dim=1) for key, values in columns.items()},
+                         batch_size=(*batch, steps))
+    carried = TensorDict(state, batch_size=batch)
+    if noise_keys:
+        primer.hold(carried)  # what the reference path's primer keeps for its next reset
+    return rollout, carried
+
+
+def fused_episodes(env: FusedEnv, act: TensorPolicy, steps: int) -> TensorDict:
+    """One episode per env from a full reset, each env stepped to its episode's end and no
+    further, for at most ``steps`` steps; the rollout ends with the longest episode.
+
+    What ``env.rollout(steps, policy, break_when_any_done=False, break_when_all_done=True)``
+    gives under deterministic exploration, for the keys an evaluation reads: ``("next",
+    "reward")`` and ``("next", "done")``, ``[n_envs, T]`` (an env's rows after its episode's end
+    hold reward 0 and ``done``). The normaliser, if any, must be frozen (raw rewards, no updates).
+
+    Args:
+        env: the env's parts (:func:`fused_env`).
+        act: the deterministic policy on tensors (:func:`deterministic_policy`).
+        steps: the longest episode allowed.
+    """
+    n = env.base.batch_size[0]
+    obs = torch.as_tensor(env.base.reset_arrays())
+    state: dict[NestedKey, torch.Tensor] = {"observation": obs}
+    if env.primer is not None:  # the primer's defaults (no draws when deterministic), for a policy that reads them
+        defaults = env.primer.primers.zero()
+        state.update((defaults if defaults.batch_size else defaults.expand(n)).items())
+    if env.normalizer is not None:
+        state["observation"] = env.normalizer.normalize(obs)
+    ended = torch.zeros(n, 1, dtype=torch.bool)
+    rewards, dones = [], []
+    for _ in range(steps):
+        action = act(state)["action"]
+        active = (~ended).flatten().nonzero().flatten().tolist()
+        obs, reward, terminated, truncated = (torch.as_tensor(a) for a in env.base.step_arrays(
+            action.detach().cpu().numpy(), active))
+        if env.normalizer is not None:
+            obs, reward = env.normalizer.observe(obs, reward, terminated | truncated)
+        ended = ended | terminated | truncated
+        state["observation"] = obs
+        rewards.append(reward)
+        dones.append(ended)
+        if bool(ended.all()):
+            break
+    return TensorDict({("next", "reward"): torch.stack(rewards, 1), ("next", "done"): torch.stack(dones, 1)},
+                      batch_size=(n, len(rewards)))
+
+
+def _reset_done(env: FusedEnv, state: dict[NestedKey, torch.Tensor], reset: torch.Tensor,
+                noise_keys: tuple[NestedKey, ...]) -> None:
+    """Resets the envs where ``reset``, in ``state``: what TorchRL's ``maybe_reset`` writes."""
+    written = {"observation", *FLAGS, env.episode_key, *noise_keys}
+    for key, value in state.items():  # a partial reset zeroes there what it does not write (the policy's entries)
+        if key not in written and not bool(reset.all()):
+            state[key] = value.masked_fill(expand_as_right(reset, value), 0)
+    obs = torch.as_tensor(env.base.reset_arrays(reset.tolist()))
+    if env.normalizer is not None:
+        obs = env.normalizer.normalize(obs)
+    state["observation"] = torch.where(expand_as_right(reset, obs), obs, state["observation"])
+    for flag in FLAGS:
+        state[flag] = state[flag] & ~expand_as_right(reset, state[flag])
+    if env.episode_key is not None:
+        total = state[env.episode_key]
+        state[env.episode_key] = torch.where(expand_as_right(~reset, total), total, 0.0)
+    primer = env.primer
+    if primer is None or primer.noise_key not in state:
+        return
+    age = state.get(primer.age_key)
+    noise, gaussian, age = primer.reset_noise(reset, state[primer.noise_key], state.get(primer.gaussian_noise_key),
+                                              age, (state[primer.noise_key], age) if age is not None else None)
+    for key, value in zip((primer.noise_key, primer.gaussian_noise_key, primer.age_key), (noise, gaussian, age),
+                          strict=True):
+        if value is not None and key in noise_keys:
+            state[key] = value
+
+
+def _flatten(transform: object) -> list:
+    return [t for inner in transform for t in _flatten(inner)] if isinstance(transform, Compose) else [transform]
+
+
+__all__ = ["FusedEnv", "deterministic_policy", "fused_env", "fused_episodes", "fused_rollout", "tensor_policy"]
