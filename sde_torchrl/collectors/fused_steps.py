@@ -140,8 +140,7 @@ def fused_rollout(
     batch = carried.batch_size
     state: dict[NestedKey, torch.Tensor] = dict(carried.items())
     primer, normalizer = env.primer, env.normalizer
-    noise_keys = () if primer is None else tuple(
-        key for key in (primer.noise_key, primer.gaussian_noise_key, primer.age_key) if key in state)
+    noise_keys = tuple(key for key in _noise_keys(primer) if key in state)
     wanted = None if keep is None else set(keep)
     columns: dict[NestedKey, list[torch.Tensor]] = {}
 
@@ -162,14 +161,11 @@ def fused_rollout(
             after[env.episode_key] = state[env.episode_key] + reward
         if normalizer is not None:
             after["observation"], after["reward"] = normalizer.observe(obs, reward, done)
-        if primer is not None:
-            noise = [state.get(key) for key in (primer.noise_key, primer.gaussian_noise_key, primer.age_key)]
-            drawn = primer.step_noise(*noise, done)
-            after.update({key: state[key] for key in noise_keys})
-            if drawn is not None:
-                after.update({key: value for key, value in zip(
-                    (primer.noise_key, primer.gaussian_noise_key, primer.age_key), drawn, strict=True)
-                    if value is not None})
+        if noise_keys:
+            held = tuple(state.get(key) for key in _noise_keys(primer))
+            drawn = primer.step_noise(*held, done)
+            after.update((key, value) for key, value in zip(_noise_keys(primer), drawn or held, strict=True)
+                         if key in noise_keys)
         for key, value in after.items():
             record(("next", key), value)
         del after["reward"]
@@ -241,16 +237,17 @@ def _reset_done(env: FusedEnv, state: dict[NestedKey, torch.Tensor], reset: torc
     if env.episode_key is not None:
         total = state[env.episode_key]
         state[env.episode_key] = torch.where(expand_as_right(~reset, total), total, 0.0)
-    primer = env.primer
-    if primer is None or primer.noise_key not in state:
+    if not noise_keys:
         return
-    age = state.get(primer.age_key)
-    noise, gaussian, age = primer.reset_noise(reset, state[primer.noise_key], state.get(primer.gaussian_noise_key),
-                                              age, (state[primer.noise_key], age) if age is not None else None)
-    for key, value in zip((primer.noise_key, primer.gaussian_noise_key, primer.age_key), (noise, gaussian, age),
-                          strict=True):
-        if value is not None and key in noise_keys:
-            state[key] = value
+    primer = env.primer
+    noise, gaussian, age = (state.get(key) for key in _noise_keys(primer))
+    fresh = primer.reset_noise(reset, noise, gaussian, age, None if age is None else (noise, age))
+    state.update((key, value) for key, value in zip(_noise_keys(primer), fresh, strict=True) if key in noise_keys)
+
+
+def _noise_keys(primer: SDENoisePrimer | None) -> tuple[NestedKey, ...]:
+    """The primer's keys in the order its methods take them: ``ξ``, ``ε``, the count."""
+    return () if primer is None else (primer.noise_key, primer.gaussian_noise_key, primer.age_key)
 
 
 def _flatten(transform: object) -> list:

@@ -186,14 +186,16 @@ class StepJob(Job):
 
     def deterministic_episodes(self, env: EnvBase, frozen: RunningNormalize | None) -> TensorDictBase:
         """One deterministic episode per env of ``env``, ``[envs, T]``: each env is stepped to its
-        episode's end and no further (its rows after it repeat its last), the rollout ends with
-        the longest episode; its normalisation ``frozen`` at the training statistics."""
+        episode's end and no further, the rollout ends with the longest episode (an env's rows
+        after its end are not its episode's: :func:`first_episode_returns` reads up to each
+        env's first ``done``); its normalisation ``frozen`` at the training statistics."""
         if frozen is not None:
             stats = {k: v for k, v in self.normalizer.state_dict().items() if k != "returns"}
             frozen.load_state_dict(stats, strict=False)
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
             fused = fused_env(env) if self.collector.fast else None
-            if fused is not None:  # the same episodes without TorchRL's per-step tensordicts
+            if fused is not None and (fused.normalizer is None or not fused.normalizer.update_stats):
+                # the same episodes without TorchRL's per-step tensordicts
                 return fused_episodes(fused, deterministic_policy(self.policy), self.settings.episode_length)
             return env.rollout(self.settings.episode_length, self.policy, break_when_any_done=False,
                                break_when_all_done=True)

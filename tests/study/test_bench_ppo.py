@@ -37,7 +37,10 @@ def test_phases_split_an_iteration_into_parts_that_fit_inside_it(monkeypatch, va
     monkeypatch.setitem(speed.OVERRIDES, variant, TINY)
     clip = torch.nn.utils.clip_grad_norm_
     phases = speed.iteration_phases(variant, 3)
+    from sde_torchrl.collectors import fused_steps, steps
+
     assert not timing.TIMER.active and torch.nn.utils.clip_grad_norm_ is clip  # nothing left switched on or patched
+    assert steps.tensor_policy is fused_steps.tensor_policy
     assert {"iteration", "collect", "collect: pybullet step", "update"} <= set(phases)
     assert 0 < phases["collect: pybullet step"] < phases["collect"]
     if variant == "sb3":
@@ -61,6 +64,15 @@ def test_both_sides_are_timed_by_iteration_and_collection(train):
     assert len(ends) == len(cpu_ends) == len(collect) == 3
     assert all(np.diff(ends) > 0) and all(c > 0 for c in cpu_ends)
     assert all(0 < c < d for c, d in zip(collect[1:], np.diff(ends), strict=True))
+
+
+def test_the_raw_limit_steps_one_gymnasium_env_as_many_times_as_an_iteration():
+    """``bench_ppo speed ... raw``: the experiment's env stepped with random actions, reset at
+    episode ends, timed per iteration of ``frames`` steps."""
+    pytest.importorskip("pybullet_envs_gymnasium")
+    result = iterations.train_raw(2, 64)
+    assert len(result["collect_s"]) == 2 and all(c > 0 for c in result["collect_s"])
+    assert all(0 < c <= d for c, d in zip(result["collect_s"][1:], np.diff(result["iteration_ends_s"]), strict=True))
 
 
 def test_sb3_is_built_from_the_jobs_config():

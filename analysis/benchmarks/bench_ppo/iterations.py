@@ -7,6 +7,7 @@ end in wall and CPU seconds and each rollout's collection time, split into phase
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from contextlib import nullcontext
 from typing import Any
 
@@ -42,32 +43,75 @@ def train_job(rollouts: int, overrides: tuple[str, ...] = ()) -> dict[str, list[
         return batch
 
     trainer.collector.rollout = timed_rollout
-    if TIMER.active:
-        _time_job_phases(trainer)
+    restore = _time_job_phases(trainer) if TIMER.active else (lambda: None)
     ends, cpu_ends, start, cpu_start = [], [], time.perf_counter(), time.process_time()
-    for k in range(rollouts):
-        trainer.update(k)
-        ends.append(time.perf_counter() - start)
-        cpu_ends.append(time.process_time() - cpu_start)
-        if k == 0:
-            TIMER.restart()  # the first iteration (warm-up, compilation) is not timed
+    try:
+        for k in range(rollouts):
+            trainer.update(k)
+            ends.append(time.perf_counter() - start)
+            cpu_ends.append(time.process_time() - cpu_start)
+            if k == 0:
+                TIMER.restart()  # the first iteration (warm-up, compilation) is not timed
+    finally:
+        restore()
     trainer.close()
     return {"iteration_ends_s": ends, "iteration_cpu_ends_s": cpu_ends, "collect_s": collect_s}
 
 
-def _time_job_phases(trainer) -> None:
+def train_raw(rollouts: int, frames: int) -> dict[str, list[float]]:
+    """The physical limit of a collection: ``frames`` steps of one raw gymnasium env of the
+    experiment with uniformly random actions (drawn beforehand, seeded), reset at each episode's
+    end, ``rollouts`` times; each time's seconds (wall, CPU) as an iteration and its collection."""
+    import gymnasium
+    import numpy as np
+
+    from sde_torchrl.envs.vector import first_reset
+
+    env = gymnasium.make(job_config().env.id)
+    first_reset([env])
+    env.reset(seed=1)
+    space, rng = env.action_space, np.random.default_rng(0)
+    ends, cpu_ends, collect_s, start, cpu_start = [], [], [], time.perf_counter(), time.process_time()
+    for _ in range(rollouts):
+        actions = rng.uniform(space.low, space.high, size=(frames, *space.shape)).astype(space.dtype)
+        begin = time.perf_counter()
+        for action in actions:
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+        collect_s.append(time.perf_counter() - begin)
+        ends.append(time.perf_counter() - start)
+        cpu_ends.append(time.process_time() - cpu_start)
+    env.close()
+    return {"iteration_ends_s": ends, "iteration_cpu_ends_s": cpu_ends, "collect_s": collect_s}
+
+
+def _time_job_phases(trainer) -> Callable[[], None]:
     """Times the job's phases under ``phases``' names: its collection and, within it, pybullet's
-    step, the policy's forward and the env's transforms; GAE; the update (compiled: timed whole)."""
+    step, the policy's forward and the env's transforms (on the tensor path: the normaliser and
+    the noise schedule); GAE; the update (compiled: timed whole). Returns what puts the
+    collector module's policy maker back."""
+    from sde_torchrl.collectors import steps
+
     timed = TIMER.wrap
     collector = trainer.collector
     collector.rollout = timed("collect", collector.rollout)
     for env in collector.env.base_env.envs:
         env.step = timed("collect: pybullet step", env.step)
-    collector.policy = timed("collect: policy forward", collector.policy)
-    for transform in collector.env.transform:
-        transform._step = timed("collect: env transforms", transform._step)
+    on_tensors = steps.tensor_policy
+    if collector.fused is not None:
+        steps.tensor_policy = lambda policy: timed("collect: policy forward", on_tensors(policy))
+        for part, methods in ((collector.fused.normalizer, ("observe", "normalize")),
+                              (collector.fused.primer, ("step_noise", "reset_noise"))):
+            for name in methods if part is not None else ():
+                setattr(part, name, timed("collect: env transforms", getattr(part, name)))
+    else:
+        collector.policy = timed("collect: policy forward", collector.policy)
+        for transform in collector.env.transform:
+            transform._step = timed("collect: env transforms", transform._step)
     trainer.advantage = timed("GAE", trainer.advantage)
     trainer.update_step = timed("update", trainer.update_step)
+    return lambda: setattr(steps, "tensor_policy", on_tensors)
 
 
 def train_sb3(rollouts: int, overrides: tuple[str, ...] = ()) -> dict[str, Any]:

@@ -7,15 +7,18 @@ import numpy as np
 import torch
 
 from analysis.benchmarks import common
-from analysis.benchmarks.bench_ppo.iterations import job_config, train_job, train_sb3
+from analysis.benchmarks.bench_ppo.iterations import job_config, train_job, train_raw, train_sb3
 from analysis.benchmarks.bench_ppo.timing import TIMER
 
 #: ``job``: ``python train.py +experiment=ppo_halfcheetah_bullet``'s own trainer as shipped (compiled
 #: loss, fused Adam), ``job+eager`` with ``algorithm.compile=false``; ``sb3``: SB3's PPO with gSDE at the
 #: job's settings, ``sb3_gauss`` with its plain Gaussian (the job's ``explorer=gaussian``).
-SPEED_VARIANTS = ("job", "job+eager", "sb3", "sb3_gauss")
+#: ``raw``: the same env steps through one raw gymnasium env with random actions, the physical
+#: limit a collection is measured against (no policy, no update).
+SPEED_VARIANTS = ("job", "job+eager", "sb3", "sb3_gauss", "raw")
 #: Each variant's overrides of the experiment.
-OVERRIDES = {"job": (), "job+eager": ("algorithm.compile=false",), "sb3": (), "sb3_gauss": ("explorer=gaussian",)}
+OVERRIDES = {"job": (), "job+eager": ("algorithm.compile=false",), "sb3": (), "sb3_gauss": ("explorer=gaussian",),
+             "raw": ()}
 
 
 def iteration_frames() -> int:
@@ -28,8 +31,10 @@ def iteration_seconds(variant: str, rollouts: int) -> tuple[float, float, float]
     """Median wall and CPU time of one training iteration of ``variant`` and the median wall time
     of its collection, the first iteration left out."""
     torch.set_num_threads(1)
-    train = train_sb3 if variant.startswith("sb3") else train_job
-    result = train(rollouts, OVERRIDES[variant])
+    if variant == "raw":
+        result = train_raw(rollouts, iteration_frames())
+    else:
+        result = (train_sb3 if variant.startswith("sb3") else train_job)(rollouts, OVERRIDES[variant])
     collect = result["collect_s"][1:]
     return (float(np.median(np.diff(result["iteration_ends_s"]))),
             float(np.median(np.diff(result["iteration_cpu_ends_s"]))),
@@ -48,7 +53,25 @@ def speed(variants: list[str], rollouts: int, repeats: int = 1) -> str:
     with a 95 % bootstrap interval over the processes when there are several.
     """
     seconds = common.in_fresh_processes(iteration_seconds, variants, rollouts, repeats)
-    return speed_table(seconds, rollouts - 1, iteration_frames())
+    raw = seconds.pop("raw", None)
+    table = speed_table(seconds, rollouts - 1, iteration_frames()) if seconds else ""
+    return table if raw is None else table + "\n" + raw_table(seconds, raw)
+
+
+def raw_table(seconds: dict[str, list[tuple[float, float, float]]], raw: list[tuple[float, float, float]]) -> str:
+    """Each variant's collection of one iteration against the same env steps through one raw
+    gymnasium env with random actions (medians over processes).
+
+    Examples:
+        >>> print(raw_table({"job": [(5.0, 5.0, 2.6)]}, [(2.0, 2.0, 2.0)]).splitlines()[2])
+        | job | 2.60 | 2.00 | 1.30 |
+    """
+    limit = float(np.median([collect for _, _, collect in raw]))
+    lines = ["| variant | collection s | raw gymnasium s | collection ÷ raw |", "| --- | --- | --- | --- |"]
+    for variant, triples in seconds.items():
+        collect = float(np.median([c for _, _, c in triples]))
+        lines.append(f"| {variant} | {collect:.2f} | {limit:.2f} | {collect / limit:.2f} |")
+    return "\n".join(lines) + "\n"
 
 
 def speed_table(seconds: dict[str, list[tuple[float, float, float]]], timed: int, frames: int) -> str:
