@@ -76,11 +76,8 @@ def tensor_policy(policy: object) -> TensorPolicy:
     :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
     :class:`~sde_torchrl.modules.actors.LatentMLPActor` (the numbers its ``forward`` writes),
     else the policy called on a tensordict of them."""
-    if isinstance(policy, SDEActor) and not policy.squash and len(policy.actor_modules) == 1:
-        (actor,), sde = policy.actor_modules, policy.sde
-        if isinstance(actor, LatentMLPActor) and list(actor.out_keys) == [sde.loc_key, sde.feature_key]:
-            return _sde_policy(policy, actor)
-    return _tensordict_policy(policy)
+    actor = _latent_actor(policy)
+    return _tensordict_policy(policy) if actor is None else _sde_policy(policy, actor)
 
 
 def deterministic_policy(policy: object) -> TensorPolicy:
@@ -88,11 +85,20 @@ def deterministic_policy(policy: object) -> TensorPolicy:
     ``ExplorationType.DETERMINISTIC``): the mean ``loc`` of an unsquashed
     :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
     :class:`~sde_torchrl.modules.actors.LatentMLPActor`, else the policy's on a tensordict."""
-    if isinstance(policy, SDEActor) and not policy.squash and len(policy.actor_modules) == 1:
-        (actor,), sde = policy.actor_modules, policy.sde
-        if isinstance(actor, LatentMLPActor) and list(actor.out_keys) == [sde.loc_key, sde.feature_key]:
-            return lambda carried: {policy.action_key: actor.loc_and_features(carried[actor.in_keys[0]])[0]}
-    return _tensordict_policy(policy)
+    actor = _latent_actor(policy)
+    if actor is None:
+        return _tensordict_policy(policy)
+    return lambda carried: {policy.action_key: actor.loc_and_features(carried[actor.in_keys[0]])[0]}
+
+
+def _latent_actor(policy: object) -> LatentMLPActor | None:
+    """The actor of an unsquashed SDE policy over one :class:`LatentMLPActor` (what the tensor
+    path computes itself), else ``None``."""
+    if not isinstance(policy, SDEActor) or policy.squash or len(policy.actor_modules) != 1:
+        return None
+    (actor,), sde = policy.actor_modules, policy.sde
+    fits = isinstance(actor, LatentMLPActor) and list(actor.out_keys) == [sde.loc_key, sde.feature_key]
+    return actor if fits else None
 
 
 def _tensordict_policy(policy: object) -> TensorPolicy:
@@ -224,10 +230,11 @@ def fused_episodes(env: FusedEnv, act: TensorPolicy, steps: int) -> TensorDict:
 def _reset_done(env: FusedEnv, state: dict[NestedKey, torch.Tensor], reset: torch.Tensor,
                 noise_keys: tuple[NestedKey, ...]) -> None:
     """Resets the envs where ``reset``, in ``state``: what TorchRL's ``maybe_reset`` writes."""
-    written = {"observation", *FLAGS, env.episode_key, *noise_keys}
-    for key, value in state.items():  # a partial reset zeroes there what it does not write (the policy's entries)
-        if key not in written and not bool(reset.all()):
-            state[key] = value.masked_fill(expand_as_right(reset, value), 0)
+    if not bool(reset.all()):  # a partial reset zeroes there what it does not write (the policy's entries)
+        written = {"observation", *FLAGS, env.episode_key, *noise_keys}
+        for key, value in state.items():
+            if key not in written:
+                state[key] = value.masked_fill(expand_as_right(reset, value), 0)
     obs = torch.as_tensor(env.base.reset_arrays(reset.tolist()))
     if env.normalizer is not None:
         obs = env.normalizer.normalize(obs)
