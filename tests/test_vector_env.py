@@ -71,6 +71,45 @@ def test_a_frozen_copy_normalises_with_the_same_statistics_and_leaves_rewards_ra
     torch.testing.assert_close(out["observation"], norm.normalize(step["observation"]))
 
 
+@pytest.mark.parametrize(("n_envs", "obs_dim"), [(4, 16), (1, 3), (16, 27), (8, 1)])
+def test_a_step_updates_the_statistics_to_the_tensor_arithmetics_numbers(n_envs, obs_dim):
+    """``observe`` works on numpy views of the buffers; its statistics, observations and rewards are
+    those of :func:`running_update` and the formulas on tensors, bit for bit."""
+    norm, gen = RunningNormalize(obs_dim, n_envs=n_envs, gamma=0.99), torch.Generator().manual_seed(n_envs)
+    mean, var, count, r_mean, r_var, r_count, returns = (buffer.clone() for buffer in norm.buffers())
+    for _ in range(200):
+        scale = 100 * float(torch.rand(1, generator=gen))
+        obs = torch.randn(n_envs, obs_dim, generator=gen) * scale + 5
+        reward, done = torch.randn(n_envs, 1, generator=gen) * scale, torch.rand(n_envs, 1, generator=gen) < 0.1
+        normalized, scaled = norm.observe(obs, reward, done)
+        mean, var, count = running_update(mean, var, count, obs)
+        returns = returns * 0.99 + reward.double()
+        r_mean, r_var, r_count = running_update(r_mean, r_var, r_count, returns)
+        expected = ((obs.double() - mean) / (var + EPS).sqrt()).clamp(-CLIP, CLIP).float()
+        assert torch.equal(normalized, expected) and torch.equal(norm.obs_var, var) and torch.equal(norm.obs_mean, mean)
+        assert torch.equal(scaled, (reward.double() / (r_var + EPS).sqrt()).clamp(-CLIP, CLIP).float())
+        assert torch.equal(norm.ret_var, r_var) and torch.equal(norm.obs_count, count)
+        returns = returns.masked_fill(done, 0.0)
+        assert torch.equal(norm.returns, returns)
+
+
+def test_a_copied_normaliser_updates_its_own_statistics():
+    """The numpy views follow the buffers' memory: a deep copy or a state loaded into a fresh
+    normaliser steps its own buffers."""
+    import copy
+
+    norm = RunningNormalize(2, n_envs=2, gamma=0.9)
+    step = (torch.randn(2, 2), torch.ones(2, 1), torch.zeros(2, 1, dtype=torch.bool))
+    norm.observe(*step)
+    twin, loaded = copy.deepcopy(norm), RunningNormalize(2, n_envs=2, gamma=0.9)
+    loaded.observe(*step)
+    loaded.load_state_dict(norm.state_dict())
+    twin.observe(*step)
+    loaded.observe(*step)
+    assert float(norm.obs_count) == pytest.approx(2.0001) and float(twin.obs_count) == pytest.approx(4.0001)
+    assert torch.equal(twin.obs_mean, loaded.obs_mean) and torch.equal(twin.returns, loaded.returns)
+
+
 def test_the_vector_env_steps_with_the_clipped_action_and_the_batch_keeps_the_sampled_one():
     """SB3 clips before ``env.step``; pybullet charges its electricity and stall costs on the action it
     is given, so an unclipped action outside ``[-1, 1]`` would be a harsher reward."""

@@ -111,16 +111,19 @@ def _tensordict_policy(policy: object) -> TensorPolicy:
 def _sde_policy(policy: SDEActor, actor: LatentMLPActor) -> TensorPolicy:
     sde = policy.sde
     keys = sde.dist_keys
+    in_key, noise_key, gaussian_key = actor.in_keys[0], keys["noise"], keys.get("gaussian_noise")
+    loc_key, feature_key, sigma_key, scale_key = sde.loc_key, sde.feature_key, sde.sigma_key, sde.gaussian_scale_key
+    action_key, log_prob_key = policy.action_key, policy.log_prob_key
 
     def act(carried: dict[NestedKey, torch.Tensor]) -> dict[NestedKey, torch.Tensor]:
-        loc, features = actor.loc_and_features(carried[actor.in_keys[0]])
+        loc, features = actor.loc_and_features(carried[in_key])
         sigma, scale = sde.batch_params(loc)
-        out = {sde.loc_key: loc, sde.feature_key: features, sde.sigma_key: sigma}
+        out = {loc_key: loc, feature_key: features, sigma_key: sigma}
         gaussian = None
         if scale is not None:
-            out[sde.gaussian_scale_key], gaussian = scale, carried[keys["gaussian_noise"]]
-        action, log_prob = sde_sample_and_log_prob(loc, sigma, features, carried[keys["noise"]], scale, gaussian)
-        out[policy.action_key], out[policy.log_prob_key] = action, log_prob
+            out[scale_key], gaussian = scale, carried[gaussian_key]
+        action, log_prob = sde_sample_and_log_prob(loc, sigma, features, carried[noise_key], scale, gaussian)
+        out[action_key], out[log_prob_key] = action, log_prob
         return out
 
     return act

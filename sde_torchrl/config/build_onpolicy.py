@@ -12,8 +12,9 @@ config:
   noise its features (gSDE's ``learn_features=False``); with ``explorer=gaussian``,
   :func:`~sde_torchrl.modules.gaussian.make_gaussian_actor` over an
   :class:`~sde_torchrl.modules.actors.MLPActor`; the critic an MLP of the same shape;
-- TorchRL's ``GAE`` and ``ClipPPOLoss`` (:mod:`sde_torchrl.trainers.ppo`) or ``A2CLoss``
-  (:mod:`sde_torchrl.trainers.a2c`), one optimiser over policy and critic;
+- TorchRL's ``GAE`` (as :class:`~sde_torchrl.objectives.gae.RolloutGAE` computes it) and
+  ``ClipPPOLoss`` (:mod:`sde_torchrl.trainers.ppo`) or ``A2CLoss`` (:mod:`sde_torchrl.trainers.a2c`),
+  one optimiser over policy and critic;
 - the collector keeping of each step what the loop, ``GAE`` and the loss read.
 """
 
@@ -27,7 +28,6 @@ from hydra.utils import instantiate
 from torch import nn
 from torchrl.envs import Compose, RewardSum, TransformedEnv
 from torchrl.modules import MLP, ValueOperator
-from torchrl.objectives.value import GAE
 
 from sde_torchrl.collectors.steps import StepCollector
 from sde_torchrl.config.schemas.algorithms import A2CConf
@@ -40,6 +40,7 @@ from sde_torchrl.modules.gaussian import make_gaussian_actor
 from sde_torchrl.modules.sde import SDEParams
 from sde_torchrl.modules.sde_actor import make_sde_actor
 from sde_torchrl.objectives.actor_critic import make_a2c_loss, make_ppo_loss
+from sde_torchrl.objectives.gae import RolloutGAE
 from sde_torchrl.trainers.a2c import A2CUpdate
 from sde_torchrl.trainers.onpolicy import OnPolicyTrainer
 from sde_torchrl.trainers.optim import make_optimizer
@@ -146,7 +147,7 @@ def build_onpolicy_trainer(conf: TrainConf, out_dir: str | None = None) -> OnPol
     else:
         loss = make_ppo_loss(policy, critic, clip_range=alg.clip_range, ent_coef=alg.ent_coef, vf_coef=alg.vf_coef,
                              normalize_advantage=alg.normalize_advantage)
-    advantage = GAE(gamma=alg.gamma, lmbda=alg.gae_lambda, value_network=critic, average_gae=False)
+    advantage = RolloutGAE(gamma=alg.gamma, lmbda=alg.gae_lambda, value_network=critic, average_gae=False)
     optimizer, lr_schedule = make_optimizer(loss.parameters(), conf.lr, asdict(conf.optimizer), conf.updates,
                                             fused=alg.compile)
     if a2c:

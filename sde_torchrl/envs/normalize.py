@@ -9,12 +9,15 @@ each env's running return are buffers: a checkpoint of the module's state resume
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs import Transform
 
 #: SB3 ``VecNormalize``'s ``clip_obs`` (= ``clip_reward``) and ``epsilon``.
 CLIP, EPS = 10.0, 1e-8
+#: A moment held as a tensor, a numpy array or a float.
+Moment = torch.Tensor | np.ndarray | float
 
 
 def running_update(
@@ -29,12 +32,30 @@ def running_update(
         >>> round(float(mean), 3), round(float(var), 3)
         (2.0, 1.0)
     """
-    batch = batch.reshape(-1, *mean.shape).to(mean.dtype)
-    b_mean, b_var, b_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
+    b_mean, b_var, b_count = _batch_moments(batch, mean)
+    return combine_moments(mean, var, count, b_mean, b_var, b_count)
+
+
+def combine_moments(mean: Moment, var: Moment, count: Moment, b_mean: Moment, b_var: Moment, b_count: int
+                    ) -> tuple[Moment, Moment, Moment]:
+    """Chan et al.'s combination of running moments ``(mean, var, count)`` with a batch's, as
+    SB3's ``RunningMeanStd.update_from_moments``: elementwise arithmetic only, the same on
+    tensors, numpy arrays and floats.
+
+    Examples:
+        >>> combine_moments(0.0, 1.0, 1.0, 2.0, 0.0, 1)
+        (1.0, 1.5, 2.0)
+    """
     delta, total = b_mean - mean, count + b_count
     new_mean = mean + delta * b_count / total
-    m2 = var * count + b_var * b_count + delta.square() * count * b_count / total
+    m2 = var * count + b_var * b_count + delta * delta * count * b_count / total
     return new_mean, m2 / total, total
+
+
+def _batch_moments(batch: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """A batch's mean, (biased) variance and size over its leading dimensions, in ``like``'s dtype."""
+    batch = batch.reshape(-1, *like.shape).to(like.dtype)
+    return batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
 
 
 class RunningNormalize(Transform):
@@ -83,13 +104,16 @@ class RunningNormalize(Transform):
 
     def normalize(self, obs: torch.Tensor) -> torch.Tensor:
         """``obs`` standardised with the current statistics and clipped (what a reset writes)."""
-        scaled = (obs.double() - self.obs_mean) / (self.obs_var + EPS).sqrt()
-        return scaled.clamp(-CLIP, CLIP).to(obs.dtype)
+        return torch.from_numpy(self._normalized(self._arrays(), obs.numpy()))
 
     def observe(self, obs: torch.Tensor, reward: torch.Tensor, done: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         """One step of every env: updates the statistics (unless frozen) and each env's running
         return, and gives the normalised observation and scaled reward (what a step writes).
+
+        The statistics live in CPU buffers, and the arithmetic runs on numpy views of them: the
+        batch moments are torch's, the rest elementwise IEEE arithmetic (the same numbers as on
+        tensors), at a fraction of the cost of some forty tensor calls on arrays this small.
 
         Examples:
             >>> norm = RunningNormalize(2, n_envs=3, gamma=0.99)
@@ -97,17 +121,34 @@ class RunningNormalize(Transform):
             >>> obs.shape, reward.shape, round(float(norm.obs_count))
             (torch.Size([3, 2]), torch.Size([3, 1]), 3)
         """
+        arrays = self._arrays()
         if self.update_stats:
-            self._update(self.obs_mean, self.obs_var, self.obs_count, obs)
-        normalized = self.normalize(obs)
+            _update_in_place(arrays, "obs", obs, self._buffers["obs_mean"])
+        normalized = torch.from_numpy(self._normalized(arrays, obs.numpy()))
         if not self.normalize_reward:
             return normalized, reward
-        self.returns.mul_(self.gamma).add_(reward.double())
+        returns, raw = arrays["returns"], reward.numpy().astype(np.float64)
+        returns *= self.gamma
+        returns += raw
         if self.update_stats:
-            self._update(self.ret_mean, self.ret_var, self.ret_count, self.returns)
-        scaled = (reward.double() / (self.ret_var + EPS).sqrt()).clamp(-CLIP, CLIP).to(reward.dtype)
-        self.returns.masked_fill_(done, 0.0)
-        return normalized, scaled
+            _update_in_place(arrays, "ret", self._buffers["returns"], self._buffers["ret_mean"])
+        scaled = _clip(raw / np.sqrt(arrays["ret_var"] + EPS)).astype(reward.numpy().dtype)
+        returns[done.numpy()] = 0.0
+        return normalized, torch.from_numpy(scaled)
+
+    @staticmethod
+    def _normalized(arrays: dict[str, np.ndarray], obs: np.ndarray) -> np.ndarray:
+        scaled = (obs.astype(np.float64) - arrays["obs_mean"]) / np.sqrt(arrays["obs_var"] + EPS)
+        return _clip(scaled).astype(obs.dtype)
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        """numpy views of the buffers, made again when a buffer's memory is not theirs (a buffer
+        replaced by ``.to()``, a copied module; ``load_state_dict`` copies into the same memory)."""
+        views = self.__dict__.get("_views")
+        if views is None or any(views[name][0] != tensor.data_ptr() for name, tensor in self._buffers.items()):
+            views = self.__dict__["_views"] = {name: (tensor.data_ptr(), tensor.numpy())
+                                               for name, tensor in self._buffers.items()}
+        return {name: array for name, (_, array) in views.items()}
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         tensordict_reset.set("observation", self.normalize(tensordict_reset.get("observation")))
@@ -120,12 +161,17 @@ class RunningNormalize(Transform):
         next_tensordict.set("reward", reward)
         return next_tensordict
 
-    @staticmethod
-    def _update(mean: torch.Tensor, var: torch.Tensor, count: torch.Tensor, batch: torch.Tensor) -> None:
-        """:func:`running_update` of the statistics' buffers in place (an assignment would go
-        through ``nn.Module.__setattr__`` on every step)."""
-        for buffer, value in zip((mean, var, count), running_update(mean, var, count, batch), strict=True):
-            buffer.copy_(value)
+
+def _update_in_place(arrays: dict[str, np.ndarray], prefix: str, batch: torch.Tensor, like: torch.Tensor) -> None:
+    """:func:`running_update` of the ``prefix`` statistics by ``batch``, written into their views."""
+    b_mean, b_var, b_count = _batch_moments(batch, like)
+    mean, var, count = (arrays[f"{prefix}_{name}"] for name in ("mean", "var", "count"))
+    mean[...], var[...], count[...] = combine_moments(mean, var, float(count), b_mean.numpy(), b_var.numpy(), b_count)
 
 
-__all__ = ["RunningNormalize", "running_update"]
+def _clip(values: np.ndarray) -> np.ndarray:
+    """``values`` clipped to ``[-CLIP, CLIP]`` (``torch.clamp``'s result, NaN kept)."""
+    return np.minimum(np.maximum(values, -CLIP), CLIP)
+
+
+__all__ = ["RunningNormalize", "combine_moments", "running_update"]

@@ -176,14 +176,17 @@ class GymVectorEnv(EnvBase):
         n = len(self.envs)
         reward = np.zeros((n, 1), dtype=np.float32)
         terminated, truncated = np.zeros((n, 1), dtype=bool), np.zeros((n, 1), dtype=bool)
-        for i in range(n) if active is None else active:
+        stepped = range(n) if active is None else active
+        for i in stepped:
             obs, reward[i], terminated[i], truncated[i], _ = self.envs[i].step(actions[i])
             self._actions[i].append(actions[i])
-            check_env_output(self.env_id, f"step {len(self._actions[i])} of env {i}'s episode (seed {self._seeds[i]})",
-                             obs, reward[i], actions[i])
             self._last_obs[i] = self._observe(i, obs)
             if self.episode_length is not None and len(self._actions[i]) >= self.episode_length:
                 truncated[i] = True
+        if not (np.isfinite(self._last_obs).all() and np.isfinite(reward).all()):  # one test per step; names the env
+            for i in stepped:
+                check_env_output(self.env_id, f"step {len(self._actions[i])} of env {i}'s episode "
+                                 f"(seed {self._seeds[i]})", self._last_obs[i], reward[i], actions[i])
         return self._last_obs.copy(), reward, terminated, truncated
 
     def replay_state(self) -> dict[str, Any]:

@@ -124,9 +124,10 @@ class MLP(nn.Module):
 
     def hidden_and_output(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The last hidden layer's activations (``x`` itself without hidden layers) and the output."""
-        for layer in self.layers[:-1]:
+        *hidden, output = self.layers  # unpacked, not sliced: a slice builds a new ModuleList per call
+        for layer in hidden:
             x = self.activation(layer(x))
-        return x, self.layers[-1](x)
+        return x, output(x)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.hidden_and_output(x)[1]

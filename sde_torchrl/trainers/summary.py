@@ -111,16 +111,16 @@ def exploration_state(policy: nn.Module, runs: int) -> torch.Tensor:
                 [0.1353, 0.1353],
                 [0.5000, 0.5000]])
     """
-    explorer = next((m for m in policy.modules() if hasattr(m, "exploration_scale")), None)
+    explorer = next((m for m in policy.modules() if hasattr(type(m), "exploration_scale")), None)
     own = {id(p) for p in explorer.parameters()} if explorer is not None else set()
-    weights = [p.detach().reshape(runs, -1).abs() for p in policy.parameters() if id(p) not in own]
+    weights = [p.detach().reshape(runs, -1) for p in policy.parameters() if id(p) not in own]
     device = next(policy.parameters()).device
     nan = torch.full((runs,), float("nan"), device=device)
     scale = explorer.exploration_scale().reshape(runs, -1) if explorer is not None else None
     return torch.stack([
         scale.min(-1).values if scale is not None else nan,
         scale.max(-1).values if scale is not None else nan,
-        torch.cat(weights, -1).max(-1).values if weights else nan,
+        torch.cat(weights, -1).abs().max(-1).values if weights else nan,
     ]).float()
 
 
