@@ -53,7 +53,8 @@ OURS = (
     ("sde_torchrl.trainers.offpolicy", "SACTrainer._collect_round", "collection"),  # and the replay buffer's extend
     ("sde_torchrl.envs.normalize", "RunningNormalize.observe", "normalisation"),
     ("sde_torchrl.envs.normalize", "RunningNormalize.normalize", "normalisation"),
-    ("torchrl.objectives.value", "GAE.forward", "advantage (GAE)"),  # with the critic's values of the rollout
+    ("sde_torchrl.objectives.gae", "RolloutGAE.forward", "advantage (GAE)"),  # with the critic's values
+    ("torchrl.objectives.value", "GAE.forward", "advantage (GAE)"),  # (TorchRL's, where RolloutGAE hands over)
     ("sde_torchrl.trainers.ppo", "PPOUpdate.__call__", "update"),
     ("sde_torchrl.trainers.a2c", "A2CUpdate.__call__", "update"),
     ("sde_torchrl.trainers.sac", "SACUpdate.__call__", "update"),
