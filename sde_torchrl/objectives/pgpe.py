@@ -344,7 +344,9 @@ class PGPEEstimator(GradientEstimator):
             >>> kept = estimator.collected_scores(episodes)
             >>> kept.batch_size, kept["sigma"].shape
             (torch.Size([8]), torch.Size([8, 1]))
-            >>> bool(torch.allclose(estimator(episodes, scores=kept)["gradient"], estimator(episodes)["gradient"]))
+            >>> from_kept = estimator(episodes, scores=kept)["gradient"]
+            >>> from_parameters = estimator(episodes)["gradient"]  # θ − μ again: rounded where |μ| ≫ |ε|
+            >>> bool((from_kept - from_parameters).norm() <= 1e-4 * from_parameters.norm())
             True
         """
         if self.explorer.symmetric:
