@@ -71,6 +71,38 @@ def test_every_entry_of_every_rollout_and_the_carried_state_are_the_reference_pa
         _assert_same(ref_carried, carried, f"carried after rollout {k}")
 
 
+#: SAC's squashed SDE policy on Pendulum-v1, episodes shorter than a round.
+SAC_PENDULUM = ("algorithm=sac", "env=gym", "env.episode_length=5", "algorithm.train_freq=7",
+                "algorithm.learning_starts=0", "explorer.init_param=0.5", "actor.hidden=[8]", "updates=4",
+                "eval_episodes=2", "logger=none")
+
+
+@pytest.mark.parametrize("overrides", [
+    (),
+    ("explorer.schedule=step", "explorer.gaussian_init_param=-1"),
+    ("explorer.schedule=episode",),
+], ids=["sb3-rounds", "rex-gaussian-part", "episode"])
+def test_the_squashed_policys_rollouts_are_the_reference_paths(overrides):
+    reference, fast = _rollouts((*SAC_PENDULUM, *overrides), keep_all=True)
+    assert "action_sample" in reference[0][0].keys()
+    assert int(sum(r["next", "done"].sum() for r, _ in reference)) >= 4  # resets inside the rounds
+    assert bool((reference[-1][0]["action"].abs() > 1.5).any())  # tanh far from its linear part (bounds ±2)
+    for k, ((ref_rollout, ref_carried), (rollout, carried)) in enumerate(zip(reference, fast, strict=True)):
+        _assert_same(ref_rollout, rollout, f"rollout {k}")
+        _assert_same(ref_carried, carried, f"carried after rollout {k}")
+
+
+def test_the_squashed_sde_policy_steps_on_tensors_without_calling_its_forward():
+    trainer = _build(*SAC_PENDULUM)
+    calls = []
+    trainer.collector.policy.register_forward_hook(lambda *_: calls.append(1))
+    trainer.collector.rollout()
+    assert calls == []
+    trainer.collector.fast = trainer.collector.fused = None  # the reference path does call it
+    trainer.collector.rollout()
+    assert len(calls) == 7
+
+
 def test_a_pybullet_job_trains_and_evaluates_to_the_same_numbers():
     """Hopper: the time feature, running normalisation and SB3's rollout-long noise, episodes
     that end inside rollouts; updates, evaluations and parameters all equal."""

@@ -8,8 +8,8 @@ TorchRL's per-step tensordict machinery, for the envs and policies whose parts i
 make). Each step calls the same parts the reference path calls through TorchRL, on tensors: the
 gymnasium envs (:meth:`~sde_torchrl.envs.vector.GymVectorEnv.step_arrays`, ``reset_arrays``),
 the episode sum, the normaliser (``observe``, ``normalize``), the noise schedule (``step_noise``,
-``reset_noise``) and the policy, which an unsquashed :class:`~sde_torchrl.modules.sde_actor.SDEActor`
-over a :class:`~sde_torchrl.modules.actors.LatentMLPActor` computes on tensors
+``reset_noise``) and the policy, which an :class:`~sde_torchrl.modules.sde_actor.SDEActor`
+(squashed or not) over a :class:`~sde_torchrl.modules.actors.LatentMLPActor` computes on tensors
 (:func:`tensor_policy`) and any other policy on a small tensordict. The rollout and the carried
 state are assembled once per rollout, with the same keys and numbers as the reference path.
 """
@@ -21,13 +21,14 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictSequential
 from tensordict.utils import NestedKey, expand_as_right
 from torchrl.envs import Compose, EnvBase, RewardSum, TransformedEnv
 
 from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.envs.vector import GymVectorEnv
 from sde_torchrl.modules.actors import LatentMLPActor
-from sde_torchrl.modules.distribution import sde_sample_and_log_prob
+from sde_torchrl.modules.distribution import sde_sample_and_log_prob, tanh_bounds, tanh_sde_sample_and_log_prob
 from sde_torchrl.modules.noise import SDENoisePrimer
 from sde_torchrl.modules.sde_actor import SDEActor
 
@@ -72,10 +73,10 @@ def fused_env(env: EnvBase) -> FusedEnv | None:
 
 
 def tensor_policy(policy: object) -> TensorPolicy:
-    """``policy`` as a function of the carried entries: on tensors for an unsquashed
+    """``policy`` as a function of the carried entries: on tensors for an
     :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
-    :class:`~sde_torchrl.modules.actors.LatentMLPActor` (the numbers its ``forward`` writes),
-    else the policy called on a tensordict of them."""
+    :class:`~sde_torchrl.modules.actors.LatentMLPActor`, squashed or not (the numbers its
+    ``forward`` writes), else the policy called on a tensordict of them."""
     actor = _latent_actor(policy)
     return _tensordict_policy(policy) if actor is None else _sde_policy(policy, actor)
 
@@ -86,17 +87,19 @@ def deterministic_policy(policy: object) -> TensorPolicy:
     :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
     :class:`~sde_torchrl.modules.actors.LatentMLPActor`, else the policy's on a tensordict."""
     actor = _latent_actor(policy)
-    if actor is None:
+    if actor is None or policy.squash:
         return _tensordict_policy(policy)
     return lambda carried: {policy.action_key: actor.loc_and_features(carried[actor.in_keys[0]])[0]}
 
 
 def _latent_actor(policy: object) -> LatentMLPActor | None:
-    """The actor of an unsquashed SDE policy over one :class:`LatentMLPActor` (what the tensor
-    path computes itself), else ``None``."""
-    if not isinstance(policy, SDEActor) or policy.squash or len(policy.actor_modules) != 1:
+    """The actor of an SDE policy over one :class:`LatentMLPActor`, alone or alone in a
+    ``TensorDictSequential`` (what the tensor path computes itself), else ``None``."""
+    if not isinstance(policy, SDEActor) or len(policy.actor_modules) != 1:
         return None
     (actor,), sde = policy.actor_modules, policy.sde
+    if type(actor) is TensorDictSequential and len(actor.module) == 1:
+        (actor,) = actor.module
     fits = isinstance(actor, LatentMLPActor) and list(actor.out_keys) == [sde.loc_key, sde.feature_key]
     return actor if fits else None
 
@@ -109,11 +112,16 @@ def _tensordict_policy(policy: object) -> TensorPolicy:
 
 
 def _sde_policy(policy: SDEActor, actor: LatentMLPActor) -> TensorPolicy:
+    """The policy's exploring step on tensors: the action and its log-density
+    (:func:`~sde_torchrl.modules.distribution.sde_sample_and_log_prob`) or, squashed, also the
+    pre-squash sample (:func:`~sde_torchrl.modules.distribution.tanh_sde_sample_and_log_prob`)."""
     sde = policy.sde
     keys = sde.dist_keys
     in_key, noise_key, gaussian_key = actor.in_keys[0], keys["noise"], keys.get("gaussian_noise")
     loc_key, feature_key, sigma_key, scale_key = sde.loc_key, sde.feature_key, sde.sigma_key, sde.gaussian_scale_key
-    action_key, log_prob_key = policy.action_key, policy.log_prob_key
+    action_key, log_prob_key, sample_key = policy.action_key, policy.log_prob_key, policy.sample_key
+    low_high = policy.bounds
+    mid_half: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, torch.Tensor]] = {}
 
     def act(carried: dict[NestedKey, torch.Tensor]) -> dict[NestedKey, torch.Tensor]:
         loc, features = actor.loc_and_features(carried[in_key])
@@ -122,7 +130,14 @@ def _sde_policy(policy: SDEActor, actor: LatentMLPActor) -> TensorPolicy:
         gaussian = None
         if scale is not None:
             out[scale_key], gaussian = scale, carried[gaussian_key]
-        action, log_prob = sde_sample_and_log_prob(loc, sigma, features, carried[noise_key], scale, gaussian)
+        if low_high is None:
+            action, log_prob = sde_sample_and_log_prob(loc, sigma, features, carried[noise_key], scale, gaussian)
+        else:
+            like = (loc.dtype, loc.device)
+            if like not in mid_half:  # the bounds in the policy's dtype, as its distribution casts them
+                mid_half[like] = tanh_bounds(*(bound.to(loc.device) for bound in low_high), loc.dtype)
+            out[sample_key], action, log_prob = tanh_sde_sample_and_log_prob(
+                loc, sigma, features, carried[noise_key], mid_half[like], scale, gaussian)
         out[action_key], out[log_prob_key] = action, log_prob
         return out
 

@@ -25,7 +25,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs import Compose, EnvBase, InitTracker, StepCounter, TensorDictPrimer, TransformedEnv
 
 from sde_torchrl.modules.actors import BatchedLinear
-from sde_torchrl.modules.distribution import TanhSDENormal, noise_matrix, sde_sample
+from sde_torchrl.modules.distribution import TanhSDENormal, noise_matrix, sde_sample, squash, tanh_bounds
 from sde_torchrl.modules.distribution import explore as explore_with
 from sde_torchrl.modules.noise import SDENoisePrimer, deterministic_exploration
 from sde_torchrl.modules.pgpe import ParameterExplorer
@@ -213,7 +213,7 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
     noise, gaussian, age = primer.start(batch, x.device) if explore and all_noise is None else (None, None, None)
     sigma = align(sde.sde_sigma, sde.run_dims, len(batch))
     gaussian_scale = sde.gaussian_scale(len(batch))
-    mid, half = _mid_half(*_bounds(policy, x.device))  # once, not per step
+    mid, half = tanh_bounds(*_bounds(policy, x.device)) if policy.squash else (None, None)  # once, not per step
     observations, locs, samples, noises, gaussians, next_observations, rewards = [], [], [], [], [], [], []
     for t in range(steps):
         loc = actor.module(x)
@@ -225,7 +225,7 @@ def tensor_rollout(env: TensorStepEnv, policy: SDEActor, steps: int, primer: SDE
             sample = explore_with(loc, exploration[t], x.to(loc.dtype))
         else:
             sample = sde_sample(loc, sigma, noise, x.to(loc.dtype), gaussian_scale, gaussian) if explore else loc
-        x_next, reward = env.transition(x, mid + half * torch.tanh(sample) if policy.squash else sample)
+        x_next, reward = env.transition(x, squash(sample, mid, half) if policy.squash else sample)
         for column, value in ((observations, x), (locs, loc), (samples, sample), (noises, noise),
                               (gaussians, gaussian), (next_observations, x_next), (rewards, reward)):
             column.append(value)
@@ -474,15 +474,8 @@ def _flatten(transforms: list) -> list:
 
 def _bounds(policy: SDEActor, device: torch.device | str | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The squashed policy's ``(low, high)``, on ``device`` if given (the data's)."""
-    kwargs = policy.module[-1].distribution_kwargs
-    low, high = kwargs.get("low", torch.tensor(-1.0)), kwargs.get("high", torch.tensor(1.0))
+    low, high = policy.bounds
     return (low, high) if device is None else (low.to(device), high.to(device))
-
-
-def _mid_half(low: torch.Tensor, high: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(mid, half)`` of the bounds: the squash is ``mid + half · tanh(u)``, as
-    :class:`~sde_torchrl.modules.distribution.TanhSDENormal` squashes."""
-    return (high + low) / 2, (high - low) / 2
 
 
 def _episodes(

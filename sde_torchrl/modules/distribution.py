@@ -158,14 +158,108 @@ def sde_sample_and_log_prob(
         >>> torch.equal(sample, dist.rsample()), torch.equal(log_prob, dist.log_prob(sample))
         (True, True)
     """
+    sample, scale = _sample_and_scale(loc, sigma_hat, features, noise, gaussian_scale, gaussian_noise)
+    return sample, gaussian_log_prob(sample, loc, scale)
+
+
+def tanh_sde_sample_and_log_prob(
+    loc: torch.Tensor,
+    sigma_hat: torch.Tensor,
+    features: torch.Tensor,
+    noise: torch.Tensor,
+    bounds: tuple[torch.Tensor, torch.Tensor],
+    gaussian_scale: torch.Tensor | None = None,
+    gaussian_noise: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One exploring step of the squashed policy without building a distribution: the pre-squash
+    sample ``u`` (eqs. 17-19, 22), the action ``a = mid + half · tanh(u)`` and ``log p(a)``
+    through the clamped inverse of the squash (eq. 20 and the change of variables): the numbers
+    :class:`TanhSDENormal`'s ``SDENormal.rsample``, ``squash`` and ``log_prob`` give, bit for bit.
+
+    Args:
+        loc, sigma_hat, features, noise, gaussian_scale, gaussian_noise: as
+            :func:`sde_sample_and_log_prob` takes them.
+        bounds: ``(mid, half)`` of the action bounds (:func:`tanh_bounds`), in ``loc``'s dtype.
+
+    Returns:
+        ``(u, a, log p(a))``, shapes ``[*, A]``, ``[*, A]`` and ``[*]``.
+
+    Examples:
+        >>> loc, x, sigma, xi = torch.zeros(4, 2), torch.ones(4, 3), torch.full((2, 3), 0.4), torch.randn(4, 2, 3)
+        >>> u, a, log_prob = tanh_sde_sample_and_log_prob(loc, sigma, x, xi, tanh_bounds(-2.0, 2.0, loc.dtype))
+        >>> dist = TanhSDENormal(loc, sigma, x, noise=xi, low=-2.0, high=2.0)
+        >>> [torch.equal(*pair) for pair in ((u, SDENormal.rsample(dist)), (a, dist.squash(u)),
+        ...                                   (log_prob, dist.log_prob(a)))]
+        [True, True, True]
+    """
+    mid, half = bounds
+    sample, scale = _sample_and_scale(loc, sigma_hat, features, noise, gaussian_scale, gaussian_noise)
+    action = squash(sample, mid, half)
+    pre_squash = unsquash(action, mid, half)
+    return sample, action, gaussian_log_prob(pre_squash, loc, scale) - tanh_log_det(pre_squash, half)
+
+
+def _sample_and_scale(
+    loc: torch.Tensor, sigma_hat: torch.Tensor, features: torch.Tensor, noise: torch.Tensor,
+    gaussian_scale: torch.Tensor | None, gaussian_noise: torch.Tensor | None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The SDE sample with the carried noise and the per-action standard deviation (eq. 20), as
+    :class:`SDENormal` computes them."""
     features = features.to(loc.dtype)
     action_dim, feature_dim = loc.shape[-1], features.shape[-1]
     _check_matrix("sigma_hat", sigma_hat, action_dim, feature_dim)
     _check_matrix("noise", noise, action_dim, feature_dim)
     sigma_hat, noise = sigma_hat.to(loc.dtype), noise.to(loc.dtype)
     scale = sde_variance(sigma_hat, features, gaussian_scale).sqrt()
-    sample = sde_sample(loc, sigma_hat, noise, features, gaussian_scale, gaussian_noise)
-    return sample, gaussian_log_prob(sample, loc, scale)
+    return sde_sample(loc, sigma_hat, noise, features, gaussian_scale, gaussian_noise), scale
+
+
+def tanh_bounds(low: torch.Tensor | float, high: torch.Tensor | float,
+                dtype: torch.dtype | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(mid, half) = ((high + low) / 2, (high - low) / 2)``: the squash ``mid + half · tanh(u)``
+    maps the real line onto ``(low, high)``.
+
+    Examples:
+        >>> tanh_bounds(-1.0, 3.0)
+        (tensor(1.), tensor(2.))
+    """
+    low, high = torch.as_tensor(low, dtype=dtype), torch.as_tensor(high, dtype=dtype)
+    return (high + low) / 2, (high - low) / 2
+
+
+def squash(pre_squash: torch.Tensor, mid: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """``mid + half · tanh(u)``.
+
+    Examples:
+        >>> squash(torch.tensor([0.0, 100.0]), *tanh_bounds(-1.0, 3.0))
+        tensor([1., 3.])
+    """
+    return mid + half * torch.tanh(pre_squash)
+
+
+def unsquash(action: torch.Tensor, mid: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """``atanh((a - mid) / half)``, the inverse of :func:`squash`, clamped to
+    ``|tanh u| <= 1 - eps(dtype)`` (``|u| <= 8.3`` in float32).
+
+    Examples:
+        >>> unsquash(torch.tensor([1.0, 3.0]), *tanh_bounds(-1.0, 3.0))
+        tensor([0.0000, 8.3178])
+    """
+    unit = (action - mid) / half
+    max_abs_tanh = 1.0 - torch.finfo(unit.dtype).eps
+    return torch.atanh(unit.clamp(-max_abs_tanh, max_abs_tanh))
+
+
+def tanh_log_det(pre_squash: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """``Σ_j log |da_j / du_j| = Σ_j log(half_j (1 - tanh² u_j))``, in the stable form
+    ``log(1 - tanh² u) = 2 (log 2 - u - softplus(-2u))``.
+
+    Examples:
+        >>> tanh_log_det(torch.zeros(2), torch.ones(2))  # the squash's slope at 0 is 1
+        tensor(0.)
+    """
+    log_one_minus_tanh_sq = 2 * (_LOG_2 - pre_squash - F.softplus(-2 * pre_squash))
+    return (half.log() + log_one_minus_tanh_sq).sum(-1)
 
 
 def sde_variance(
@@ -419,25 +513,18 @@ class TanhSDENormal(SDENormal):
             raise ValueError(f"TanhSDENormal needs high > low everywhere, got low={low}, high={high}")
         low, high = low.to(loc.device), high.to(loc.device)
         self.low, self.high = low, high
-        self._mid, self._half = (high + low) / 2, (high - low) / 2
-        self._max_abs_tanh = 1.0 - torch.finfo(loc.dtype).eps
+        self._mid, self._half = tanh_bounds(low, high)
 
     def squash(self, pre_squash: torch.Tensor) -> torch.Tensor:
-        """``mid + half · tanh(u)``."""
-        return self._mid + self._half * torch.tanh(pre_squash)
+        """``mid + half · tanh(u)`` (:func:`squash`)."""
+        return squash(pre_squash, self._mid, self._half)
 
     def unsquash(self, action: torch.Tensor) -> torch.Tensor:
-        """``atanh((a - mid) / half)``, clamped to ``|tanh u| <= 1 - eps``."""
-        unit = ((action - self._mid) / self._half).clamp(-self._max_abs_tanh, self._max_abs_tanh)
-        return torch.atanh(unit)
-
-    def _log_det(self, pre_squash: torch.Tensor) -> torch.Tensor:
-        """``Σ_j log |da_j / du_j| = Σ_j log(half_j (1 - tanh² u_j))``."""
-        log_one_minus_tanh_sq = 2 * (_LOG_2 - pre_squash - F.softplus(-2 * pre_squash))
-        return (self._half.log() + log_one_minus_tanh_sq).sum(-1)
+        """``atanh((a - mid) / half)``, clamped to ``|tanh u| <= 1 - eps`` (:func:`unsquash`)."""
+        return unsquash(action, self._mid, self._half)
 
     def _pre_squash_log_prob(self, pre_squash: torch.Tensor) -> torch.Tensor:
-        return super().log_prob(pre_squash) - self._log_det(pre_squash)
+        return super().log_prob(pre_squash) - tanh_log_det(pre_squash, self._half)
 
     @property
     def mean(self) -> torch.Tensor:

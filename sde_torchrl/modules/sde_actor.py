@@ -88,6 +88,12 @@ class SDEActor(ProbabilisticActor):
             self.out_keys = [*self.out_keys, sample_key]
 
     @property
+    def bounds(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(low, high)`` of the squash, ``None`` unsquashed."""
+        kwargs = self.module[-1].distribution_kwargs
+        return (kwargs["low"], kwargs["high"]) if self.squash else None
+
+    @property
     def log_prob_key(self) -> NestedKey:
         """Where the log-probability of the action is written."""
         return self.module[-1].log_prob_key
