@@ -21,15 +21,18 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from tensordict.utils import NestedKey, expand_as_right
 from torchrl.envs import Compose, EnvBase, RewardSum, TransformedEnv
+from torchrl.modules import ProbabilisticActor, TanhNormal
+from torchrl.modules.distributions.utils import sample_and_log_prob
 
 from sde_torchrl.envs.normalize import RunningNormalize
 from sde_torchrl.envs.vector import GymVectorEnv
 from sde_torchrl.modules.actors import LatentMLPActor
 from sde_torchrl.modules.distribution import sde_sample_and_log_prob, tanh_bounds, tanh_sde_sample_and_log_prob
 from sde_torchrl.modules.noise import SDENoisePrimer
+from sde_torchrl.modules.sac_actor import GaussianHeads
 from sde_torchrl.modules.sde_actor import SDEActor
 
 #: A policy on tensors: the carried entries in, the entries it writes out.
@@ -75,10 +78,13 @@ def fused_env(env: EnvBase) -> FusedEnv | None:
 def tensor_policy(policy: object) -> TensorPolicy:
     """``policy`` as a function of the carried entries: on tensors for an
     :class:`~sde_torchrl.modules.sde_actor.SDEActor` over one
-    :class:`~sde_torchrl.modules.actors.LatentMLPActor`, squashed or not (the numbers its
-    ``forward`` writes), else the policy called on a tensordict of them."""
+    :class:`~sde_torchrl.modules.actors.LatentMLPActor`, squashed or not, and for SAC's
+    tanh-squashed Gaussian over :class:`~sde_torchrl.modules.sac_actor.GaussianHeads` (the
+    numbers their ``forward`` writes), else the policy called on a tensordict of them."""
     actor = _latent_actor(policy)
-    return _tensordict_policy(policy) if actor is None else _sde_policy(policy, actor)
+    if actor is not None:
+        return _sde_policy(policy, actor)
+    return _tanh_normal_policy(policy) if _is_tanh_normal_heads(policy) else _tensordict_policy(policy)
 
 
 def deterministic_policy(policy: object) -> TensorPolicy:
@@ -140,6 +146,37 @@ def _sde_policy(policy: SDEActor, actor: LatentMLPActor) -> TensorPolicy:
                 loc, sigma, features, carried[noise_key], mid_half[like], scale, gaussian)
         out[action_key], out[log_prob_key] = action, log_prob
         return out
+
+    return act
+
+
+def _is_tanh_normal_heads(policy: object) -> bool:
+    """Whether ``policy`` is SAC's Gaussian as :func:`~sde_torchrl.modules.sac_actor.make_sac_networks`
+    builds it: ``GaussianHeads`` writing the ``TanhNormal``'s ``loc`` and ``scale``, sampled
+    once per step from torch's global generator."""
+    if type(policy) is not ProbabilisticActor or len(policy.module) != 2:
+        return False
+    heads, sampler = policy.module
+    return (type(heads) is TensorDictModule and isinstance(heads.module, GaussianHeads)
+            and sampler.distribution_class is TanhNormal and tuple(sampler.dist_keys) == ("loc", "scale")
+            and list(sampler.in_keys) == list(heads.out_keys) and len(sampler.dist_sample_keys) == 1
+            and sampler.return_log_prob and sampler.num_samples is None
+            and getattr(sampler, "_generator", None) is None and getattr(sampler, "_generator_key", None) is None)
+
+
+def _tanh_normal_policy(policy: ProbabilisticActor) -> TensorPolicy:
+    """SAC's Gaussian step on tensors: the heads' ``loc`` and ``scale``, then one reparameterised
+    draw of the ``TanhNormal`` scored with it (TorchRL's ``sample_and_log_prob``), as the actor's
+    ``forward`` calls them."""
+    heads, sampler = policy.module
+    in_key, (loc_key, scale_key) = heads.in_keys[0], heads.out_keys
+    action_key, log_prob_key, bounds = sampler.dist_sample_keys[0], sampler.log_prob_key, sampler.distribution_kwargs
+
+    def act(carried: dict[NestedKey, torch.Tensor]) -> dict[NestedKey, torch.Tensor]:
+        loc, scale = heads.module(carried[in_key])
+        dist = TanhNormal(loc=loc, scale=scale, **bounds)
+        action, log_prob = sample_and_log_prob(dist, torch.Size(), reparameterize=dist.has_rsample)
+        return {loc_key: loc, scale_key: scale, action_key: action, log_prob_key: log_prob}
 
     return act
 
