@@ -9,8 +9,9 @@ make). Each step calls the same parts the reference path calls through TorchRL, 
 gymnasium envs (:meth:`~sde_torchrl.envs.vector.GymVectorEnv.step_arrays`, ``reset_arrays``),
 the episode sum, the normaliser (``observe``, ``normalize``), the noise schedule (``step_noise``,
 ``reset_noise``) and the policy, which an :class:`~sde_torchrl.modules.sde_actor.SDEActor`
-(squashed or not) over a :class:`~sde_torchrl.modules.actors.LatentMLPActor` computes on tensors
-(:func:`tensor_policy`) and any other policy on a small tensordict. The rollout and the carried
+(squashed or not) over a :class:`~sde_torchrl.modules.actors.LatentMLPActor` and SAC's
+tanh-squashed Gaussian compute on tensors (:func:`tensor_policy`), any other policy on a small
+tensordict. The rollout and the carried
 state are assembled once per rollout, with the same keys and numbers as the reference path.
 """
 
@@ -160,7 +161,7 @@ def _is_tanh_normal_heads(policy: object) -> bool:
     return (type(heads) is TensorDictModule and isinstance(heads.module, GaussianHeads)
             and sampler.distribution_class is TanhNormal and tuple(sampler.dist_keys) == ("loc", "scale")
             and list(sampler.in_keys) == list(heads.out_keys) and len(sampler.dist_sample_keys) == 1
-            and sampler.return_log_prob and sampler.num_samples is None
+            and sampler.return_log_prob and sampler.num_samples is None and not getattr(sampler, "safe", False)
             and getattr(sampler, "_generator", None) is None and getattr(sampler, "_generator_key", None) is None)
 
 
